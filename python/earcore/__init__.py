@@ -1,0 +1,38 @@
+"""earcore: an environment-aware robot arm toolkit.
+
+The map core is :class:`OcTree`, an occupancy octree with OctoMap's semantics and
+file formats plus a per-voxel danger value that decays as in Paper II (Eq. 1).
+Heavy numeric work runs in Rust (``earcore._earcore``) without holding the GIL.
+"""
+
+from __future__ import annotations
+
+try:
+    from earcore._earcore import (
+        EarcoreError,
+        FrameReport,
+        InsertReport,
+        MapFormatError,
+        OcTree,
+        OutOfMapError,
+        __version__,
+        get_num_threads,
+        set_num_threads,
+    )
+except ImportError as exc:  # pragma: no cover - exercised by `earcore --version` on a broken install
+    raise ImportError(
+        "earcore's compiled extension (earcore._earcore) failed to load: "
+        f"{exc}. Reinstall the wheel (`pip install --force-reinstall earcore`) or rebuild with `make develop`."
+    ) from exc
+
+__all__ = [
+    "EarcoreError",
+    "FrameReport",
+    "InsertReport",
+    "MapFormatError",
+    "OcTree",
+    "OutOfMapError",
+    "__version__",
+    "get_num_threads",
+    "set_num_threads",
+]

@@ -1,0 +1,175 @@
+//! Node storage for octrees: one arena of nodes and one of child blocks.
+//!
+//! A node is 8 bytes (payload + index of its child block); an inner node owns one
+//! block of eight `u32` child indices (32 bytes). No allocation per node: nodes and
+//! blocks live in two `Vec`s, and freed slots go to free lists that later
+//! insertions reuse. Compare OctoMap: 16 bytes per node plus 64 per inner node.
+
+/// Marks "no node" / "no child block".
+pub const NONE: u32 = u32::MAX;
+
+#[derive(Clone, Copy, Debug)]
+pub struct Node<T> {
+    pub value: T,
+    /// Index into the block arena, or `NONE` for a leaf.
+    children: u32,
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct NodeArena<T> {
+    nodes: Vec<Node<T>>,
+    blocks: Vec<[u32; 8]>,
+    free_nodes: Vec<u32>,
+    free_blocks: Vec<u32>,
+}
+
+impl<T: Copy> NodeArena<T> {
+    pub fn new() -> Self {
+        NodeArena { nodes: Vec::new(), blocks: Vec::new(), free_nodes: Vec::new(), free_blocks: Vec::new() }
+    }
+
+    /// Number of live nodes.
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.nodes.len() - self.free_nodes.len()
+    }
+
+    pub fn clear(&mut self) {
+        self.nodes.clear();
+        self.blocks.clear();
+        self.free_nodes.clear();
+        self.free_blocks.clear();
+    }
+
+    /// Bytes held by the arena, spare capacity included.
+    pub fn memory_usage(&self) -> usize {
+        self.nodes.capacity() * std::mem::size_of::<Node<T>>()
+            + self.blocks.capacity() * std::mem::size_of::<[u32; 8]>()
+            + (self.free_nodes.capacity() + self.free_blocks.capacity()) * 4
+    }
+
+    #[inline]
+    pub fn alloc(&mut self, value: T) -> u32 {
+        let node = Node { value, children: NONE };
+        match self.free_nodes.pop() {
+            Some(i) => {
+                self.nodes[i as usize] = node;
+                i
+            }
+            None => {
+                self.nodes.push(node);
+                (self.nodes.len() - 1) as u32
+            }
+        }
+    }
+
+    #[inline]
+    pub fn value(&self, n: u32) -> T {
+        self.nodes[n as usize].value
+    }
+
+    #[inline]
+    pub fn set_value(&mut self, n: u32, value: T) {
+        self.nodes[n as usize].value = value;
+    }
+
+    #[inline]
+    pub fn has_children(&self, n: u32) -> bool {
+        self.nodes[n as usize].children != NONE
+    }
+
+    /// Child `pos` (0..8) of `n`, if it exists.
+    #[inline]
+    pub fn child(&self, n: u32, pos: usize) -> Option<u32> {
+        let b = self.nodes[n as usize].children;
+        if b == NONE {
+            return None;
+        }
+        let c = self.blocks[b as usize][pos];
+        (c != NONE).then_some(c)
+    }
+
+    /// All eight child slots of `n` (`NONE` where absent); all `NONE` for a leaf.
+    #[inline]
+    pub fn children(&self, n: u32) -> [u32; 8] {
+        let b = self.nodes[n as usize].children;
+        if b == NONE {
+            [NONE; 8]
+        } else {
+            self.blocks[b as usize]
+        }
+    }
+
+    /// Create child `pos` of `n` holding `value`; the slot must be empty.
+    pub fn create_child(&mut self, n: u32, pos: usize, value: T) -> u32 {
+        let child = self.alloc(value);
+        let mut b = self.nodes[n as usize].children;
+        if b == NONE {
+            b = match self.free_blocks.pop() {
+                Some(i) => {
+                    self.blocks[i as usize] = [NONE; 8];
+                    i
+                }
+                None => {
+                    self.blocks.push([NONE; 8]);
+                    (self.blocks.len() - 1) as u32
+                }
+            };
+            self.nodes[n as usize].children = b;
+        }
+        debug_assert_eq!(self.blocks[b as usize][pos], NONE);
+        self.blocks[b as usize][pos] = child;
+        child
+    }
+
+    /// Give `n` eight children holding its own value (OctoMap's `expandNode`).
+    pub fn expand(&mut self, n: u32) {
+        debug_assert!(!self.has_children(n));
+        let v = self.value(n);
+        for pos in 0..8 {
+            self.create_child(n, pos, v);
+        }
+    }
+
+    /// Free every node below `n` and make `n` a leaf.
+    pub fn delete_children(&mut self, n: u32) {
+        let b = self.nodes[n as usize].children;
+        if b == NONE {
+            return;
+        }
+        let block = self.blocks[b as usize];
+        for c in block {
+            if c != NONE {
+                self.delete_children(c);
+                self.free_nodes.push(c);
+            }
+        }
+        self.nodes[n as usize].children = NONE;
+        self.free_blocks.push(b);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn freed_slots_are_reused() {
+        let mut a: NodeArena<f32> = NodeArena::new();
+        let root = a.alloc(0.0);
+        a.expand(root);
+        assert_eq!(a.len(), 9);
+        a.delete_children(root);
+        assert_eq!(a.len(), 1);
+        assert!(!a.has_children(root));
+        a.expand(root);
+        let before = a.memory_usage();
+        for _ in 0..100 {
+            a.delete_children(root);
+            a.expand(root);
+        }
+        assert_eq!(a.len(), 9);
+        assert_eq!(a.memory_usage(), before, "expanding again must reuse freed slots");
+        assert_eq!(std::mem::size_of::<Node<f32>>(), 8);
+    }
+}

@@ -1,0 +1,300 @@
+//! OctoMap's two file formats, readable and writable both ways:
+//! `.bt` (binary: 2 bits per child, maximum-likelihood occupancy only) and
+//! `.ot` (full: a float log-odds and a child byte per node, depth first).
+//!
+//! Readers take untrusted bytes: every length, depth and value is checked and
+//! failures return `Error::Format`, never a panic.
+
+use super::arena::NONE;
+use super::key::TREE_DEPTH;
+use super::occupancy::{OcTree, OccupancyParams};
+use crate::error::{Error, Result};
+
+const BINARY_HEADER: &str = "# Octomap OcTree binary file";
+const FULL_HEADER: &str = "# Octomap OcTree file";
+const TREE_TYPE: &str = "OcTree";
+
+/// Maximum-likelihood class of a node when writing `.bt`.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Class {
+    Free,
+    Occupied,
+    Inner,
+}
+
+fn header(first_line: &str, size: usize, resolution: f64) -> String {
+    format!(
+        "{first_line}\n# (feel free to add / change comments, but leave the first line as it is!)\n#\nid {TREE_TYPE}\nsize {size}\nres {resolution}\ndata\n"
+    )
+}
+
+struct Header {
+    id: String,
+    size: usize,
+    resolution: f64,
+}
+
+/// Parse the text header up to and including the `data` line (OctoMap's `readHeader`);
+/// returns the header and the offset of the first data byte.
+fn parse_header(bytes: &[u8], first_line: &str) -> Result<(Header, usize)> {
+    let line_end = |from: usize| bytes[from..].iter().position(|&b| b == b'\n').map(|i| from + i);
+    let first_end = line_end(0).ok_or_else(|| Error::Format("missing header line".into()))?;
+    let first = String::from_utf8_lossy(&bytes[..first_end]);
+    if !first.starts_with(first_line) {
+        return Err(Error::Format(format!("first line must start with {first_line:?}, found {:?}", truncate(&first))));
+    }
+    let mut pos = first_end + 1;
+    let (mut id, mut size, mut resolution) = (None, None, None);
+    loop {
+        let end = line_end(pos).ok_or_else(|| Error::Format("header ends before the 'data' line".into()))?;
+        let line = std::str::from_utf8(&bytes[pos..end])
+            .map_err(|_| Error::Format("header is not text".into()))?
+            .trim();
+        pos = end + 1;
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("data") => break,
+            Some(w) if w.starts_with('#') => {}
+            Some("id") => id = words.next().map(str::to_owned),
+            Some("size") => {
+                size = Some(
+                    words.next().and_then(|s| s.parse::<usize>().ok()).ok_or_else(|| Error::Format(format!("bad size line {line:?}")))?,
+                )
+            }
+            Some("res") => {
+                resolution =
+                    Some(words.next().and_then(|s| s.parse::<f64>().ok()).ok_or_else(|| Error::Format(format!("bad res line {line:?}")))?)
+            }
+            // OctoMap skips unknown keywords and blank lines too.
+            _ => {}
+        }
+    }
+    let id = id.ok_or_else(|| Error::Format("header has no 'id'".into()))?;
+    let size = size.ok_or_else(|| Error::Format("header has no 'size'".into()))?;
+    let resolution = resolution.ok_or_else(|| Error::Format("header has no 'res'".into()))?;
+    if !(resolution.is_finite() && resolution > 0.0) {
+        return Err(Error::Format(format!("resolution must be positive, found {resolution}")));
+    }
+    Ok((Header { id, size, resolution }, pos))
+}
+
+fn truncate(s: &str) -> String {
+    s.chars().take(60).collect()
+}
+
+/// A cursor over the data section that fails cleanly at the end.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl Reader<'_> {
+    fn take<const N: usize>(&mut self) -> Result<[u8; N]> {
+        let end = self.pos + N;
+        let chunk = self
+            .bytes
+            .get(self.pos..end)
+            .ok_or_else(|| Error::Format(format!("data ends early (byte {} of {})", self.pos, self.bytes.len())))?;
+        self.pos = end;
+        Ok(chunk.try_into().expect("slice length is N"))
+    }
+}
+
+impl OcTree {
+    /// Serialise as OctoMap's `.bt`. The tree is not modified: the maximum-likelihood
+    /// pruning that OctoMap's `writeBinary` applies in place is computed on the side.
+    pub fn write_binary_bytes(&self) -> Vec<u8> {
+        if self.root == NONE {
+            return header(BINARY_HEADER, 0, self.resolution()).into_bytes();
+        }
+        let class = self.max_likelihood_classes();
+        let size = self.count_written(self.root, &class);
+        let mut out = header(BINARY_HEADER, size, self.resolution()).into_bytes();
+        self.write_binary_node(self.root, &class, &mut out);
+        out
+    }
+
+    /// Classes after OctoMap's `toMaxLikelihood(); prune();` — pruning depth by depth
+    /// from the bottom and stopping at the first depth where nothing collapsed.
+    fn max_likelihood_classes(&self) -> Vec<Class> {
+        let mut class = vec![Class::Inner; self.arena_slots()];
+        let mut inner_by_depth: Vec<Vec<u32>> = vec![Vec::new(); TREE_DEPTH as usize + 1];
+        let mut stack = vec![(self.root, 0u32)];
+        while let Some((n, d)) = stack.pop() {
+            if self.arena.has_children(n) {
+                inner_by_depth[d as usize].push(n);
+                for c in self.arena.children(n) {
+                    if c != NONE {
+                        stack.push((c, d + 1));
+                    }
+                }
+            } else {
+                class[n as usize] =
+                    if self.is_occupied_log_odds(self.arena.value(n)) { Class::Occupied } else { Class::Free };
+            }
+        }
+        for depth in (1..TREE_DEPTH as usize).rev() {
+            let mut pruned = 0;
+            for &n in &inner_by_depth[depth] {
+                let children = self.arena.children(n);
+                let first = if children[0] == NONE { Class::Inner } else { class[children[0] as usize] };
+                if first != Class::Inner && children.iter().all(|&c| c != NONE && class[c as usize] == first) {
+                    class[n as usize] = first;
+                    pruned += 1;
+                }
+            }
+            if pruned == 0 {
+                break;
+            }
+        }
+        class
+    }
+
+    fn arena_slots(&self) -> usize {
+        let mut max = 0u32;
+        let mut stack = vec![self.root];
+        while let Some(n) = stack.pop() {
+            max = max.max(n);
+            stack.extend(self.arena.children(n).into_iter().filter(|&c| c != NONE));
+        }
+        max as usize + 1
+    }
+
+    fn count_written(&self, n: u32, class: &[Class]) -> usize {
+        let mut count = 1;
+        if class[n as usize] == Class::Inner || n == self.root {
+            for c in self.arena.children(n) {
+                if c != NONE {
+                    count += if class[c as usize] == Class::Inner { self.count_written(c, class) } else { 1 };
+                }
+            }
+        }
+        count
+    }
+
+    fn write_binary_node(&self, n: u32, class: &[Class], out: &mut Vec<u8>) {
+        let children = self.arena.children(n);
+        let mut bits = [0u8; 2];
+        for (i, &c) in children.iter().enumerate() {
+            if c == NONE {
+                continue;
+            }
+            let code = match class[c as usize] {
+                Class::Free => 0b01,
+                Class::Occupied => 0b10,
+                Class::Inner => 0b11,
+            };
+            bits[i / 4] |= code << (2 * (i % 4));
+        }
+        out.extend_from_slice(&bits);
+        for c in children {
+            if c != NONE && class[c as usize] == Class::Inner {
+                self.write_binary_node(c, class, out);
+            }
+        }
+    }
+
+    /// Parse OctoMap's `.bt`: occupied leaves get the upper clamping bound, free ones the
+    /// lower, inner nodes the maximum of their children (the root: the upper bound).
+    pub fn read_binary_bytes(bytes: &[u8], params: OccupancyParams) -> Result<OcTree> {
+        let (head, start) = parse_header(bytes, BINARY_HEADER)?;
+        let mut tree = OcTree::with_params(head.resolution, params)?;
+        if head.size > 0 {
+            let mut r = Reader { bytes, pos: start };
+            tree.root = tree.arena.alloc(tree.lo.clamp_max);
+            tree.read_binary_node(tree.root, 0, &mut r)?;
+        }
+        if tree.size() != head.size {
+            return Err(Error::Format(format!("header says {} nodes, data holds {}", head.size, tree.size())));
+        }
+        Ok(tree)
+    }
+
+    fn read_binary_node(&mut self, node: u32, depth: u32, r: &mut Reader) -> Result<()> {
+        let bits = r.take::<2>()?;
+        if depth >= TREE_DEPTH && bits != [0, 0] {
+            return Err(Error::Format(format!("nodes nested deeper than {TREE_DEPTH} levels")));
+        }
+        let mut inner = Vec::new();
+        for i in 0..8 {
+            match (bits[i / 4] >> (2 * (i % 4))) & 0b11 {
+                0b01 => {
+                    self.arena.create_child(node, i, self.lo.clamp_min);
+                }
+                0b10 => {
+                    self.arena.create_child(node, i, self.lo.clamp_max);
+                }
+                0b11 => inner.push(self.arena.create_child(node, i, self.lo.clamp_max)),
+                _ => {}
+            }
+        }
+        for c in inner {
+            self.read_binary_node(c, depth + 1, r)?;
+            if !self.arena.has_children(c) {
+                return Err(Error::Format("a node marked as inner has no children".into()));
+            }
+            let max = self.max_child_log_odds(c);
+            self.arena.set_value(c, max);
+        }
+        Ok(())
+    }
+
+    /// Serialise as OctoMap's `.ot` (every node's log-odds, nothing lost).
+    pub fn write_full_bytes(&self) -> Vec<u8> {
+        let mut out = header(FULL_HEADER, self.size(), self.resolution()).into_bytes();
+        if self.root != NONE {
+            let mut stack = vec![self.root];
+            while let Some(n) = stack.pop() {
+                out.extend_from_slice(&self.arena.value(n).to_le_bytes());
+                let children = self.arena.children(n);
+                let mut mask = 0u8;
+                for (i, &c) in children.iter().enumerate() {
+                    if c != NONE {
+                        mask |= 1 << i;
+                    }
+                }
+                out.push(mask);
+                // Depth first, child 0 first: push in reverse.
+                stack.extend(children.iter().rev().filter(|&&c| c != NONE));
+            }
+        }
+        out
+    }
+
+    /// Parse OctoMap's `.ot` (only the plain `OcTree` type).
+    pub fn read_full_bytes(bytes: &[u8], params: OccupancyParams) -> Result<OcTree> {
+        let (head, start) = parse_header(bytes, FULL_HEADER)?;
+        if head.id != TREE_TYPE {
+            return Err(Error::Format(format!("tree type {:?} is not supported, only {TREE_TYPE:?}", head.id)));
+        }
+        let mut tree = OcTree::with_params(head.resolution, params)?;
+        if head.size > 0 {
+            let mut r = Reader { bytes, pos: start };
+            tree.root = tree.arena.alloc(0.0);
+            // (node, depth) in the order the file lists them.
+            let mut stack = vec![(tree.root, 0u32)];
+            while let Some((n, depth)) = stack.pop() {
+                let value = f32::from_le_bytes(r.take::<4>()?);
+                if !value.is_finite() {
+                    return Err(Error::Format(format!("node log-odds {value} is not finite")));
+                }
+                tree.arena.set_value(n, value);
+                let [mask] = r.take::<1>()?;
+                if mask != 0 && depth >= TREE_DEPTH {
+                    return Err(Error::Format(format!("nodes nested deeper than {TREE_DEPTH} levels")));
+                }
+                let mut created = Vec::new();
+                for i in 0..8 {
+                    if mask & (1 << i) != 0 {
+                        created.push(tree.arena.create_child(n, i, 0.0));
+                    }
+                }
+                stack.extend(created.into_iter().rev().map(|c| (c, depth + 1)));
+            }
+        }
+        if tree.size() != head.size {
+            return Err(Error::Format(format!("header says {} nodes, data holds {}", head.size, tree.size())));
+        }
+        Ok(tree)
+    }
+}

@@ -1,0 +1,210 @@
+//! Cell keys laid out exactly as OctoMap's `OcTreeKey` (16 bits per axis, depth 16).
+//!
+//! OctoMap stores coordinates as `float` (`point3d`) but keys and resolutions as
+//! `double`; the conversions below keep those precisions so that a point lands in
+//! the same cell here as in OctoMap, bit for bit.
+
+/// Tree depth; OctoMap's `OcTree` is fixed at 16 levels.
+pub const TREE_DEPTH: u32 = 16;
+/// Key of the cell whose lower corner is the origin (OctoMap's `tree_max_val`).
+pub const TREE_MAX_VAL: i32 = 32768;
+
+/// A cell at the finest depth: one 16-bit index per axis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
+pub struct OcTreeKey(pub [u16; 3]);
+
+impl OcTreeKey {
+    /// Morton code with x in the lowest bit: three bits per level give the child index
+    /// at that level, so sorting by Morton code sorts cells depth-first as in the tree.
+    #[inline]
+    pub fn morton(self) -> u64 {
+        spread(self.0[0]) | (spread(self.0[1]) << 1) | (spread(self.0[2]) << 2)
+    }
+
+    #[inline]
+    pub fn from_morton(code: u64) -> Self {
+        OcTreeKey([compact(code), compact(code >> 1), compact(code >> 2)])
+    }
+
+    /// Index (0..8) of the child holding this key below a node whose children sit at
+    /// key bit `level` (OctoMap's `computeChildIdx`: x adds 1, y adds 2, z adds 4).
+    #[inline]
+    pub fn child_index(self, level: u32) -> usize {
+        let bit = |k: u16| ((k >> level) & 1) as usize;
+        bit(self.0[0]) | (bit(self.0[1]) << 1) | (bit(self.0[2]) << 2)
+    }
+
+    /// The key of the node at `depth` that contains this key (OctoMap's `adjustKeyAtDepth`).
+    #[inline]
+    pub fn at_depth(self, depth: u32) -> Self {
+        if depth >= TREE_DEPTH {
+            return self;
+        }
+        let diff = TREE_DEPTH - depth;
+        let adjust = |k: u16| -> u16 {
+            let k = k as i32;
+            (((k - TREE_MAX_VAL) >> diff << diff) + (1 << (diff - 1)) + TREE_MAX_VAL) as u16
+        };
+        OcTreeKey([adjust(self.0[0]), adjust(self.0[1]), adjust(self.0[2])])
+    }
+}
+
+/// Spread the 16 bits of `v` so that bit i lands on bit 3i.
+#[inline]
+fn spread(v: u16) -> u64 {
+    let mut x = v as u64;
+    x = (x | (x << 16)) & 0x0000_ff00_00ff;
+    x = (x | (x << 8)) & 0x00f0_0f00_f00f;
+    x = (x | (x << 4)) & 0x0c30_c30c_30c3;
+    x = (x | (x << 2)) & 0x2492_4924_9249;
+    x
+}
+
+#[inline]
+fn compact(code: u64) -> u16 {
+    let mut x = code & 0x2492_4924_9249;
+    x = (x | (x >> 2)) & 0x0c30_c30c_30c3;
+    x = (x | (x >> 4)) & 0x00f0_0f00_f00f;
+    x = (x | (x >> 8)) & 0x0000_ff00_00ff;
+    x = (x | (x >> 16)) & 0xffff;
+    x as u16
+}
+
+/// Conversions between metric coordinates and keys for one resolution.
+#[derive(Clone, Copy, Debug)]
+pub struct KeyConverter {
+    resolution: f64,
+    resolution_factor: f64,
+}
+
+impl KeyConverter {
+    /// `resolution` must be finite and positive (checked by the caller).
+    pub fn new(resolution: f64) -> Self {
+        KeyConverter { resolution, resolution_factor: 1.0 / resolution }
+    }
+
+    #[inline]
+    pub fn resolution(&self) -> f64 {
+        self.resolution
+    }
+
+    /// Edge length of a node at `depth` (0 = root, 16 = finest cell).
+    #[inline]
+    pub fn node_size(&self, depth: u32) -> f64 {
+        self.resolution * f64::from(1u32 << (TREE_DEPTH - depth.min(TREE_DEPTH)))
+    }
+
+    /// One axis, without bounds check; out-of-range values saturate.
+    #[inline]
+    pub fn coord_to_key_axis(&self, coordinate: f64) -> i64 {
+        (self.resolution_factor * coordinate).floor() as i64 + TREE_MAX_VAL as i64
+    }
+
+    /// OctoMap's `coordToKeyChecked` for one axis.
+    #[inline]
+    pub fn coord_to_key_axis_checked(&self, coordinate: f64) -> Option<u16> {
+        let scaled = (self.resolution_factor * coordinate).floor();
+        // `floor` of NaN stays NaN and fails both comparisons.
+        if scaled >= -(TREE_MAX_VAL as f64) && scaled < TREE_MAX_VAL as f64 {
+            Some((scaled as i32 + TREE_MAX_VAL) as u16)
+        } else {
+            None
+        }
+    }
+
+    /// The key of the cell holding a point given as OctoMap's `point3d` (float).
+    #[inline]
+    pub fn coord_to_key_checked(&self, p: [f32; 3]) -> Option<OcTreeKey> {
+        Some(OcTreeKey([
+            self.coord_to_key_axis_checked(p[0] as f64)?,
+            self.coord_to_key_axis_checked(p[1] as f64)?,
+            self.coord_to_key_axis_checked(p[2] as f64)?,
+        ]))
+    }
+
+    /// Same, for double-precision coordinates (queries).
+    #[inline]
+    pub fn coord_to_key_checked_f64(&self, p: [f64; 3]) -> Option<OcTreeKey> {
+        Some(OcTreeKey([
+            self.coord_to_key_axis_checked(p[0])?,
+            self.coord_to_key_axis_checked(p[1])?,
+            self.coord_to_key_axis_checked(p[2])?,
+        ]))
+    }
+
+    /// Centre of the finest cell along one axis (OctoMap's `keyToCoord(key_type)`).
+    #[inline]
+    pub fn key_to_coord_axis(&self, key: u16) -> f64 {
+        (f64::from(i32::from(key) - TREE_MAX_VAL) + 0.5) * self.resolution
+    }
+
+    /// Centre of the node at `depth` holding `key` along one axis.
+    #[inline]
+    pub fn key_to_coord_axis_at_depth(&self, key: u16, depth: u32) -> f64 {
+        if depth >= TREE_DEPTH {
+            return self.key_to_coord_axis(key);
+        }
+        let span = f64::from(1u32 << (TREE_DEPTH - depth));
+        (((f64::from(key) - f64::from(TREE_MAX_VAL)) / span).floor() + 0.5) * self.node_size(depth)
+    }
+
+    /// Centre of the finest cell as OctoMap's `point3d` (float).
+    #[inline]
+    pub fn key_to_point(&self, key: OcTreeKey) -> [f32; 3] {
+        [
+            self.key_to_coord_axis(key.0[0]) as f32,
+            self.key_to_coord_axis(key.0[1]) as f32,
+            self.key_to_coord_axis(key.0[2]) as f32,
+        ]
+    }
+
+    /// Centre of the node at `depth` holding `key`, in double precision.
+    #[inline]
+    pub fn key_to_coord_at_depth(&self, key: OcTreeKey, depth: u32) -> [f64; 3] {
+        [
+            self.key_to_coord_axis_at_depth(key.0[0], depth),
+            self.key_to_coord_axis_at_depth(key.0[1], depth),
+            self.key_to_coord_axis_at_depth(key.0[2], depth),
+        ]
+    }
+
+    /// Smallest and largest coordinate that still maps to a key.
+    pub fn metric_limits(&self) -> (f64, f64) {
+        (-(TREE_MAX_VAL as f64) * self.resolution, TREE_MAX_VAL as f64 * self.resolution)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn morton_round_trips_and_orders_children() {
+        let k = OcTreeKey([0xabcd, 0x1234, 0xfe01]);
+        assert_eq!(OcTreeKey::from_morton(k.morton()), k);
+        for level in 0..16 {
+            assert_eq!(((k.morton() >> (3 * level)) & 7) as usize, k.child_index(level));
+        }
+    }
+
+    #[test]
+    fn origin_cells_straddle_zero() {
+        let c = KeyConverter::new(0.05);
+        assert_eq!(c.coord_to_key_axis_checked(0.0), Some(32768));
+        assert_eq!(c.coord_to_key_axis_checked(-1e-9), Some(32767));
+        assert!((c.key_to_coord_axis(32768) - 0.025).abs() < 1e-12);
+        assert_eq!(c.coord_to_key_axis_checked(f64::NAN), None);
+        assert_eq!(c.coord_to_key_axis_checked(1638.39), Some(65535));
+        assert_eq!(c.coord_to_key_axis_checked(1638.4), None);
+        assert_eq!(c.coord_to_key_axis_checked(-1638.4), Some(0));
+    }
+
+    #[test]
+    fn depth_centres_are_node_centres() {
+        let c = KeyConverter::new(0.1);
+        let key = OcTreeKey([32768, 32768, 32768]);
+        // The node at depth 15 holding the first positive cell spans [0, 0.2).
+        assert!((c.key_to_coord_axis_at_depth(key.0[0], 15) - 0.1).abs() < 1e-12);
+        assert_eq!(key.at_depth(15).0[0], 32769);
+    }
+}

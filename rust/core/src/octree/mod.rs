@@ -1,0 +1,18 @@
+//! The workspace map: an occupancy octree with OctoMap's semantics and file formats,
+//! plus per-voxel danger decay.
+
+mod arena;
+mod danger;
+mod io;
+mod key;
+mod occupancy;
+mod ray;
+mod scan;
+mod volume;
+
+pub use danger::{decay_step, DangerMap, DangerParams, DecayMode, FrameReport, DANGER_ON_HIT};
+pub use key::{KeyConverter, OcTreeKey, TREE_DEPTH, TREE_MAX_VAL};
+pub use occupancy::{logodds, probability, KeyUpdate, Leaf, OcTree, OccupancyParams};
+pub use ray::{cast_ray, compute_ray_keys, Point3f, RayHit};
+pub use scan::InsertReport;
+pub use volume::KeyVolume;

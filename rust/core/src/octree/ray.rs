@@ -1,0 +1,218 @@
+//! Ray traversal through cells, replicating OctoMap's `computeRayKeys` and `castRay`
+//! (Amanatides & Woo's 3D DDA) with OctoMap's mix of float and double arithmetic, so
+//! that both visit exactly the same cells.
+
+use super::key::{KeyConverter, OcTreeKey, TREE_MAX_VAL};
+
+/// OctoMap's `point3d`: three floats.
+pub type Point3f = [f32; 3];
+
+#[inline]
+pub fn sub(a: Point3f, b: Point3f) -> Point3f {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// `Vector3::norm`: squares summed in float, square root in double.
+#[inline]
+pub fn norm(v: Point3f) -> f64 {
+    f64::from(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// `Vector3::normalized`: divide by the float-cast norm (unchanged if zero).
+#[inline]
+pub fn normalized(v: Point3f) -> Point3f {
+    let len = norm(v);
+    if len > 0.0 {
+        let l = len as f32;
+        [v[0] / l, v[1] / l, v[2] / l]
+    } else {
+        v
+    }
+}
+
+/// `origin + direction * (float) range`.
+#[inline]
+pub fn point_at(origin: Point3f, direction: Point3f, range: f32) -> Point3f {
+    [origin[0] + direction[0] * range, origin[1] + direction[1] * range, origin[2] + direction[2] * range]
+}
+
+/// DDA state shared by both traversals.
+struct Dda {
+    step: [i32; 3],
+    t_max: [f64; 3],
+    t_delta: [f64; 3],
+}
+
+impl Dda {
+    /// `half_step` is how OctoMap offsets the cell centre to its border:
+    /// computeRayKeys casts `step·res/2` to float, castRay keeps it double.
+    #[inline]
+    fn new(conv: &KeyConverter, key: OcTreeKey, origin: Point3f, direction: Point3f, half_step_as_float: bool) -> Self {
+        let res = conv.resolution();
+        let mut dda = Dda { step: [0; 3], t_max: [f64::MAX; 3], t_delta: [f64::MAX; 3] };
+        for i in 0..3 {
+            let d = direction[i];
+            dda.step[i] = if d > 0.0 {
+                1
+            } else if d < 0.0 {
+                -1
+            } else {
+                0
+            };
+            if dda.step[i] != 0 {
+                let half = f64::from(dda.step[i]) * res * 0.5;
+                let half = if half_step_as_float { f64::from(half as f32) } else { half };
+                let border = conv.key_to_coord_axis(key.0[i]) + half;
+                dda.t_max[i] = (border - f64::from(origin[i])) / f64::from(d);
+                dda.t_delta[i] = res / f64::from(d.abs());
+            }
+        }
+        dda
+    }
+
+    /// Axis of the next cell boundary (OctoMap's tie-breaking).
+    #[inline]
+    fn next_axis(&self) -> usize {
+        let t = &self.t_max;
+        if t[0] < t[1] {
+            if t[0] < t[2] {
+                0
+            } else {
+                2
+            }
+        } else if t[1] < t[2] {
+            1
+        } else {
+            2
+        }
+    }
+}
+
+/// Call `visit` for every cell a ray from `origin` to `end` crosses, the origin's cell
+/// included and the end cell excluded (OctoMap's `computeRayKeys`). Returns `false`
+/// (visiting nothing) when either point is off the map.
+#[inline]
+pub fn compute_ray_keys(conv: &KeyConverter, origin: Point3f, end: Point3f, mut visit: impl FnMut(OcTreeKey)) -> bool {
+    let (Some(key_origin), Some(key_end)) = (conv.coord_to_key_checked(origin), conv.coord_to_key_checked(end)) else {
+        return false;
+    };
+    if key_origin == key_end {
+        return true;
+    }
+    visit(key_origin);
+    let mut direction = sub(end, origin);
+    let length = norm(direction) as f32;
+    direction = [direction[0] / length, direction[1] / length, direction[2] / length];
+    let mut dda = Dda::new(conv, key_origin, origin, direction, true);
+    let mut key = key_origin;
+    let length = f64::from(length);
+    loop {
+        let dim = dda.next_axis();
+        // Wrapping add: a step past the key range cannot happen for in-range end points,
+        // and must not panic if rounding ever tried.
+        key.0[dim] = (i32::from(key.0[dim]) + dda.step[dim]) as u16;
+        dda.t_max[dim] += dda.t_delta[dim];
+        if key == key_end {
+            break;
+        }
+        let dist_from_origin = dda.t_max[0].min(dda.t_max[1]).min(dda.t_max[2]);
+        if dist_from_origin > length {
+            break;
+        }
+        visit(key);
+    }
+    true
+}
+
+/// Outcome of [`cast_ray`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayHit {
+    /// An occupied cell was reached.
+    pub hit: bool,
+    /// Centre of the occupied cell, or of the last cell visited when nothing was hit.
+    pub end: [f64; 3],
+}
+
+/// OctoMap's `castRay`: walk from `origin` along `direction` until an occupied cell
+/// (hit), an unknown cell (miss, unless `ignore_unknown`), `max_range` (if > 0) or the
+/// map's edge. `occupancy(key)` returns `None` for unknown, `Some(occupied)` otherwise.
+pub fn cast_ray(
+    conv: &KeyConverter,
+    origin: Point3f,
+    direction: Point3f,
+    ignore_unknown: bool,
+    max_range: f64,
+    occupancy: impl Fn(OcTreeKey) -> Option<bool>,
+) -> Option<RayHit> {
+    let centre = |k: OcTreeKey| {
+        let p = conv.key_to_point(k);
+        [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]
+    };
+    let mut key = conv.coord_to_key_checked(origin)?;
+    match occupancy(key) {
+        Some(true) => return Some(RayHit { hit: true, end: centre(key) }),
+        None if !ignore_unknown => return Some(RayHit { hit: false, end: centre(key) }),
+        _ => {}
+    }
+    let direction = normalized(direction);
+    let dda_init = Dda::new(conv, key, origin, direction, false);
+    if dda_init.step == [0, 0, 0] {
+        return None;
+    }
+    let mut dda = dda_init;
+    let max_range_set = max_range > 0.0;
+    let max_range_sq = max_range * max_range;
+    loop {
+        let dim = dda.next_axis();
+        let k = i32::from(key.0[dim]);
+        if (dda.step[dim] < 0 && k == 0) || (dda.step[dim] > 0 && k == 2 * TREE_MAX_VAL - 1) {
+            return Some(RayHit { hit: false, end: centre(key) });
+        }
+        key.0[dim] = (k + dda.step[dim]) as u16;
+        dda.t_max[dim] += dda.t_delta[dim];
+        let end = conv.key_to_point(key);
+        if max_range_set {
+            let mut dist_sq = 0.0f64;
+            for j in 0..3 {
+                let d = end[j] - origin[j];
+                dist_sq += f64::from(d * d); // float product, double sum, as in OctoMap
+            }
+            if dist_sq > max_range_sq {
+                return Some(RayHit { hit: false, end: centre(key) });
+            }
+        }
+        match occupancy(key) {
+            Some(true) => return Some(RayHit { hit: true, end: centre(key) }),
+            None if !ignore_unknown => return Some(RayHit { hit: false, end: centre(key) }),
+            _ => {}
+        }
+    }
+}
+
+impl super::occupancy::OcTree {
+    /// Cast a ray through the map (see [`cast_ray`]); `max_range` of `None` is unlimited.
+    pub fn cast_ray(
+        &self,
+        origin: [f64; 3],
+        direction: [f64; 3],
+        max_range: Option<f64>,
+        ignore_unknown: bool,
+    ) -> crate::Result<RayHit> {
+        use crate::Error;
+        if !direction.iter().all(|c| c.is_finite()) || direction == [0.0; 3] {
+            return Err(Error::InvalidArgument(format!("direction {direction:?} must be finite and non-zero")));
+        }
+        if let Some(r) = max_range {
+            if !(r.is_finite() && r > 0.0) {
+                return Err(Error::InvalidArgument(format!("max_range must be a positive distance in metres, got {r}")));
+            }
+        }
+        self.key_of("origin", origin)?;
+        let o = [origin[0] as f32, origin[1] as f32, origin[2] as f32];
+        let d = [direction[0] as f32, direction[1] as f32, direction[2] as f32];
+        let occupancy = |k: OcTreeKey| self.search(k, 0).map(|l| self.is_occupied_log_odds(l));
+        cast_ray(self.key_converter(), o, d, ignore_unknown, max_range.unwrap_or(-1.0), occupancy).ok_or_else(|| {
+            Error::InvalidArgument(format!("cannot cast a ray from {origin:?} along {direction:?} (off the map or zero in float precision)"))
+        })
+    }
+}

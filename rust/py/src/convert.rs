@@ -1,0 +1,78 @@
+//! The only numpy ⇄ Rust conversions: inputs are normalised once (dtype float64,
+//! C-contiguous, checked shape) and borrowed without copying; outputs are handed to
+//! numpy without copying.
+
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyModule;
+
+/// An (N, 3) float64 array held for reading.
+pub struct Points<'py>(PyReadonlyArray2<'py, f64>);
+
+impl Points<'_> {
+    pub fn as_slice(&self) -> &[[f64; 3]] {
+        let flat = self.0.as_slice().expect("made C-contiguous in `points`");
+        // (N, 3) contiguous float64 is N consecutive [f64; 3].
+        let (chunks, rest) = flat.as_chunks::<3>();
+        debug_assert!(rest.is_empty());
+        chunks
+    }
+}
+
+fn as_contiguous_f64<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+    let np = PyModule::import(obj.py(), "numpy")?;
+    np.call_method1("ascontiguousarray", (obj, np.getattr("float64")?))
+}
+
+/// Accept anything numpy can read as (N, 3) numbers.
+pub fn points<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Points<'py>> {
+    let arr = match obj.cast::<PyArray2<f64>>() {
+        Ok(a) if a.is_c_contiguous() => a.readonly(),
+        _ => {
+            let converted = as_contiguous_f64(obj)
+                .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("{name} must be an (N, 3) array of numbers: {e}")))?;
+            match converted.cast::<PyArray2<f64>>() {
+                Ok(a) => a.readonly(),
+                Err(_) => {
+                    let shape: Vec<usize> = converted
+                        .cast::<numpy::PyUntypedArray>()
+                        .map(|a| a.shape().to_vec())
+                        .unwrap_or_default();
+                    return Err(PyValueError::new_err(format!(
+                        "{name} must be an (N, 3) array, got shape {shape:?} (use .reshape(-1, 3) for one point)"
+                    )));
+                }
+            }
+        }
+    };
+    if arr.shape()[1] != 3 {
+        return Err(PyValueError::new_err(format!("{name} must be an (N, 3) array, got shape {:?}", arr.shape())));
+    }
+    Ok(Points(arr))
+}
+
+/// One 3-vector (a point or a direction).
+pub fn vector3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f64; 3]> {
+    let converted = as_contiguous_f64(obj)
+        .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("{name} must be 3 numbers: {e}")))?;
+    let arr: PyReadonlyArray1<f64> = converted
+        .extract()
+        .map_err(|_| PyValueError::new_err(format!("{name} must be 3 numbers (x, y, z)")))?;
+    match arr.as_slice() {
+        Ok(&[x, y, z]) => Ok([x, y, z]),
+        _ => Err(PyValueError::new_err(format!("{name} must be 3 numbers (x, y, z), got {} values", arr.len()))),
+    }
+}
+
+/// Rows of three into an (M, 3) float64 array, without copying.
+pub fn rows_to_array<'py>(py: Python<'py>, rows: Vec<[f64; 3]>) -> Bound<'py, PyArray2<f64>> {
+    let m = rows.len();
+    let flat: Vec<f64> = rows.into_flattened();
+    Array2::from_shape_vec((m, 3), flat).expect("M rows of 3").into_pyarray(py)
+}
+
+pub fn vec_to_array<'py, T: numpy::Element>(py: Python<'py>, v: Vec<T>) -> Bound<'py, PyArray1<T>> {
+    v.into_pyarray(py)
+}

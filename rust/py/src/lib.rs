@@ -1,0 +1,33 @@
+//! Python bindings: this file only wires the modules together.
+
+mod convert;
+mod errors;
+mod octree;
+
+use pyo3::prelude::*;
+
+/// Number of threads earcore's parallel loops use (0 = one per core).
+#[pyfunction]
+fn set_num_threads(n: usize) {
+    earcore_core::threads::set_num_threads(n)
+}
+
+#[pyfunction]
+fn get_num_threads() -> usize {
+    earcore_core::threads::num_threads()
+}
+
+#[pymodule]
+fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_class::<octree::PyOcTree>()?;
+    m.add_class::<octree::PyInsertReport>()?;
+    m.add_class::<octree::PyFrameReport>()?;
+    m.add("EarcoreError", py.get_type::<errors::EarcoreError>())?;
+    m.add("OutOfMapError", py.get_type::<errors::OutOfMapError>())?;
+    m.add("MapFormatError", py.get_type::<errors::MapFormatError>())?;
+    m.add_function(wrap_pyfunction!(set_num_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,575 @@
+//! `earcore.OcTree`: the occupancy + danger map.
+//!
+//! Locking: the tree sits behind a read-write lock. Insertions, `update_node`, `prune`,
+//! `end_frame` and file reads take the write lock; every query takes the read lock, so
+//! any number of threads may query at once and a writer waits for them (and they for
+//! it). All O(N) work runs detached from the GIL, so other Python threads keep going.
+
+use std::path::PathBuf;
+
+use earcore_core::octree::{DangerParams, DecayMode, FrameReport, InsertReport, Leaf, OcTree, OcTreeKey, OccupancyParams};
+use numpy::{PyArray1, PyArray2};
+use parking_lot::RwLock;
+use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyType;
+
+use crate::convert::{points, rows_to_array, vec_to_array, vector3};
+use crate::errors::IntoPyResult;
+
+type Voxels<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>);
+
+/// Occupancy octree with OctoMap's semantics and files, plus per-voxel danger decay.
+#[pyclass(name = "OcTree", module = "earcore", frozen)]
+pub struct PyOcTree {
+    inner: RwLock<OcTree>,
+}
+
+#[pyclass(name = "InsertReport", module = "earcore", frozen, get_all)]
+#[derive(Clone)]
+pub struct PyInsertReport {
+    /// Rays integrated (distinct end cells with `discretize`).
+    rays: usize,
+    /// Cells updated as free.
+    free_cells: usize,
+    /// Cells updated as occupied.
+    occupied_cells: usize,
+}
+
+#[pymethods]
+impl PyInsertReport {
+    fn __repr__(&self) -> String {
+        format!("InsertReport(rays={}, free_cells={}, occupied_cells={})", self.rays, self.free_cells, self.occupied_cells)
+    }
+}
+
+impl From<InsertReport> for PyInsertReport {
+    fn from(r: InsertReport) -> Self {
+        PyInsertReport { rays: r.rays, free_cells: r.free_cells, occupied_cells: r.occupied_cells }
+    }
+}
+
+#[pyclass(name = "FrameReport", module = "earcore", frozen, get_all)]
+#[derive(Clone)]
+pub struct PyFrameReport {
+    /// Voxels hit during the frame (danger reset to 0.999).
+    hit: usize,
+    /// Voxels whose danger decayed.
+    decayed: usize,
+    /// Voxels that reached 0 and stopped being dangerous.
+    cleared: usize,
+    /// Voxels still dangerous.
+    active: usize,
+}
+
+#[pymethods]
+impl PyFrameReport {
+    fn __repr__(&self) -> String {
+        format!("FrameReport(hit={}, decayed={}, cleared={}, active={})", self.hit, self.decayed, self.cleared, self.active)
+    }
+}
+
+impl From<FrameReport> for PyFrameReport {
+    fn from(r: FrameReport) -> Self {
+        PyFrameReport { hit: r.hit, decayed: r.decayed, cleared: r.cleared, active: r.active }
+    }
+}
+
+fn parse_mode(mode: &str) -> PyResult<DecayMode> {
+    match mode {
+        "observed" => Ok(DecayMode::Observed),
+        "always" => Ok(DecayMode::Always),
+        other => Err(PyValueError::new_err(format!("decay_mode must be 'observed' or 'always', got {other:?}"))),
+    }
+}
+
+fn mode_name(mode: DecayMode) -> &'static str {
+    match mode {
+        DecayMode::Observed => "observed",
+        DecayMode::Always => "always",
+    }
+}
+
+fn read_file(path: &PathBuf) -> PyResult<Vec<u8>> {
+    std::fs::read(path).map_err(|e| PyOSError::new_err(format!("cannot read {}: {e}", path.display())))
+}
+
+/// Write through a temporary file and rename, so a failed write never leaves a
+/// half-written map where a good one was.
+fn write_file(path: &PathBuf, bytes: &[u8]) -> PyResult<()> {
+    let mut tmp = path.clone().into_os_string();
+    tmp.push(".earcore-tmp");
+    let tmp = PathBuf::from(tmp);
+    std::fs::write(&tmp, bytes)
+        .and_then(|_| std::fs::rename(&tmp, path))
+        .map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            PyOSError::new_err(format!("cannot write {}: {e}", path.display()))
+        })
+}
+
+impl PyOcTree {
+    fn wrap(tree: OcTree) -> Self {
+        PyOcTree { inner: RwLock::new(tree) }
+    }
+
+    /// Run `f` on the tree under the read lock, detached from the GIL (waiting for a
+    /// writer never stalls other Python threads).
+    fn with_read<R: Send>(&self, py: Python<'_>, f: impl FnOnce(&OcTree) -> R + Send) -> R {
+        py.detach(|| f(&self.inner.read()))
+    }
+
+    /// Same under the write lock.
+    fn with_write<R: Send>(&self, py: Python<'_>, f: impl FnOnce(&mut OcTree) -> R + Send) -> R {
+        py.detach(|| f(&mut self.inner.write()))
+    }
+
+    fn centres_and_sizes(tree: &OcTree, leaves: &[(OcTreeKey, u32)]) -> (Vec<[f64; 3]>, Vec<f64>) {
+        let centres = leaves.iter().map(|&(k, d)| tree.node_center(k, d)).collect();
+        let sizes = leaves.iter().map(|&(_, d)| tree.key_converter().node_size(d)).collect();
+        (centres, sizes)
+    }
+}
+
+#[pymethods]
+impl PyOcTree {
+    #[new]
+    #[pyo3(signature = (resolution=0.05, *, prob_hit=0.7, prob_miss=0.4, clamping_min=0.1192, clamping_max=0.971,
+                        occupancy_threshold=0.5, danger_alpha=0.3, decay_mode="observed"))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        resolution: f64,
+        prob_hit: f64,
+        prob_miss: f64,
+        clamping_min: f64,
+        clamping_max: f64,
+        occupancy_threshold: f64,
+        danger_alpha: f64,
+        decay_mode: &str,
+    ) -> PyResult<Self> {
+        let params = OccupancyParams { prob_hit, prob_miss, clamping_min, clamping_max, occupancy_threshold };
+        let mut tree = OcTree::with_params(resolution, params).py()?;
+        tree.danger_map_mut().set_params(DangerParams { alpha: danger_alpha, mode: parse_mode(decay_mode)? }).py()?;
+        Ok(Self::wrap(tree))
+    }
+
+    /// Edge length of the finest voxels, in metres.
+    #[getter]
+    fn resolution(&self) -> f64 {
+        self.inner.read().resolution()
+    }
+
+    #[getter]
+    fn prob_hit(&self) -> f64 {
+        self.inner.read().params().prob_hit
+    }
+
+    #[getter]
+    fn prob_miss(&self) -> f64 {
+        self.inner.read().params().prob_miss
+    }
+
+    #[getter]
+    fn clamping_min(&self) -> f64 {
+        self.inner.read().params().clamping_min
+    }
+
+    #[getter]
+    fn clamping_max(&self) -> f64 {
+        self.inner.read().params().clamping_max
+    }
+
+    #[getter]
+    fn occupancy_threshold(&self) -> f64 {
+        self.inner.read().params().occupancy_threshold
+    }
+
+    /// Decay speed α of the danger rule (Paper II, Eq. 1).
+    #[getter]
+    fn get_danger_alpha(&self) -> f64 {
+        self.inner.read().danger_map().params().alpha
+    }
+
+    #[setter]
+    fn set_danger_alpha(&self, alpha: f64) -> PyResult<()> {
+        let mut tree = self.inner.write();
+        let params = DangerParams { alpha, ..tree.danger_map().params() };
+        tree.danger_map_mut().set_params(params).py()
+    }
+
+    /// 'observed' (decay only where a ray saw the voxel free) or 'always'.
+    #[getter]
+    fn get_decay_mode(&self) -> &'static str {
+        mode_name(self.inner.read().danger_map().params().mode)
+    }
+
+    #[setter]
+    fn set_decay_mode(&self, mode: &str) -> PyResult<()> {
+        let mode = parse_mode(mode)?;
+        let mut tree = self.inner.write();
+        let params = DangerParams { mode, ..tree.danger_map().params() };
+        tree.danger_map_mut().set_params(params).py()
+    }
+
+    /// Integrate a scan: rays from `sensor_origin` to each point (N, 3).
+    ///
+    /// Cells along a ray become more likely free, end cells more likely occupied (and
+    /// dangerous); rays longer than `max_range` are cut there and mark no hit;
+    /// `discretize` merges points that fall in the same cell. Invalid input raises
+    /// before anything changes.
+    #[pyo3(signature = (points, sensor_origin, max_range=None, discretize=false))]
+    fn insert_point_cloud(
+        &self,
+        py: Python<'_>,
+        points: &Bound<'_, PyAny>,
+        sensor_origin: &Bound<'_, PyAny>,
+        max_range: Option<f64>,
+        discretize: bool,
+    ) -> PyResult<PyInsertReport> {
+        let pts = self::points(points, "points")?;
+        let origin = vector3(sensor_origin, "sensor_origin")?;
+        let slice = pts.as_slice();
+        let report = self.with_write(py, |t| t.insert_point_cloud(slice, origin, max_range, discretize)).py()?;
+        Ok(report.into())
+    }
+
+    /// Occupancy per point: -1 unknown, 0 free, 1 occupied (int8, shape (N,)).
+    fn is_occupied<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray1<i8>>> {
+        let pts = self::points(points, "points")?;
+        let slice = pts.as_slice();
+        let out = self.with_read(py, |tree| {
+            slice
+                .iter()
+                .map(|&p| match lookup(tree, p) {
+                    None => -1,
+                    Some(l) => i8::from(tree.is_occupied_log_odds(l)),
+                })
+                .collect::<Vec<i8>>()
+        });
+        Ok(vec_to_array(py, out))
+    }
+
+    /// Log-odds per point (float32, NaN where unknown).
+    fn log_odds<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let pts = self::points(points, "points")?;
+        let slice = pts.as_slice();
+        let out = self.with_read(py, |tree| slice.iter().map(|&p| lookup(tree, p).unwrap_or(f32::NAN)).collect::<Vec<f32>>());
+        Ok(vec_to_array(py, out))
+    }
+
+    /// Log-odds of the node holding `point` at `depth` (0 = finest), None if unknown.
+    #[pyo3(signature = (point, depth=0))]
+    fn search(&self, py: Python<'_>, point: &Bound<'_, PyAny>, depth: u32) -> PyResult<Option<f32>> {
+        let p = vector3(point, "point")?;
+        self.with_read(py, |tree| tree.key_of("point", p).map(|key| tree.search(key, depth))).py()
+    }
+
+    /// Integrate one measurement at `point`: `True` a hit, `False` a miss, or a float
+    /// log-odds change (OctoMap's `updateNode`).
+    fn update_node(&self, py: Python<'_>, point: &Bound<'_, PyAny>, update: &Bound<'_, PyAny>) -> PyResult<()> {
+        let p = vector3(point, "point")?;
+        let hit = update.cast::<pyo3::types::PyBool>().ok().map(|b| b.is_true());
+        let delta: Option<f32> = if hit.is_some() {
+            None
+        } else {
+            Some(update.extract().map_err(|_| {
+                pyo3::exceptions::PyTypeError::new_err("update must be a bool (hit/miss) or a float log-odds change")
+            })?)
+        };
+        self.with_write(py, |tree| {
+            let key = tree.key_of("point", p)?;
+            match (hit, delta) {
+                (Some(h), _) => {
+                    tree.update_node(key, h);
+                    Ok(())
+                }
+                (None, Some(d)) => tree.update_node_log_odds(key, d),
+                (None, None) => unreachable!("one of hit or delta is set"),
+            }
+        })
+        .py()
+    }
+
+    /// Centres (M, 3) and edge lengths (M,) of the occupied leaves.
+    fn occupied_voxels<'py>(&self, py: Python<'py>) -> Voxels<'py> {
+        let (c, s) = self.with_read(py, |tree| {
+            let mut leaves = Vec::new();
+            tree.for_each_leaf(|l| {
+                if tree.is_occupied_log_odds(l.log_odds) {
+                    leaves.push((l.key, l.depth));
+                }
+            });
+            Self::centres_and_sizes(tree, &leaves)
+        });
+        (rows_to_array(py, c), vec_to_array(py, s))
+    }
+
+    /// Leaves (pruned ones included) as centres (M, 3), sizes (M,) and log-odds (M,),
+    /// optionally only those meeting the box [bbx_min, bbx_max].
+    #[pyo3(signature = (bbx_min=None, bbx_max=None))]
+    fn leaves<'py>(
+        &self,
+        py: Python<'py>,
+        bbx_min: Option<&Bound<'py, PyAny>>,
+        bbx_max: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f32>>)> {
+        let bounds = self.key_bounds(py, bbx_min, bbx_max)?;
+        let (c, s, l) = self.with_read(py, |tree| {
+            let leaves = collect_leaves(tree, bounds);
+            let keyed: Vec<(OcTreeKey, u32)> = leaves.iter().map(|l| (l.key, l.depth)).collect();
+            let (c, s) = Self::centres_and_sizes(tree, &keyed);
+            (c, s, leaves.iter().map(|l| l.log_odds).collect())
+        });
+        Ok((rows_to_array(py, c), vec_to_array(py, s), vec_to_array(py, l)))
+    }
+
+    /// Leaves as OctoMap keys: lower-corner keys (M, 3) uint16, depths (M,) uint8 and
+    /// log-odds (M,) float32 (for exact comparisons with OctoMap).
+    fn leaf_keys<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyArray2<u16>>, Bound<'py, PyArray1<u8>>, Bound<'py, PyArray1<f32>>)> {
+        let bounds = self.key_bounds(py, None, None)?;
+        let leaves = self.with_read(py, |tree| collect_leaves(tree, bounds));
+        let m = leaves.len();
+        let keys: Vec<u16> = leaves.iter().flat_map(|l| l.key.0).collect();
+        let keys = numpy::ndarray::Array2::from_shape_vec((m, 3), keys).expect("M rows of 3");
+        Ok((
+            numpy::IntoPyArray::into_pyarray(keys, py),
+            vec_to_array(py, leaves.iter().map(|l| l.depth as u8).collect()),
+            vec_to_array(py, leaves.iter().map(|l| l.log_odds).collect()),
+        ))
+    }
+
+    /// Cast a ray from `origin` along `direction`; returns (hit, end) where `end` is the
+    /// centre of the first occupied cell, or of the cell where the search stopped
+    /// (unknown cell unless `ignore_unknown`, `max_range`, or the map's edge).
+    #[pyo3(signature = (origin, direction, max_range=None, ignore_unknown=false))]
+    fn cast_ray<'py>(
+        &self,
+        py: Python<'py>,
+        origin: &Bound<'py, PyAny>,
+        direction: &Bound<'py, PyAny>,
+        max_range: Option<f64>,
+        ignore_unknown: bool,
+    ) -> PyResult<(bool, Bound<'py, PyArray1<f64>>)> {
+        let o = vector3(origin, "origin")?;
+        let d = vector3(direction, "direction")?;
+        let hit = self.with_read(py, |tree| tree.cast_ray(o, d, max_range, ignore_unknown)).py()?;
+        Ok((hit.hit, vec_to_array(py, hit.end.to_vec())))
+    }
+
+    /// `cast_ray` for many rays: origins and directions (N, 3) (or one origin (3,) for
+    /// all); returns hits (N,) bool and ends (N, 3).
+    #[pyo3(signature = (origins, directions, max_range=None, ignore_unknown=false))]
+    fn cast_rays<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        max_range: Option<f64>,
+        ignore_unknown: bool,
+    ) -> PyResult<(Bound<'py, PyArray1<bool>>, Bound<'py, PyArray2<f64>>)> {
+        let dirs = self::points(directions, "directions")?;
+        let single = vector3(origins, "origins").ok();
+        let many = if single.is_none() { Some(self::points(origins, "origins")?) } else { None };
+        let d = dirs.as_slice();
+        if let Some(m) = &many {
+            if m.as_slice().len() != d.len() {
+                return Err(PyValueError::new_err(format!(
+                    "origins ({}) and directions ({}) must have the same length",
+                    m.as_slice().len(),
+                    d.len()
+                )));
+            }
+        }
+        let o_many = many.as_ref().map(|m| m.as_slice());
+        let results = self
+            .with_read(py, |tree| {
+            d.iter()
+                .enumerate()
+                .map(|(i, &dir)| {
+                    let o = single.unwrap_or_else(|| o_many.map(|m| m[i]).unwrap_or_default());
+                    tree.cast_ray(o, dir, max_range, ignore_unknown)
+                })
+                .collect::<Result<Vec<_>, _>>()
+        })
+        .py()?;
+        let hits = results.iter().map(|r| r.hit).collect();
+        let ends = results.iter().map(|r| r.end).collect();
+        Ok((vec_to_array(py, hits), rows_to_array(py, ends)))
+    }
+
+    /// Collapse every set of eight equal leaves into their parent (OctoMap's `prune`).
+    fn prune(&self, py: Python<'_>) {
+        self.with_write(py, |t| t.prune())
+    }
+
+    /// Recompute every inner node from its children.
+    fn update_inner_occupancy(&self, py: Python<'_>) {
+        self.with_write(py, |t| t.update_inner_occupancy())
+    }
+
+    /// Number of nodes (OctoMap's `size()`).
+    fn size(&self, py: Python<'_>) -> usize {
+        self.with_read(py, |t| t.size())
+    }
+
+    fn __len__(&self, py: Python<'_>) -> usize {
+        self.size(py)
+    }
+
+    fn num_leaf_nodes(&self, py: Python<'_>) -> usize {
+        self.with_read(py, |t| t.num_leaf_nodes())
+    }
+
+    /// Bytes held by the map (nodes, child blocks and danger), spare capacity included.
+    fn memory_usage(&self, py: Python<'_>) -> usize {
+        self.with_read(py, |t| t.memory_usage())
+    }
+
+    /// Forget everything (occupancy and danger).
+    fn clear(&self, py: Python<'_>) {
+        self.with_write(py, |t| t.clear())
+    }
+
+    /// Save as OctoMap's binary `.bt` (maximum-likelihood occupancy; this tree is not changed).
+    fn write_binary(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let bytes = self.with_read(py, |t| t.write_binary_bytes());
+        write_file(&path, &bytes)
+    }
+
+    /// Save as OctoMap's full `.ot` (every node's log-odds).
+    fn write(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let bytes = self.with_read(py, |t| t.write_full_bytes());
+        write_file(&path, &bytes)
+    }
+
+    /// Load an OctoMap `.bt` file into a new tree (sensor model keyword arguments as in the constructor).
+    #[classmethod]
+    #[pyo3(signature = (path, *, prob_hit=0.7, prob_miss=0.4, clamping_min=0.1192, clamping_max=0.971, occupancy_threshold=0.5))]
+    #[allow(clippy::too_many_arguments)]
+    fn read_binary(
+        _cls: &Bound<'_, PyType>,
+        py: Python<'_>,
+        path: PathBuf,
+        prob_hit: f64,
+        prob_miss: f64,
+        clamping_min: f64,
+        clamping_max: f64,
+        occupancy_threshold: f64,
+    ) -> PyResult<Self> {
+        let params = OccupancyParams { prob_hit, prob_miss, clamping_min, clamping_max, occupancy_threshold };
+        let bytes = read_file(&path)?;
+        let tree = py.detach(|| OcTree::read_binary_bytes(&bytes, params)).py()?;
+        Ok(Self::wrap(tree))
+    }
+
+    /// Load an OctoMap `.ot` file into a new tree.
+    #[classmethod]
+    #[pyo3(signature = (path, *, prob_hit=0.7, prob_miss=0.4, clamping_min=0.1192, clamping_max=0.971, occupancy_threshold=0.5))]
+    #[allow(clippy::too_many_arguments)]
+    fn read(
+        _cls: &Bound<'_, PyType>,
+        py: Python<'_>,
+        path: PathBuf,
+        prob_hit: f64,
+        prob_miss: f64,
+        clamping_min: f64,
+        clamping_max: f64,
+        occupancy_threshold: f64,
+    ) -> PyResult<Self> {
+        let params = OccupancyParams { prob_hit, prob_miss, clamping_min, clamping_max, occupancy_threshold };
+        let bytes = read_file(&path)?;
+        let tree = py.detach(|| OcTree::read_full_bytes(&bytes, params)).py()?;
+        Ok(Self::wrap(tree))
+    }
+
+    // ---- danger (Paper II, Eq. 1) ----
+
+    /// Close the current frame of `dt` seconds: voxels hit since the last call are at
+    /// 0.999, the others decay by C ← C + ln(C)·dt·α (per `decay_mode`).
+    fn end_frame(&self, py: Python<'_>, dt: f64) -> PyResult<PyFrameReport> {
+        Ok(self.with_write(py, |t| t.danger_map_mut().end_frame(dt)).py()?.into())
+    }
+
+    /// Danger per point (float32 in [0, 0.999], 0 where never dangerous).
+    fn danger<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let pts = self::points(points, "points")?;
+        let slice = pts.as_slice();
+        let out = self.with_read(py, |tree| {
+            slice
+                .iter()
+                .map(|&p| match tree.key_converter().coord_to_key_checked_f64(p) {
+                    Some(k) => tree.danger_map().value(k.morton()),
+                    None => 0.0,
+                })
+                .collect::<Vec<f32>>()
+        });
+        Ok(vec_to_array(py, out))
+    }
+
+    /// Dangerous voxels: centres (M, 3), sizes (M,) and danger values (M,) float32.
+    fn danger_voxels<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f32>>) {
+        let (c, s, v) = self.with_read(py, |tree| {
+            let cells = tree.danger_map().sorted_cells();
+            let keyed: Vec<(OcTreeKey, u32)> = cells.iter().map(|&(m, _)| (OcTreeKey::from_morton(m), 16)).collect();
+            let (c, s) = Self::centres_and_sizes(tree, &keyed);
+            (c, s, cells.iter().map(|&(_, v)| v).collect())
+        });
+        (rows_to_array(py, c), vec_to_array(py, s), vec_to_array(py, v))
+    }
+
+    /// Voxels hit during the last closed frame: centres (M, 3) and sizes (M,).
+    fn current_obstacles<'py>(&self, py: Python<'py>) -> Voxels<'py> {
+        let (c, s) = self.with_read(py, |tree| {
+            let keyed: Vec<(OcTreeKey, u32)> =
+                tree.danger_map().current_obstacles().iter().map(|&m| (OcTreeKey::from_morton(m), 16)).collect();
+            Self::centres_and_sizes(tree, &keyed)
+        });
+        (rows_to_array(py, c), vec_to_array(py, s))
+    }
+
+    fn __repr__(&self, py: Python<'_>) -> String {
+        self.with_read(py, |tree| format!(
+            "OcTree(resolution={}, nodes={}, dangerous_voxels={})",
+            tree.resolution(),
+            tree.size(),
+            tree.danger_map().len()
+        ))
+    }
+}
+
+impl PyOcTree {
+    /// Key box of an optional metric bounding box (the whole map where absent).
+    fn key_bounds(
+        &self,
+        py: Python<'_>,
+        bbx_min: Option<&Bound<'_, PyAny>>,
+        bbx_max: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<(OcTreeKey, OcTreeKey)> {
+        let lo = bbx_min.map(|b| vector3(b, "bbx_min")).transpose()?;
+        let hi = bbx_max.map(|b| vector3(b, "bbx_max")).transpose()?;
+        self.with_read(py, |tree| {
+            let kmin = lo.map(|p| tree.key_of("bbx_min", p)).transpose()?.unwrap_or(OcTreeKey([0; 3]));
+            let kmax = hi.map(|p| tree.key_of("bbx_max", p)).transpose()?.unwrap_or(OcTreeKey([u16::MAX; 3]));
+            Ok((kmin, kmax))
+        })
+        .py()
+    }
+}
+
+fn collect_leaves(tree: &OcTree, (kmin, kmax): (OcTreeKey, OcTreeKey)) -> Vec<Leaf> {
+    let mut leaves = Vec::new();
+    tree.for_each_leaf_in_keys(kmin, kmax, |l| leaves.push(l));
+    leaves
+}
+
+/// Log-odds of the leaf holding a double-precision point, `None` if unknown or off the map.
+fn lookup(tree: &OcTree, p: [f64; 3]) -> Option<f32> {
+    let key = tree.key_converter().coord_to_key_checked_f64(p)?;
+    tree.search(key, 0)
+}
