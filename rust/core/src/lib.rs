@@ -5,6 +5,7 @@
 
 pub mod error;
 pub mod octree;
+pub mod synthetic;
 pub mod threads;
 
 pub use error::{Error, Result};

@@ -3,6 +3,7 @@
 mod convert;
 mod errors;
 mod octree;
+mod synthetic;
 
 use pyo3::prelude::*;
 
@@ -29,5 +30,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MapFormatError", py.get_type::<errors::MapFormatError>())?;
     m.add_function(wrap_pyfunction!(set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(synthetic::render_depth_points, m)?)?;
+    m.add_function(wrap_pyfunction!(synthetic::benchmark_frame, m)?)?;
     Ok(())
 }

@@ -103,25 +103,57 @@ pub fn compute_ray_keys(conv: &KeyConverter, origin: Point3f, end: Point3f, mut 
     let mut direction = sub(end, origin);
     let length = norm(direction) as f32;
     direction = [direction[0] / length, direction[1] / length, direction[2] / length];
-    let mut dda = Dda::new(conv, key_origin, origin, direction, true);
-    let mut key = key_origin;
+    let dda = Dda::new(conv, key_origin, origin, direction, true);
     let length = f64::from(length);
+    // Everything in scalars so the loop lives in registers (an indexed u16 key array
+    // made every step wait on a store-to-load forward). The axis choice stays a
+    // branch: prediction runs ahead of the float dependency chain, which a
+    // branchless select would serialise (measured 3× slower).
+    let [sx, sy, sz] = dda.step;
+    let [dx, dy, dz] = dda.t_delta;
+    let [mut tx, mut ty, mut tz] = dda.t_max;
+    let (mut kx, mut ky, mut kz) = (i32::from(key_origin.0[0]), i32::from(key_origin.0[1]), i32::from(key_origin.0[2]));
+    let (ex, ey, ez) = (i32::from(key_end.0[0]), i32::from(key_end.0[1]), i32::from(key_end.0[2]));
     loop {
-        let dim = dda.next_axis();
-        // Wrapping add: a step past the key range cannot happen for in-range end points,
-        // and must not panic if rounding ever tried.
-        key.0[dim] = (i32::from(key.0[dim]) + dda.step[dim]) as u16;
-        dda.t_max[dim] += dda.t_delta[dim];
-        if key == key_end {
+        // OctoMap's tie-breaking: strict `<`, later axis on ties.
+        if tx < ty {
+            if tx < tz {
+                kx += sx;
+                tx += dx;
+            } else {
+                kz += sz;
+                tz += dz;
+            }
+        } else if ty < tz {
+            ky += sy;
+            ty += dy;
+        } else {
+            kz += sz;
+            tz += dz;
+        }
+        if kx == ex && ky == ey && kz == ez {
             break;
         }
-        let dist_from_origin = dda.t_max[0].min(dda.t_max[1]).min(dda.t_max[2]);
+        // Past the end point's distance without reaching its cell (rounding): stop.
+        let dist_from_origin = min3(tx, ty, tz);
         if dist_from_origin > length {
             break;
         }
-        visit(key);
+        // Keys stay in range for in-range end points; the cast cannot panic regardless.
+        visit(OcTreeKey([kx as u16, ky as u16, kz as u16]));
     }
     true
+}
+
+/// `std::min(std::min(a, b), c)` as C++ evaluates it (no NaN handling needed here).
+#[inline(always)]
+fn min3(a: f64, b: f64, c: f64) -> f64 {
+    let ab = if b < a { b } else { a };
+    if c < ab {
+        c
+    } else {
+        ab
+    }
 }
 
 /// Outcome of [`cast_ray`].

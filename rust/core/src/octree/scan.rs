@@ -37,10 +37,9 @@ impl OcTree {
     ) -> Result<InsertReport> {
         let (origin, points) = self.checked_scan(points, origin, max_range)?;
         let rays = if discretize { self.discretized(&points) } else { points };
-        let mut volume = self.trace(&rays, origin, max_range);
-        let (free, occupied) = volume.counts();
-        let mut updates: Vec<KeyUpdate> = Vec::with_capacity(free + occupied);
-        let mut hits = Vec::with_capacity(occupied);
+        let volume = self.trace(&rays, origin, max_range);
+        let mut updates: Vec<KeyUpdate> = Vec::new();
+        let mut hits = Vec::new();
         let (hit, miss) = (self.lo.hit, self.lo.miss);
         volume.for_each_sorted(|code, is_hit| {
             updates.push((code, if is_hit { hit } else { miss }));
@@ -48,16 +47,12 @@ impl OcTree {
                 hits.push(code);
             }
         });
-        self.danger.record_hits(hits);
+        self.danger.record_hits(hits.iter().copied());
         if !self.danger.is_empty() {
             self.danger.record_seen_free(|code| volume.is_free(OcTreeKey::from_morton(code)));
         }
         self.apply_sorted_updates(&updates);
-        Ok(InsertReport {
-            rays: rays.len(),
-            free_cells: free,
-            occupied_cells: occupied,
-        })
+        Ok(InsertReport { rays: rays.len(), free_cells: updates.len() - hits.len(), occupied_cells: hits.len() })
     }
 
     /// Validate a scan and convert it to OctoMap's float points.
@@ -106,15 +101,33 @@ impl OcTree {
         let chunk = points.len().div_ceil(parts).max(1024);
         let chunks: Vec<&[Point3f]> = points.chunks(chunk).collect();
         let conv = &self.conv;
+        let (lo, hi) = key_bounds(conv, origin, points);
         let volumes = threads::map_parts(&chunks, |part| {
-            let mut volume = KeyVolume::new();
+            let mut volume = KeyVolume::with_bounds(lo, hi);
             for &p in part.iter() {
                 trace_ray(conv, origin, p, max_range, &mut volume);
             }
             volume
         });
-        volumes.into_iter().fold(KeyVolume::new(), KeyVolume::merge)
+        volumes.into_iter().reduce(KeyVolume::merge).unwrap_or_default()
     }
+}
+
+/// Key box holding the origin and every point, one cell wider on each side (a ray's
+/// cells lie between its end cells, give or take rounding).
+fn key_bounds(conv: &super::key::KeyConverter, origin: Point3f, points: &[Point3f]) -> (OcTreeKey, OcTreeKey) {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in points.iter().chain(std::iter::once(&origin)) {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    // Points were validated, so both corners map to keys; clamp the widened box.
+    let key = |p: Point3f| conv.coord_to_key_checked(p).unwrap_or_default();
+    let (klo, khi) = (key(lo), key(hi));
+    (OcTreeKey(klo.0.map(|k| k.saturating_sub(1))), OcTreeKey(khi.0.map(|k| k.saturating_add(1))))
 }
 
 /// One ray of `computeUpdate`, float arithmetic as in OctoMap.

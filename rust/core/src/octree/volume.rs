@@ -1,131 +1,265 @@
-//! `KeyVolume`: a sparse set of cells, each marked free and/or occupied, stored as
-//! 8×8×8 bricks of bits. Rays mark their cells here (dedup at ~1 ns per cell instead
-//! of a hash insert per cell); reading the bricks in Morton order yields the cells
-//! sorted exactly as the tree update wants them.
+//! `KeyVolume`: a set of cells, each marked free and/or occupied, stored as 8×8×8
+//! bricks of bits. Rays mark their cells here (dedup for ~1 ns per cell instead of a
+//! hash insert per cell); reading the bricks in Morton order yields the cells sorted
+//! exactly as the tree update wants them.
+//!
+//! Storage: when the scan's bounding box is small (any depth camera), every brick of
+//! the box is allocated up front and a cell's bit is found with three table lookups
+//! (`X[x] + Y[y] + Z[z]`); cells outside the box, or all cells of a huge box, go to
+//! bricks found through a hash map.
 
 use rustc_hash::FxHashMap;
 
 use super::key::OcTreeKey;
 
 const BRICK_WORDS: usize = 8; // 512 cells / 64 bits
+/// Most bricks a dense box may hold (8 MiB per kind of mark).
+const MAX_DENSE_BRICKS: usize = 1 << 17;
+
+/// Morton code of three bits, x lowest.
+const SPREAD3: [u32; 8] = [0o0, 0o1, 0o10, 0o11, 0o100, 0o101, 0o110, 0o111];
+
+#[derive(Clone, Copy, Debug)]
+struct BrickBits<'a> {
+    free: &'a [u64],
+    occupied: &'a [u64],
+}
+
+/// Every brick of a box, laid out brick after brick, each brick in local Morton order.
+#[derive(Clone, Debug)]
+struct Dense {
+    /// Lowest key of the box (a multiple of 8 on every axis).
+    lo: [u16; 3],
+    /// Box size in cells (multiples of 8).
+    dims: [usize; 3],
+    /// Per-axis bit offsets; a cell's bit is `tables[0][x] + tables[1][y] + tables[2][z]`.
+    tables: [Vec<u32>; 3],
+    free: Vec<u64>,
+    occupied: Vec<u64>,
+}
+
+impl Dense {
+    fn new(lo: OcTreeKey, hi: OcTreeKey) -> Option<Self> {
+        let lo = lo.0.map(|k| k & !7);
+        let dims = [0, 1, 2].map(|a| usize::from((hi.0[a] | 7) - lo[a]) + 1);
+        let bricks = [0, 1, 2].map(|a| dims[a] / 8);
+        let n = bricks.iter().product::<usize>();
+        if n > MAX_DENSE_BRICKS {
+            return None;
+        }
+        let stride = [512, 512 * bricks[0], 512 * bricks[0] * bricks[1]];
+        let tables = [0, 1, 2].map(|a| {
+            (0..dims[a]).map(|c| ((c / 8) * stride[a]) as u32 + (SPREAD3[c % 8] << a)).collect::<Vec<u32>>()
+        });
+        Some(Dense { lo, dims, tables, free: vec![0; n * BRICK_WORDS], occupied: vec![0; n * BRICK_WORDS] })
+    }
+
+    #[inline(always)]
+    fn bit(&self, key: OcTreeKey) -> Option<usize> {
+        let x = key.0[0].wrapping_sub(self.lo[0]) as usize;
+        let y = key.0[1].wrapping_sub(self.lo[1]) as usize;
+        let z = key.0[2].wrapping_sub(self.lo[2]) as usize;
+        if x < self.dims[0] && y < self.dims[1] && z < self.dims[2] {
+            Some((self.tables[0][x] + self.tables[1][y] + self.tables[2][z]) as usize)
+        } else {
+            None
+        }
+    }
+
+    fn same_box(&self, other: &Dense) -> bool {
+        self.lo == other.lo && self.dims == other.dims
+    }
+
+    /// (brick Morton code, bits) of every non-empty brick.
+    fn bricks(&self) -> impl Iterator<Item = (u64, BrickBits<'_>)> {
+        let nb = [self.dims[0] / 8, self.dims[1] / 8];
+        let base = self.lo.map(|k| k >> 3);
+        (0..self.free.len() / BRICK_WORDS).filter_map(move |s| {
+            let w = s * BRICK_WORDS..(s + 1) * BRICK_WORDS;
+            let bits = BrickBits { free: &self.free[w.clone()], occupied: &self.occupied[w] };
+            if bits.free.iter().chain(bits.occupied).all(|&x| x == 0) {
+                return None;
+            }
+            let rel = [s % nb[0], (s / nb[0]) % nb[1], s / (nb[0] * nb[1])];
+            let coords = [0, 1, 2].map(|a| base[a] + rel[a] as u16);
+            Some((OcTreeKey(coords).morton(), bits))
+        })
+    }
+}
 
 #[derive(Clone, Debug)]
 struct Brick {
-    /// Morton code of the brick (the key shifted right by 3 on every axis).
-    code: u64,
+    coords: [u16; 3],
     free: [u64; BRICK_WORDS],
     occupied: [u64; BRICK_WORDS],
 }
 
-/// Local Morton index (0..512) of a key inside its brick.
-#[inline]
-fn local_index(key: OcTreeKey) -> usize {
-    // Morton code of the low 3 bits of each axis, x lowest.
-    const SPREAD3: [usize; 8] = [0o0, 0o1, 0o10, 0o11, 0o100, 0o101, 0o110, 0o111];
-    SPREAD3[(key.0[0] & 7) as usize] | (SPREAD3[(key.0[1] & 7) as usize] << 1) | (SPREAD3[(key.0[2] & 7) as usize] << 2)
-}
-
-#[inline]
-fn brick_code(key: OcTreeKey) -> u64 {
-    OcTreeKey([key.0[0] >> 3, key.0[1] >> 3, key.0[2] >> 3]).morton()
-}
-
+/// Bricks allocated on demand, found by hashing their coordinates.
 #[derive(Clone, Debug, Default)]
-pub struct KeyVolume {
-    index: FxHashMap<u64, u32>,
+struct Sparse {
+    index: FxHashMap<[u16; 3], u32>,
     bricks: Vec<Brick>,
-    /// The brick the last mark went to, as (packed brick coordinates, index): rays
-    /// mostly stay in one brick for several cells.
-    cached: Option<(u64, u32)>,
+    /// The brick of the last mark: rays stay in one brick for several cells.
+    cached: Option<([u16; 3], u32)>,
 }
 
-impl KeyVolume {
-    pub fn new() -> Self {
-        Self::default()
-    }
-
+impl Sparse {
     #[inline]
     fn brick_mut(&mut self, key: OcTreeKey) -> &mut Brick {
-        // Compare packed brick coordinates (cheap) before computing a Morton code.
-        let packed = u64::from(key.0[0] >> 3) | (u64::from(key.0[1] >> 3) << 16) | (u64::from(key.0[2] >> 3) << 32);
+        let b = key.0.map(|k| k >> 3);
         let i = match self.cached {
-            Some((c, i)) if c == packed => i,
+            Some((c, i)) if c == b => i,
             _ => {
-                let code = brick_code(key);
                 let next = self.bricks.len() as u32;
-                let i = *self.index.entry(code).or_insert(next);
+                let i = *self.index.entry(b).or_insert(next);
                 if i == next {
-                    self.bricks.push(Brick { code, free: [0; BRICK_WORDS], occupied: [0; BRICK_WORDS] });
+                    self.bricks.push(Brick { coords: b, free: [0; BRICK_WORDS], occupied: [0; BRICK_WORDS] });
                 }
-                self.cached = Some((packed, i));
+                self.cached = Some((b, i));
                 i
             }
         };
         &mut self.bricks[i as usize]
     }
 
-    #[inline]
-    pub fn mark_free(&mut self, key: OcTreeKey) {
-        let l = local_index(key);
-        self.brick_mut(key).free[l >> 6] |= 1 << (l & 63);
-    }
-
-    #[inline]
-    pub fn mark_occupied(&mut self, key: OcTreeKey) {
-        let l = local_index(key);
-        self.brick_mut(key).occupied[l >> 6] |= 1 << (l & 63);
-    }
-
     fn find(&self, key: OcTreeKey) -> Option<&Brick> {
-        self.index.get(&brick_code(key)).map(|&i| &self.bricks[i as usize])
+        self.index.get(&key.0.map(|k| k >> 3)).map(|&i| &self.bricks[i as usize])
+    }
+}
+
+#[inline(always)]
+fn local_index(key: OcTreeKey) -> usize {
+    (SPREAD3[(key.0[0] & 7) as usize] | (SPREAD3[(key.0[1] & 7) as usize] << 1) | (SPREAD3[(key.0[2] & 7) as usize] << 2))
+        as usize
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct KeyVolume {
+    dense: Option<Dense>,
+    sparse: Sparse,
+}
+
+impl KeyVolume {
+    /// An empty volume for cells anywhere.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// An empty volume expecting cells within the key box `[lo, hi]` (others still work).
+    pub fn with_bounds(lo: OcTreeKey, hi: OcTreeKey) -> Self {
+        KeyVolume { dense: Dense::new(lo, hi), sparse: Sparse::default() }
+    }
+
+    #[inline(always)]
+    pub fn mark_free(&mut self, key: OcTreeKey) {
+        match self.dense.as_mut().and_then(|d| d.bit(key).map(|i| (d, i))) {
+            Some((d, i)) => d.free[i >> 6] |= 1 << (i & 63),
+            None => self.mark_sparse(key, false),
+        }
+    }
+
+    #[inline(always)]
+    pub fn mark_occupied(&mut self, key: OcTreeKey) {
+        match self.dense.as_mut().and_then(|d| d.bit(key).map(|i| (d, i))) {
+            Some((d, i)) => d.occupied[i >> 6] |= 1 << (i & 63),
+            None => self.mark_sparse(key, true),
+        }
+    }
+
+    /// The slow path, out of line so the dense path inlines into the ray loop.
+    #[cold]
+    #[inline(never)]
+    fn mark_sparse(&mut self, key: OcTreeKey, occupied: bool) {
+        let l = local_index(key);
+        let b = self.sparse.brick_mut(key);
+        let words = if occupied { &mut b.occupied } else { &mut b.free };
+        words[l >> 6] |= 1 << (l & 63);
     }
 
     /// Whether `key` is marked free and not occupied.
     pub fn is_free(&self, key: OcTreeKey) -> bool {
+        let test = |free: u64, occ: u64, i: usize| ((free & !occ) >> (i & 63)) & 1 == 1;
+        if let Some(d) = &self.dense {
+            if let Some(i) = d.bit(key) {
+                return test(d.free[i >> 6], d.occupied[i >> 6], i);
+            }
+        }
         let l = local_index(key);
-        self.find(key).is_some_and(|b| (b.free[l >> 6] & !b.occupied[l >> 6]) >> (l & 63) & 1 == 1)
+        self.sparse.find(key).is_some_and(|b| test(b.free[l >> 6], b.occupied[l >> 6], l))
     }
 
     /// Union with another volume (the per-thread volumes of a parallel scan).
     pub fn merge(mut self, other: KeyVolume) -> KeyVolume {
-        if other.bricks.len() > self.bricks.len() {
-            return other.merge(self);
-        }
-        for b in other.bricks {
-            let next = self.bricks.len() as u32;
-            let i = *self.index.entry(b.code).or_insert(next);
-            if i == next {
-                self.bricks.push(b);
-            } else {
-                let mine = &mut self.bricks[i as usize];
-                for w in 0..BRICK_WORDS {
-                    mine.free[w] |= b.free[w];
-                    mine.occupied[w] |= b.occupied[w];
+        let KeyVolume { dense: other_dense, sparse: other_sparse } = other;
+        if let Some(od) = other_dense {
+            match &mut self.dense {
+                Some(d) if d.same_box(&od) => {
+                    for (a, b) in d.free.iter_mut().zip(&od.free) {
+                        *a |= b;
+                    }
+                    for (a, b) in d.occupied.iter_mut().zip(&od.occupied) {
+                        *a |= b;
+                    }
+                }
+                _ => {
+                    for (code, bits) in od.bricks() {
+                        self.or_brick(code, bits.free, bits.occupied);
+                    }
                 }
             }
         }
-        self.cached = None;
+        for b in other_sparse.bricks {
+            self.or_brick(OcTreeKey(b.coords).morton(), &b.free, &b.occupied);
+        }
         self
+    }
+
+    /// OR a whole brick in, cell by cell (only used when merging unlike volumes).
+    fn or_brick(&mut self, code: u64, free: &[u64], occupied: &[u64]) {
+        for l in 0..512u64 {
+            let (w, bit) = ((l >> 6) as usize, l & 63);
+            let key = OcTreeKey::from_morton((code << 9) | l);
+            if (free[w] >> bit) & 1 == 1 {
+                self.mark_free(key);
+            }
+            if (occupied[w] >> bit) & 1 == 1 {
+                self.mark_occupied(key);
+            }
+        }
     }
 
     /// Visit every marked cell in Morton order as (code, occupied); a cell marked both
     /// free and occupied is reported once, as occupied.
-    pub fn for_each_sorted(&mut self, mut f: impl FnMut(u64, bool)) {
-        self.bricks.sort_unstable_by_key(|b| b.code);
-        self.index.clear();
-        for (i, b) in self.bricks.iter().enumerate() {
-            self.index.insert(b.code, i as u32);
+    pub fn for_each_sorted(&self, mut f: impl FnMut(u64, bool)) {
+        let mut bricks: Vec<(u64, BrickBits<'_>)> = Vec::new();
+        if let Some(d) = &self.dense {
+            bricks.extend(d.bricks());
         }
-        self.cached = None;
-        for b in &self.bricks {
-            let base = b.code << 9;
+        bricks.extend(self.sparse.bricks.iter().map(|b| {
+            (OcTreeKey(b.coords).morton(), BrickBits { free: &b.free, occupied: &b.occupied })
+        }));
+        bricks.sort_unstable_by_key(|&(code, _)| code);
+        // A brick can be in both stores only after merging unlike volumes; those
+        // duplicates are adjacent after sorting and are combined here.
+        let mut i = 0;
+        while i < bricks.len() {
+            let code = bricks[i].0;
+            let mut free = [0u64; BRICK_WORDS];
+            let mut occupied = [0u64; BRICK_WORDS];
+            while i < bricks.len() && bricks[i].0 == code {
+                for w in 0..BRICK_WORDS {
+                    free[w] |= bricks[i].1.free[w];
+                    occupied[w] |= bricks[i].1.occupied[w];
+                }
+                i += 1;
+            }
+            let base = code << 9;
             for w in 0..BRICK_WORDS {
-                let mut bits = b.free[w] | b.occupied[w];
+                let mut bits = free[w] | occupied[w];
                 while bits != 0 {
                     let t = bits.trailing_zeros() as u64;
                     bits &= bits - 1;
-                    let occupied = (b.occupied[w] >> t) & 1 == 1;
-                    f(base | ((w as u64) << 6) | t, occupied);
+                    f(base | ((w as u64) << 6) | t, (occupied[w] >> t) & 1 == 1);
                 }
             }
         }
@@ -133,14 +267,8 @@ impl KeyVolume {
 
     /// Counts of (free-only, occupied) cells.
     pub fn counts(&self) -> (usize, usize) {
-        let mut free = 0;
-        let mut occ = 0;
-        for b in &self.bricks {
-            for w in 0..BRICK_WORDS {
-                free += (b.free[w] & !b.occupied[w]).count_ones() as usize;
-                occ += b.occupied[w].count_ones() as usize;
-            }
-        }
+        let (mut free, mut occ) = (0, 0);
+        self.for_each_sorted(|_, o| if o { occ += 1 } else { free += 1 });
         (free, occ)
     }
 }
@@ -149,17 +277,15 @@ impl KeyVolume {
 mod tests {
     use super::*;
 
-    #[test]
-    fn cells_come_out_sorted_and_occupied_wins() {
-        let mut v = KeyVolume::new();
+    fn check(mut v: KeyVolume, mut w: KeyVolume) {
         let keys = [OcTreeKey([9, 3, 700]), OcTreeKey([1, 2, 3]), OcTreeKey([65535, 0, 8]), OcTreeKey([8, 8, 8])];
         for k in keys {
             v.mark_free(k);
         }
         v.mark_occupied(keys[1]);
-        let mut w = KeyVolume::new();
         w.mark_occupied(OcTreeKey([4, 4, 4]));
-        let mut v = v.merge(w);
+        w.mark_free(keys[0]);
+        let v = v.merge(w);
         let mut out = Vec::new();
         v.for_each_sorted(|m, occ| out.push((m, occ)));
         let mut expected: Vec<(u64, bool)> = keys.iter().map(|k| (k.morton(), *k == keys[1])).collect();
@@ -168,5 +294,15 @@ mod tests {
         assert_eq!(out, expected);
         assert_eq!(v.counts(), (3, 2));
         assert!(v.is_free(keys[0]) && !v.is_free(keys[1]) && !v.is_free(OcTreeKey([5, 5, 5])));
+    }
+
+    #[test]
+    fn cells_come_out_sorted_and_occupied_wins() {
+        check(KeyVolume::new(), KeyVolume::new());
+        // Dense boxes covering only some of the cells: the rest go to the sparse store.
+        let (lo, hi) = (OcTreeKey([0, 0, 0]), OcTreeKey([20, 20, 20]));
+        check(KeyVolume::with_bounds(lo, hi), KeyVolume::with_bounds(lo, hi));
+        check(KeyVolume::with_bounds(lo, hi), KeyVolume::new());
+        check(KeyVolume::new(), KeyVolume::with_bounds(OcTreeKey([3, 1, 600]), OcTreeKey([30, 9, 800])));
     }
 }
