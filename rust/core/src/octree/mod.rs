@@ -15,4 +15,4 @@ pub use key::{KeyConverter, OcTreeKey, TREE_DEPTH, TREE_MAX_VAL};
 pub use occupancy::{logodds, probability, KeyUpdate, Leaf, OcTree, OccupancyParams};
 pub use ray::{cast_ray, compute_ray_keys, Point3f, RayHit};
 pub use scan::InsertReport;
-pub use volume::KeyVolume;
+pub use volume::{DenseMarker, KeyVolume};

@@ -137,16 +137,33 @@ fn trace_ray(conv: &super::key::KeyConverter, origin: Point3f, p: Point3f, max_r
         None => true,
         Some(r) => super::ray::norm(super::ray::sub(p, origin)) <= r,
     };
+    let end = if within {
+        p
+    } else {
+        let r = max_range.unwrap_or(f64::INFINITY);
+        super::ray::point_at(origin, super::ray::normalized(super::ray::sub(p, origin)), r as f32)
+    };
+    mark_ray_free(conv, origin, end, volume);
     if within {
-        compute_ray_keys(conv, origin, p, |k| volume.mark_free(k));
         if let Some(k) = conv.coord_to_key_checked(p) {
             volume.mark_occupied(k);
         }
-    } else {
-        let r = max_range.unwrap_or(f64::INFINITY);
-        let end = super::ray::point_at(origin, super::ray::normalized(super::ray::sub(p, origin)), r as f32);
-        compute_ray_keys(conv, origin, end, |k| volume.mark_free(k));
     }
+}
+
+/// Mark the free cells of one ray: through the dense box when every cell fits in it
+/// (the fast path), else cell by cell through the general store.
+#[inline]
+fn mark_ray_free(conv: &super::key::KeyConverter, origin: Point3f, end: Point3f, volume: &mut KeyVolume) {
+    if let Some(mut dense) = volume.dense_marker() {
+        let mut all_inside = true;
+        compute_ray_keys(conv, origin, end, |k| all_inside &= dense.mark_free(k));
+        if all_inside {
+            return;
+        }
+    }
+    // Marking is idempotent, so cells the fast path already marked may be marked again.
+    compute_ray_keys(conv, origin, end, |k| volume.mark_free(k));
 }
 
 #[inline]

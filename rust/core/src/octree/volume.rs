@@ -176,6 +176,14 @@ impl KeyVolume {
         words[l >> 6] |= 1 << (l & 63);
     }
 
+    /// Direct access to the dense box for the hot ray loop, when there is one: its
+    /// `mark_free` has no slow path (a call inside the loop makes the compiler keep the
+    /// ray's state in memory, halving the speed), so it reports keys it cannot hold.
+    #[inline(always)]
+    pub fn dense_marker(&mut self) -> Option<DenseMarker<'_>> {
+        self.dense.as_mut().map(|dense| DenseMarker { dense })
+    }
+
     /// Whether `key` is marked free and not occupied.
     pub fn is_free(&self, key: OcTreeKey) -> bool {
         let test = |free: u64, occ: u64, i: usize| ((free & !occ) >> (i & 63)) & 1 == 1;
@@ -304,5 +312,24 @@ mod tests {
         check(KeyVolume::with_bounds(lo, hi), KeyVolume::with_bounds(lo, hi));
         check(KeyVolume::with_bounds(lo, hi), KeyVolume::new());
         check(KeyVolume::new(), KeyVolume::with_bounds(OcTreeKey([3, 1, 600]), OcTreeKey([30, 9, 800])));
+    }
+}
+
+/// See [`KeyVolume::dense_marker`].
+pub struct DenseMarker<'a> {
+    dense: &'a mut Dense,
+}
+
+impl DenseMarker<'_> {
+    /// Mark `key` free; `false` when it lies outside the dense box (nothing marked).
+    #[inline(always)]
+    pub fn mark_free(&mut self, key: OcTreeKey) -> bool {
+        match self.dense.bit(key) {
+            Some(i) => {
+                self.dense.free[i >> 6] |= 1 << (i & 63);
+                true
+            }
+            None => false,
+        }
     }
 }
