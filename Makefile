@@ -1,0 +1,68 @@
+# earcore: the README's two commands are `make demo` and `make test`.
+# Every target sets up what it needs (virtual environment, release build, packages).
+# `make help` lists the targets.
+
+SHELL := /bin/bash
+.SHELLFLAGS := -euo pipefail -c
+PYTHON ?= python3
+VENV := .venv
+TEST_VENV := .venv-test
+PY := $(VENV)/bin/python
+PIP_FLAGS := --disable-pip-version-check -q
+export PIP_CACHE_DIR ?= $(HOME)/.cache/pip
+
+.PHONY: help demo test test-rust test-python develop wheel bench bench-python lint fuzz clean system-deps
+
+help: ## list the targets
+	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-14s %s\n", $$1, $$2}'
+
+system-deps: ## Debian packages the build needs (only installed when missing)
+	@command -v cargo >/dev/null || { echo "Rust (cargo) is required: https://rustup.rs"; exit 1; }
+	@$(PYTHON) -c 'import ensurepip, venv' 2>/dev/null || { \
+	  echo "installing python3-venv"; (apt-get update -qq && apt-get install -y -qq python3-venv) >/dev/null; }
+
+$(VENV)/.ready: pyproject.toml | system-deps
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install $(PIP_FLAGS) --upgrade pip
+	$(PY) -m pip install $(PIP_FLAGS) "maturin>=1.8,<2" numpy "matplotlib>=3.7" "pyoctomap>=1.2"
+	touch $@
+
+develop: $(VENV)/.ready ## build the extension (release) into .venv, editable
+	$(VENV)/bin/maturin develop --release -q
+
+demo: develop ## the main job: the map demo (synthetic cell, 3 cameras, danger decay) -> out/map_danger.png
+	$(VENV)/bin/earcore demo --out out
+
+wheel: $(VENV)/.ready ## build the release wheel into dist/
+	rm -rf dist
+	$(VENV)/bin/maturin build --release -q -o dist
+
+test-rust: system-deps ## Rust unit, integration and doc tests of the core
+	cargo test -q --release
+
+test-python: wheel ## install the wheel into a fresh venv and run pytest against it
+	$(PYTHON) -m venv --clear $(TEST_VENV)
+	$(TEST_VENV)/bin/python -m pip install $(PIP_FLAGS) --upgrade pip
+	$(TEST_VENV)/bin/python -m pip install $(PIP_FLAGS) "$$(ls dist/earcore-*.whl)[test]"
+	cd tests && ../$(TEST_VENV)/bin/python -m pytest -q -p no:cacheprovider .
+
+test: test-rust test-python ## every test: cargo test (core) + pytest (installed wheel)
+
+bench: develop ## criterion benches, then earcore vs pyoctomap side by side
+	cargo bench --bench octree
+	$(PY) benches/bench_vs_octomap.py
+
+bench-python: develop ## only the side-by-side comparison with pyoctomap
+	$(PY) benches/bench_vs_octomap.py
+
+lint: ## rustfmt, clippy
+	cargo fmt --all --check
+	cargo clippy --workspace --all-targets -q -- -D warnings
+
+fuzz: ## fuzz the .bt/.ot readers for 10 minutes each (needs cargo-fuzz)
+	command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz
+	cd fuzz && RUSTC_BOOTSTRAP=1 cargo fuzz run read_binary -- -max_total_time=600
+	cd fuzz && RUSTC_BOOTSTRAP=1 cargo fuzz run read_full -- -max_total_time=600
+
+clean: ## remove build outputs and virtual environments
+	rm -rf target dist out $(VENV) $(TEST_VENV) fuzz/target

@@ -1,0 +1,5 @@
+import sys
+
+from earcore.cli import main
+
+sys.exit(main())

@@ -1,0 +1,37 @@
+"""The `earcore` command."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def _version() -> int:
+    try:
+        import earcore
+    except ImportError as exc:
+        print(f"earcore: the compiled extension failed to load:\n  {exc}", file=sys.stderr)
+        return 1
+    print(f"earcore {earcore.__version__} (extension {earcore._earcore.__file__})")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(prog="earcore", description="Environment-aware robot arm toolkit.")
+    parser.add_argument("--version", action="store_true", help="print the version (proves the extension loads)")
+    sub = parser.add_subparsers(dest="command")
+    sub.add_parser("demo", help="map demo: cameras, an obstacle passing, danger decaying (PNG + summary)", add_help=False)
+    args, rest = parser.parse_known_args(argv)
+    if args.version:
+        return _version()
+    if args.command == "demo":
+        from earcore.demo import main as demo_main
+
+        return demo_main(rest)
+    parser.print_help()
+    return 0 if not argv else 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
