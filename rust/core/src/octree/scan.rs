@@ -62,6 +62,11 @@ impl OcTree {
                 return Err(Error::InvalidArgument(format!("max_range must be a positive distance in metres, got {r}")));
             }
         }
+        if points.is_empty() {
+            return Err(Error::InvalidArgument(
+                "points is empty: a scan needs at least one point (skip frames without valid depth)".into(),
+            ));
+        }
         let origin32 = to_f32(origin);
         self.key_of("sensor origin", origin)?;
         if self.conv.coord_to_key_checked(origin32).is_none() {

@@ -1,0 +1,42 @@
+"""Shared helpers: synthetic scans and comparison with OctoMap (pyoctomap)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from earcore.synthetic import look_at, random_scene, render_depth_points
+
+#: A small depth camera (160×120, ~70° wide) keeps the many-scene comparisons quick.
+SMALL_CAMERA = dict(width=160, height=120, fx=114.0, fy=114.0, cx=80.0, cy=60.0)
+
+
+def scene_scans(seed: int, n_views: int = 3, max_depth: float = 4.5) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Depth scans (points, origin) of one random scene of boxes and spheres on a floor,
+    from `n_views` cameras around it."""
+    rng = np.random.default_rng(seed)
+    spheres, boxes = random_scene(rng, n_shapes=int(rng.integers(4, 12)))
+    scans = []
+    for _ in range(n_views):
+        angle = rng.uniform(0, 2 * np.pi)
+        eye = np.array([2.8 * np.cos(angle), 2.8 * np.sin(angle), rng.uniform(0.8, 2.2)])
+        pose = look_at(eye, rng.uniform([-0.5, -0.5, 0.2], [0.5, 0.5, 0.8]))
+        pts = render_depth_points(pose, spheres, boxes, 0.0, max_depth=max_depth, **SMALL_CAMERA)
+        scans.append((pts, pose[:3, 3].copy()))
+    return scans
+
+
+def octomap_leaves(tree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OctoMap's leaves via its own iterator: float centres (M, 3), depths (M,), occupied (M,)."""
+    centres, depths, occupied = [], [], []
+    for it in tree.begin_leafs():
+        centres.append(it.getCoordinate())
+        depths.append(it.getDepth())
+        occupied.append(tree.isNodeOccupied(it))
+    return np.array(centres, dtype=np.float64).reshape(-1, 3), np.array(depths), np.array(occupied, dtype=bool)
+
+
+@pytest.fixture
+def octomap():
+    """The reference implementation, skipped cleanly if it is not installed."""
+    return pytest.importorskip("pyoctomap")
