@@ -25,6 +25,8 @@ except ImportError as exc:  # pragma: no cover - exercised by `earcore --version
         f"{exc}. Reinstall the wheel (`pip install --force-reinstall earcore`) or rebuild with `make develop`."
     ) from exc
 
+from earcore import synthetic  # noqa: E402  (light: numpy and the extension only)
+
 __all__ = [
     "EarcoreError",
     "FrameReport",
@@ -35,4 +37,5 @@ __all__ = [
     "__version__",
     "get_num_threads",
     "set_num_threads",
+    "synthetic",
 ]

@@ -4,7 +4,7 @@
 
 use super::key::OcTreeKey;
 use super::occupancy::{KeyUpdate, OcTree};
-use super::ray::{compute_ray_keys, Point3f};
+use super::ray::{compute_ray_keys, walk_ray, Point3f};
 use super::volume::KeyVolume;
 use crate::error::{Error, Result};
 use crate::threads;
@@ -161,9 +161,8 @@ fn trace_ray(conv: &super::key::KeyConverter, origin: Point3f, p: Point3f, max_r
 #[inline]
 fn mark_ray_free(conv: &super::key::KeyConverter, origin: Point3f, end: Point3f, volume: &mut KeyVolume) {
     if let Some(mut dense) = volume.dense_marker() {
-        let mut all_inside = true;
-        compute_ray_keys(conv, origin, end, |k| all_inside &= dense.mark_free(k));
-        if all_inside {
+        walk_ray(conv, origin, end, &mut dense);
+        if !dense.outside {
             return;
         }
     }

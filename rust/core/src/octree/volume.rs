@@ -11,6 +11,7 @@
 use rustc_hash::FxHashMap;
 
 use super::key::OcTreeKey;
+use super::ray::RayCells;
 
 const BRICK_WORDS: usize = 8; // 512 cells / 64 bits
 /// Most bricks a dense box may hold (8 MiB per kind of mark).
@@ -181,7 +182,7 @@ impl KeyVolume {
     /// ray's state in memory, halving the speed), so it reports keys it cannot hold.
     #[inline(always)]
     pub fn dense_marker(&mut self) -> Option<DenseMarker<'_>> {
-        self.dense.as_mut().map(|dense| DenseMarker { dense })
+        self.dense.as_mut().map(|dense| DenseMarker { dense, offsets: [0; 3], outside: false })
     }
 
     /// Whether `key` is marked free and not occupied.
@@ -315,21 +316,46 @@ mod tests {
     }
 }
 
-/// See [`KeyVolume::dense_marker`].
+/// See [`KeyVolume::dense_marker`]. As a [`RayCells`] receiver it keeps each axis's
+/// bit offset and refreshes only the axis that moved (one table load per cell).
 pub struct DenseMarker<'a> {
     dense: &'a mut Dense,
+    offsets: [u32; 3],
+    /// A cell fell outside the box (nothing was marked for it).
+    pub outside: bool,
 }
 
 impl DenseMarker<'_> {
-    /// Mark `key` free; `false` when it lies outside the dense box (nothing marked).
     #[inline(always)]
-    pub fn mark_free(&mut self, key: OcTreeKey) -> bool {
-        match self.dense.bit(key) {
-            Some(i) => {
-                self.dense.free[i >> 6] |= 1 << (i & 63);
-                true
+    fn offset(&self, axis: usize, k: u16) -> Option<u32> {
+        self.dense.tables[axis].get(usize::from(k.wrapping_sub(self.dense.lo[axis]))).copied()
+    }
+}
+
+impl RayCells for DenseMarker<'_> {
+    #[inline(always)]
+    fn cell(&mut self, key: OcTreeKey, moved: usize) {
+        // `moved` is a constant at each call site once inlined, so this match folds away.
+        let ok = match moved {
+            0 => self.offset(0, key.0[0]).map(|o| self.offsets[0] = o).is_some(),
+            1 => self.offset(1, key.0[1]).map(|o| self.offsets[1] = o).is_some(),
+            2 => self.offset(2, key.0[2]).map(|o| self.offsets[2] = o).is_some(),
+            _ => match (self.offset(0, key.0[0]), self.offset(1, key.0[1]), self.offset(2, key.0[2])) {
+                (Some(x), Some(y), Some(z)) => {
+                    self.offsets = [x, y, z];
+                    true
+                }
+                _ => false,
+            },
+        };
+        if ok {
+            let i = (self.offsets[0] + self.offsets[1] + self.offsets[2]) as usize;
+            // In range by construction of the tables; `get_mut` keeps it panic-free.
+            if let Some(w) = self.dense.free.get_mut(i >> 6) {
+                *w |= 1 << (i & 63);
             }
-            None => false,
+        } else {
+            self.outside = true;
         }
     }
 }
