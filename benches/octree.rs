@@ -17,14 +17,27 @@ fn insert_frame(c: &mut Criterion) {
     for resolution in [0.05, 0.02] {
         for n_threads in [1, 0] {
             threads::set_num_threads(n_threads);
-            let label = format!("{}cm/{}", resolution * 100.0, if n_threads == 1 { "1 thread" } else { "all threads" });
-            group.bench_with_input(BenchmarkId::from_parameter(label), &resolution, |b, &res| {
-                b.iter(|| {
-                    let mut tree = OcTree::new(res).expect("valid resolution");
-                    tree.insert_point_cloud(&points, origin, None, false).expect("valid scan");
-                    tree
-                })
-            });
+            let label = format!(
+                "{}cm/{}",
+                resolution * 100.0,
+                if n_threads == 1 {
+                    "1 thread"
+                } else {
+                    "all threads"
+                }
+            );
+            group.bench_with_input(
+                BenchmarkId::from_parameter(label),
+                &resolution,
+                |b, &res| {
+                    b.iter(|| {
+                        let mut tree = OcTree::new(res).expect("valid resolution");
+                        tree.insert_point_cloud(&points, origin, None, false)
+                            .expect("valid scan");
+                        tree
+                    })
+                },
+            );
         }
     }
     threads::set_num_threads(0);
@@ -36,7 +49,8 @@ fn queries(c: &mut Criterion) {
     let points = render_points(&camera, &pose, &shapes);
     let origin = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
     let mut tree = OcTree::new(0.05).expect("valid resolution");
-    tree.insert_point_cloud(&points, origin, None, false).expect("valid scan");
+    tree.insert_point_cloud(&points, origin, None, false)
+        .expect("valid scan");
     let mut group = c.benchmark_group("queries");
     group.throughput(Throughput::Elements(points.len() as u64));
     group.bench_function("search 217k points", |b| {
@@ -58,9 +72,14 @@ fn danger_frame(c: &mut Criterion) {
     let points = render_points(&camera, &pose, &shapes);
     let origin = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
     let mut tree = OcTree::new(0.05).expect("valid resolution");
-    tree.insert_point_cloud(&points, origin, None, false).expect("valid scan");
+    tree.insert_point_cloud(&points, origin, None, false)
+        .expect("valid scan");
     c.bench_function("end_frame with the frame's hits active", |b| {
-        b.iter(|| tree.danger_map_mut().end_frame(1.0 / 15.0).expect("valid dt"))
+        b.iter(|| {
+            tree.danger_map_mut()
+                .end_frame(1.0 / 15.0)
+                .expect("valid dt")
+        })
     });
 }
 

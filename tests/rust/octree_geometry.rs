@@ -43,7 +43,12 @@ impl Rng {
 /// also holds the end point (the end lies on its boundary) is left out of "crossed":
 /// OctoMap stops the walk once the distance travelled exceeds the length, and with
 /// rounding that can happen just before such a cell.
-fn brute_force_cells(conv: &KeyConverter, a: [f32; 3], b: [f32; 3], res: f64) -> (BTreeSet<OcTreeKey>, BTreeSet<OcTreeKey>) {
+fn brute_force_cells(
+    conv: &KeyConverter,
+    a: [f32; 3],
+    b: [f32; 3],
+    res: f64,
+) -> (BTreeSet<OcTreeKey>, BTreeSet<OcTreeKey>) {
     let a64 = a.map(f64::from);
     let b64 = b.map(f64::from);
     let ka = conv.coord_to_key_checked(a).unwrap();
@@ -90,11 +95,17 @@ fn ray_cells_match_brute_force() {
             assert!(!dda.contains(&end), "the end cell is excluded");
             // Every visited cell is touched by the segment...
             for k in &dda {
-                assert!(touched.contains(k), "visited {k:?} which the segment does not touch");
+                assert!(
+                    touched.contains(k),
+                    "visited {k:?} which the segment does not touch"
+                );
             }
             // ...and every clearly crossed cell but the end cell is visited.
             for k in crossed.iter().filter(|&&k| k != end) {
-                assert!(dda.contains(k), "missed crossed cell {k:?} on ray {a:?} -> {b:?} at {res}");
+                assert!(
+                    dda.contains(k),
+                    "missed crossed cell {k:?} on ray {a:?} -> {b:?} at {res}"
+                );
             }
         }
     }
@@ -106,9 +117,13 @@ fn insertion_marks_ray_cells_free_and_end_cells_occupied() {
     let mut tree = OcTree::new(res).unwrap();
     let origin = [0.013, -0.021, 0.4];
     let points = [[1.234, 0.55, 0.12], [-0.8, 0.31, 1.9], [0.5, -1.3, 0.4]];
-    tree.insert_point_cloud(&points, origin, None, false).unwrap();
+    tree.insert_point_cloud(&points, origin, None, false)
+        .unwrap();
     let conv = *tree.key_converter();
-    let (hit, miss) = (earcore_core::octree::logodds(0.7), earcore_core::octree::logodds(0.4));
+    let (hit, miss) = (
+        earcore_core::octree::logodds(0.7),
+        earcore_core::octree::logodds(0.4),
+    );
     let o32 = origin.map(|v| v as f32);
     let mut expected_free = BTreeSet::new();
     let mut expected_occupied = BTreeSet::new();
@@ -133,14 +148,26 @@ fn insertion_marks_ray_cells_free_and_end_cells_occupied() {
     });
     // At most the cells next to an end point on a cell boundary come on top.
     let expected = expected_free.union(&expected_occupied).count();
-    assert!(leaves >= expected && leaves <= expected + 3 * points.len(), "{leaves} leaves, expected about {expected}");
+    assert!(
+        leaves >= expected && leaves <= expected + 3 * points.len(),
+        "{leaves} leaves, expected about {expected}"
+    );
 }
 
 #[test]
 fn files_round_trip_in_rust() {
     let mut tree = OcTree::new(0.1).unwrap();
-    let pts: Vec<[f64; 3]> = (0..200).map(|i| [(i as f64 * 0.37).sin() * 2.0, (i as f64 * 0.11).cos() * 2.0, 0.7]).collect();
-    tree.insert_point_cloud(&pts, [0.0, 0.0, 1.5], None, false).unwrap();
+    let pts: Vec<[f64; 3]> = (0..200)
+        .map(|i| {
+            [
+                (i as f64 * 0.37).sin() * 2.0,
+                (i as f64 * 0.11).cos() * 2.0,
+                0.7,
+            ]
+        })
+        .collect();
+    tree.insert_point_cloud(&pts, [0.0, 0.0, 1.5], None, false)
+        .unwrap();
     let full = OcTree::read_full_bytes(&tree.write_full_bytes(), Default::default()).unwrap();
     assert_eq!(full.write_full_bytes(), tree.write_full_bytes());
     let bt = tree.write_binary_bytes();

@@ -15,9 +15,18 @@ fn main() {
     let mut size = 0;
     for _ in 0..reps {
         let mut tree = OcTree::new(res).expect("valid resolution");
-        let r = tree.insert_point_cloud(&points, origin, None, false).expect("valid scan");
+        let r = tree
+            .insert_point_cloud(&points, origin, None, false)
+            .expect("valid scan");
         size = tree.size();
-        if reps == 1 { println!("{r:?}"); }
+        if reps == 1 {
+            println!("{r:?}");
+        }
     }
-    println!("{} points, {} nodes, {:.2} ms per frame", points.len(), size, t.elapsed().as_secs_f64() * 1e3 / reps as f64);
+    println!(
+        "{} points, {} nodes, {:.2} ms per frame",
+        points.len(),
+        size,
+        t.elapsed().as_secs_f64() * 1e3 / reps as f64
+    );
 }

@@ -9,7 +9,11 @@ pub enum Error {
     InvalidArgument(String),
     /// A coordinate cannot be addressed by the tree's 16-bit keys at this resolution.
     #[error("{what} {point:?} lies outside the map (coordinates must stay within ±{limit} m at this resolution)")]
-    OutOfBounds { what: &'static str, point: [f64; 3], limit: f64 },
+    OutOfBounds {
+        what: &'static str,
+        point: [f64; 3],
+        limit: f64,
+    },
     /// A file or byte stream is not a valid OctoMap tree.
     #[error("corrupt or unsupported OctoMap data: {0}")]
     Format(String),

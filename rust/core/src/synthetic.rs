@@ -22,17 +22,33 @@ pub struct PinholeCamera {
 impl PinholeCamera {
     /// Kinect V2-like depth camera: 512×424 pixels, ~70°×60° field of view.
     pub fn kinect_v2(max_depth: f64) -> Self {
-        PinholeCamera { width: 512, height: 424, fx: 365.0, fy: 365.0, cx: 256.0, cy: 212.0, max_depth }
+        PinholeCamera {
+            width: 512,
+            height: 424,
+            fx: 365.0,
+            fy: 365.0,
+            cx: 256.0,
+            cy: 212.0,
+            max_depth,
+        }
     }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Shape {
-    Sphere { center: [f64; 3], radius: f64 },
+    Sphere {
+        center: [f64; 3],
+        radius: f64,
+    },
     /// Axis-aligned box.
-    Box { lo: [f64; 3], hi: [f64; 3] },
+    Box {
+        lo: [f64; 3],
+        hi: [f64; 3],
+    },
     /// The plane z = `z`.
-    Floor { z: f64 },
+    Floor {
+        z: f64,
+    },
 }
 
 impl Shape {
@@ -99,7 +115,11 @@ pub fn look_at(eye: [f64; 3], target: [f64; 3], up: [f64; 3]) -> Matrix4<f64> {
 
 /// The points (map frame) a camera at `base_from_camera` sees, row by row; pixels
 /// that hit nothing within `max_depth` give no point.
-pub fn render_points(camera: &PinholeCamera, base_from_camera: &Matrix4<f64>, shapes: &[Shape]) -> Vec<[f64; 3]> {
+pub fn render_points(
+    camera: &PinholeCamera,
+    base_from_camera: &Matrix4<f64>,
+    shapes: &[Shape],
+) -> Vec<[f64; 3]> {
     let rot = base_from_camera.fixed_view::<3, 3>(0, 0).into_owned();
     let o = Point3::from(base_from_camera.fixed_view::<3, 1>(0, 3).into_owned());
     let row = |v: usize| -> Vec<[f64; 3]> {
@@ -112,7 +132,10 @@ pub fn render_points(camera: &PinholeCamera, base_from_camera: &Matrix4<f64>, sh
             )
             .normalize();
             let d = rot * ray_cam;
-            let t = shapes.iter().filter_map(|s| s.intersect(&o, &d)).fold(f64::INFINITY, f64::min);
+            let t = shapes
+                .iter()
+                .filter_map(|s| s.intersect(&o, &d))
+                .fold(f64::INFINITY, f64::min);
             if t.is_finite() && t * ray_cam.z <= camera.max_depth {
                 let p = o + d * t;
                 out.push([p.x, p.y, p.z]);
@@ -134,15 +157,39 @@ pub fn benchmark_scene() -> (PinholeCamera, Matrix4<f64>, Vec<Shape>) {
     let shapes = vec![
         Shape::Floor { z: 0.0 },
         // Two walls of the cell, so that every pixel sees something within 3 m.
-        Shape::Box { lo: [-1.6, -2.5, 0.0], hi: [-1.5, 2.5, 2.6] },
-        Shape::Box { lo: [-2.5, 1.5, 0.0], hi: [2.5, 1.6, 2.6] },
+        Shape::Box {
+            lo: [-1.6, -2.5, 0.0],
+            hi: [-1.5, 2.5, 2.6],
+        },
+        Shape::Box {
+            lo: [-2.5, 1.5, 0.0],
+            hi: [2.5, 1.6, 2.6],
+        },
         // A table, a shelf, a cabinet and clutter.
-        Shape::Box { lo: [-0.6, -0.4, 0.0], hi: [0.6, 0.4, 0.75] },
-        Shape::Box { lo: [-1.5, 0.8, 0.0], hi: [-1.0, 1.5, 1.8] },
-        Shape::Box { lo: [0.6, 0.9, 0.0], hi: [1.3, 1.5, 1.1] },
-        Shape::Sphere { center: [0.0, 0.0, 1.0], radius: 0.25 },
-        Shape::Sphere { center: [0.3, -0.5, 1.4], radius: 0.12 },
-        Shape::Sphere { center: [-0.5, 0.6, 1.2], radius: 0.18 },
+        Shape::Box {
+            lo: [-0.6, -0.4, 0.0],
+            hi: [0.6, 0.4, 0.75],
+        },
+        Shape::Box {
+            lo: [-1.5, 0.8, 0.0],
+            hi: [-1.0, 1.5, 1.8],
+        },
+        Shape::Box {
+            lo: [0.6, 0.9, 0.0],
+            hi: [1.3, 1.5, 1.1],
+        },
+        Shape::Sphere {
+            center: [0.0, 0.0, 1.0],
+            radius: 0.25,
+        },
+        Shape::Sphere {
+            center: [0.3, -0.5, 1.4],
+            radius: 0.12,
+        },
+        Shape::Sphere {
+            center: [-0.5, 0.6, 1.2],
+            radius: 0.18,
+        },
     ];
     let pose = look_at([0.7, -0.7, 1.9], [-0.8, 0.8, 0.5], [0.0, 0.0, 1.0]);
     (PinholeCamera::kinect_v2(3.0), pose, shapes)
@@ -154,9 +201,24 @@ mod tests {
 
     #[test]
     fn sphere_points_lie_on_the_sphere() {
-        let cam = PinholeCamera { width: 64, height: 48, fx: 60.0, fy: 60.0, cx: 32.0, cy: 24.0, max_depth: 10.0 };
+        let cam = PinholeCamera {
+            width: 64,
+            height: 48,
+            fx: 60.0,
+            fy: 60.0,
+            cx: 32.0,
+            cy: 24.0,
+            max_depth: 10.0,
+        };
         let pose = look_at([0.0, -3.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
-        let pts = render_points(&cam, &pose, &[Shape::Sphere { center: [0.0; 3], radius: 0.7 }]);
+        let pts = render_points(
+            &cam,
+            &pose,
+            &[Shape::Sphere {
+                center: [0.0; 3],
+                radius: 0.7,
+            }],
+        );
         assert!(!pts.is_empty());
         for p in pts {
             let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();

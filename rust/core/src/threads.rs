@@ -8,7 +8,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 static NUM_THREADS: AtomicUsize = AtomicUsize::new(0);
 
 #[cfg(feature = "parallel")]
-static POOL: std::sync::Mutex<Option<(usize, std::sync::Arc<rayon::ThreadPool>)>> = std::sync::Mutex::new(None);
+static POOL: std::sync::Mutex<Option<(usize, std::sync::Arc<rayon::ThreadPool>)>> =
+    std::sync::Mutex::new(None);
 
 /// Set the number of worker threads (0 = one per core).
 pub fn set_num_threads(n: usize) {
@@ -18,7 +19,9 @@ pub fn set_num_threads(n: usize) {
 /// Threads that parallel loops will use now.
 pub fn num_threads() -> usize {
     match NUM_THREADS.load(Ordering::Relaxed) {
-        0 => std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+        0 => std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1),
         n => n,
     }
 }

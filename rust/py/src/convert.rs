@@ -3,7 +3,10 @@
 //! numpy without copying.
 
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyUntypedArrayMethods,
+};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyModule;
@@ -31,8 +34,11 @@ pub fn points<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Points<'py>>
     let arr = match obj.cast::<PyArray2<f64>>() {
         Ok(a) if a.is_c_contiguous() => a.readonly(),
         _ => {
-            let converted = as_contiguous_f64(obj)
-                .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("{name} must be an (N, 3) array of numbers: {e}")))?;
+            let converted = as_contiguous_f64(obj).map_err(|e| {
+                pyo3::exceptions::PyTypeError::new_err(format!(
+                    "{name} must be an (N, 3) array of numbers: {e}"
+                ))
+            })?;
             match converted.cast::<PyArray2<f64>>() {
                 Ok(a) => a.readonly(),
                 Err(_) => {
@@ -48,21 +54,28 @@ pub fn points<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Points<'py>>
         }
     };
     if arr.shape()[1] != 3 {
-        return Err(PyValueError::new_err(format!("{name} must be an (N, 3) array, got shape {:?}", arr.shape())));
+        return Err(PyValueError::new_err(format!(
+            "{name} must be an (N, 3) array, got shape {:?}",
+            arr.shape()
+        )));
     }
     Ok(Points(arr))
 }
 
 /// One 3-vector (a point or a direction).
 pub fn vector3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f64; 3]> {
-    let converted = as_contiguous_f64(obj)
-        .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("{name} must be 3 numbers: {e}")))?;
+    let converted = as_contiguous_f64(obj).map_err(|e| {
+        pyo3::exceptions::PyTypeError::new_err(format!("{name} must be 3 numbers: {e}"))
+    })?;
     let arr: PyReadonlyArray1<f64> = converted
         .extract()
         .map_err(|_| PyValueError::new_err(format!("{name} must be 3 numbers (x, y, z)")))?;
     match arr.as_slice() {
         Ok(&[x, y, z]) => Ok([x, y, z]),
-        _ => Err(PyValueError::new_err(format!("{name} must be 3 numbers (x, y, z), got {} values", arr.len()))),
+        _ => Err(PyValueError::new_err(format!(
+            "{name} must be 3 numbers (x, y, z), got {} values",
+            arr.len()
+        ))),
     }
 }
 
@@ -70,7 +83,9 @@ pub fn vector3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f64; 3]> {
 pub fn rows_to_array<'py>(py: Python<'py>, rows: Vec<[f64; 3]>) -> Bound<'py, PyArray2<f64>> {
     let m = rows.len();
     let flat: Vec<f64> = rows.into_flattened();
-    Array2::from_shape_vec((m, 3), flat).expect("M rows of 3").into_pyarray(py)
+    Array2::from_shape_vec((m, 3), flat)
+        .expect("M rows of 3")
+        .into_pyarray(py)
 }
 
 pub fn vec_to_array<'py, T: numpy::Element>(py: Python<'py>, v: Vec<T>) -> Bound<'py, PyArray1<T>> {

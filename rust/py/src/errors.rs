@@ -5,9 +5,24 @@ use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyOSError, PyValueError};
 use pyo3::PyErr;
 
-create_exception!(earcore, EarcoreError, PyException, "Base class of earcore's own errors.");
-create_exception!(earcore, OutOfMapError, EarcoreError, "A coordinate lies outside the area the map can address.");
-create_exception!(earcore, MapFormatError, EarcoreError, "A map file or byte stream is corrupt or unsupported.");
+create_exception!(
+    earcore,
+    EarcoreError,
+    PyException,
+    "Base class of earcore's own errors."
+);
+create_exception!(
+    earcore,
+    OutOfMapError,
+    EarcoreError,
+    "A coordinate lies outside the area the map can address."
+);
+create_exception!(
+    earcore,
+    MapFormatError,
+    EarcoreError,
+    "A map file or byte stream is corrupt or unsupported."
+);
 
 pub fn to_py(e: Error) -> PyErr {
     match e {

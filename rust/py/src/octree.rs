@@ -7,7 +7,9 @@
 
 use std::path::PathBuf;
 
-use earcore_core::octree::{DangerParams, DecayMode, FrameReport, InsertReport, Leaf, OcTree, OcTreeKey, OccupancyParams};
+use earcore_core::octree::{
+    DangerParams, DecayMode, FrameReport, InsertReport, Leaf, OcTree, OcTreeKey, OccupancyParams,
+};
 use numpy::{PyArray1, PyArray2};
 use parking_lot::RwLock;
 use pyo3::exceptions::{PyOSError, PyValueError};
@@ -18,6 +20,20 @@ use crate::convert::{points, rows_to_array, vec_to_array, vector3};
 use crate::errors::IntoPyResult;
 
 type Voxels<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>);
+/// Centres, sizes and a float32 value per voxel.
+type ValuedVoxels<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f32>>,
+);
+/// Keys, depths and log-odds of leaves.
+type KeyedLeaves<'py> = (
+    Bound<'py, PyArray2<u16>>,
+    Bound<'py, PyArray1<u8>>,
+    Bound<'py, PyArray1<f32>>,
+);
+/// Hit flags and end points of rays.
+type RayHits<'py> = (Bound<'py, PyArray1<bool>>, Bound<'py, PyArray2<f64>>);
 
 /// Occupancy octree with OctoMap's semantics and files, plus per-voxel danger decay.
 #[pyclass(name = "OcTree", module = "earcore", frozen)]
@@ -39,13 +55,20 @@ pub struct PyInsertReport {
 #[pymethods]
 impl PyInsertReport {
     fn __repr__(&self) -> String {
-        format!("InsertReport(rays={}, free_cells={}, occupied_cells={})", self.rays, self.free_cells, self.occupied_cells)
+        format!(
+            "InsertReport(rays={}, free_cells={}, occupied_cells={})",
+            self.rays, self.free_cells, self.occupied_cells
+        )
     }
 }
 
 impl From<InsertReport> for PyInsertReport {
     fn from(r: InsertReport) -> Self {
-        PyInsertReport { rays: r.rays, free_cells: r.free_cells, occupied_cells: r.occupied_cells }
+        PyInsertReport {
+            rays: r.rays,
+            free_cells: r.free_cells,
+            occupied_cells: r.occupied_cells,
+        }
     }
 }
 
@@ -65,13 +88,21 @@ pub struct PyFrameReport {
 #[pymethods]
 impl PyFrameReport {
     fn __repr__(&self) -> String {
-        format!("FrameReport(hit={}, decayed={}, cleared={}, active={})", self.hit, self.decayed, self.cleared, self.active)
+        format!(
+            "FrameReport(hit={}, decayed={}, cleared={}, active={})",
+            self.hit, self.decayed, self.cleared, self.active
+        )
     }
 }
 
 impl From<FrameReport> for PyFrameReport {
     fn from(r: FrameReport) -> Self {
-        PyFrameReport { hit: r.hit, decayed: r.decayed, cleared: r.cleared, active: r.active }
+        PyFrameReport {
+            hit: r.hit,
+            decayed: r.decayed,
+            cleared: r.cleared,
+            active: r.active,
+        }
     }
 }
 
@@ -79,7 +110,9 @@ fn parse_mode(mode: &str) -> PyResult<DecayMode> {
     match mode {
         "observed" => Ok(DecayMode::Observed),
         "always" => Ok(DecayMode::Always),
-        other => Err(PyValueError::new_err(format!("decay_mode must be 'observed' or 'always', got {other:?}"))),
+        other => Err(PyValueError::new_err(format!(
+            "decay_mode must be 'observed' or 'always', got {other:?}"
+        ))),
     }
 }
 
@@ -91,7 +124,8 @@ fn mode_name(mode: DecayMode) -> &'static str {
 }
 
 fn read_file(path: &PathBuf) -> PyResult<Vec<u8>> {
-    std::fs::read(path).map_err(|e| PyOSError::new_err(format!("cannot read {}: {e}", path.display())))
+    std::fs::read(path)
+        .map_err(|e| PyOSError::new_err(format!("cannot read {}: {e}", path.display())))
 }
 
 /// Write through a temporary file and rename, so a failed write never leaves a
@@ -110,7 +144,9 @@ fn write_file(path: &PathBuf, bytes: &[u8]) -> PyResult<()> {
 
 impl PyOcTree {
     fn wrap(tree: OcTree) -> Self {
-        PyOcTree { inner: RwLock::new(tree) }
+        PyOcTree {
+            inner: RwLock::new(tree),
+        }
     }
 
     /// Run `f` on the tree under the read lock, detached from the GIL (waiting for a
@@ -125,8 +161,14 @@ impl PyOcTree {
     }
 
     fn centres_and_sizes(tree: &OcTree, leaves: &[(OcTreeKey, u32)]) -> (Vec<[f64; 3]>, Vec<f64>) {
-        let centres = leaves.iter().map(|&(k, d)| tree.node_center(k, d)).collect();
-        let sizes = leaves.iter().map(|&(_, d)| tree.key_converter().node_size(d)).collect();
+        let centres = leaves
+            .iter()
+            .map(|&(k, d)| tree.node_center(k, d))
+            .collect();
+        let sizes = leaves
+            .iter()
+            .map(|&(_, d)| tree.key_converter().node_size(d))
+            .collect();
         (centres, sizes)
     }
 }
@@ -147,9 +189,20 @@ impl PyOcTree {
         danger_alpha: f64,
         decay_mode: &str,
     ) -> PyResult<Self> {
-        let params = OccupancyParams { prob_hit, prob_miss, clamping_min, clamping_max, occupancy_threshold };
+        let params = OccupancyParams {
+            prob_hit,
+            prob_miss,
+            clamping_min,
+            clamping_max,
+            occupancy_threshold,
+        };
         let mut tree = OcTree::with_params(resolution, params).py()?;
-        tree.danger_map_mut().set_params(DangerParams { alpha: danger_alpha, mode: parse_mode(decay_mode)? }).py()?;
+        tree.danger_map_mut()
+            .set_params(DangerParams {
+                alpha: danger_alpha,
+                mode: parse_mode(decay_mode)?,
+            })
+            .py()?;
         Ok(Self::wrap(tree))
     }
 
@@ -193,7 +246,10 @@ impl PyOcTree {
     #[setter]
     fn set_danger_alpha(&self, alpha: f64) -> PyResult<()> {
         let mut tree = self.inner.write();
-        let params = DangerParams { alpha, ..tree.danger_map().params() };
+        let params = DangerParams {
+            alpha,
+            ..tree.danger_map().params()
+        };
         tree.danger_map_mut().set_params(params).py()
     }
 
@@ -207,7 +263,10 @@ impl PyOcTree {
     fn set_decay_mode(&self, mode: &str) -> PyResult<()> {
         let mode = parse_mode(mode)?;
         let mut tree = self.inner.write();
-        let params = DangerParams { mode, ..tree.danger_map().params() };
+        let params = DangerParams {
+            mode,
+            ..tree.danger_map().params()
+        };
         tree.danger_map_mut().set_params(params).py()
     }
 
@@ -229,12 +288,20 @@ impl PyOcTree {
         let pts = self::points(points, "points")?;
         let origin = vector3(sensor_origin, "sensor_origin")?;
         let slice = pts.as_slice();
-        let report = self.with_write(py, |t| t.insert_point_cloud(slice, origin, max_range, discretize)).py()?;
+        let report = self
+            .with_write(py, |t| {
+                t.insert_point_cloud(slice, origin, max_range, discretize)
+            })
+            .py()?;
         Ok(report.into())
     }
 
     /// Occupancy per point: -1 unknown, 0 free, 1 occupied (int8, shape (N,)).
-    fn is_occupied<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray1<i8>>> {
+    fn is_occupied<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<i8>>> {
         let pts = self::points(points, "points")?;
         let slice = pts.as_slice();
         let out = self.with_read(py, |tree| {
@@ -250,30 +317,57 @@ impl PyOcTree {
     }
 
     /// Log-odds per point (float32, NaN where unknown).
-    fn log_odds<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+    fn log_odds<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let pts = self::points(points, "points")?;
         let slice = pts.as_slice();
-        let out = self.with_read(py, |tree| slice.iter().map(|&p| lookup(tree, p).unwrap_or(f32::NAN)).collect::<Vec<f32>>());
+        let out = self.with_read(py, |tree| {
+            slice
+                .iter()
+                .map(|&p| lookup(tree, p).unwrap_or(f32::NAN))
+                .collect::<Vec<f32>>()
+        });
         Ok(vec_to_array(py, out))
     }
 
     /// Log-odds of the node holding `point` at `depth` (0 = finest), None if unknown.
     #[pyo3(signature = (point, depth=0))]
-    fn search(&self, py: Python<'_>, point: &Bound<'_, PyAny>, depth: u32) -> PyResult<Option<f32>> {
+    fn search(
+        &self,
+        py: Python<'_>,
+        point: &Bound<'_, PyAny>,
+        depth: u32,
+    ) -> PyResult<Option<f32>> {
         let p = vector3(point, "point")?;
-        self.with_read(py, |tree| tree.key_of("point", p).map(|key| tree.search(key, depth))).py()
+        self.with_read(py, |tree| {
+            tree.key_of("point", p).map(|key| tree.search(key, depth))
+        })
+        .py()
     }
 
     /// Integrate one measurement at `point`: `True` a hit, `False` a miss, or a float
     /// log-odds change (OctoMap's `updateNode`).
-    fn update_node(&self, py: Python<'_>, point: &Bound<'_, PyAny>, update: &Bound<'_, PyAny>) -> PyResult<()> {
+    fn update_node(
+        &self,
+        py: Python<'_>,
+        point: &Bound<'_, PyAny>,
+        update: &Bound<'_, PyAny>,
+    ) -> PyResult<()> {
         let p = vector3(point, "point")?;
-        let hit = update.cast::<pyo3::types::PyBool>().ok().map(|b| b.is_true());
+        let hit = update
+            .cast::<pyo3::types::PyBool>()
+            .ok()
+            .map(|b| b.is_true());
         let delta: Option<f32> = if hit.is_some() {
             None
         } else {
             Some(update.extract().map_err(|_| {
-                pyo3::exceptions::PyTypeError::new_err("update must be a bool (hit/miss) or a float log-odds change")
+                pyo3::exceptions::PyTypeError::new_err(
+                    "update must be a bool (hit/miss) or a float log-odds change",
+                )
             })?)
         };
         self.with_write(py, |tree| {
@@ -312,7 +406,7 @@ impl PyOcTree {
         py: Python<'py>,
         bbx_min: Option<&Bound<'py, PyAny>>,
         bbx_max: Option<&Bound<'py, PyAny>>,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f32>>)> {
+    ) -> PyResult<ValuedVoxels<'py>> {
         let bounds = self.key_bounds(py, bbx_min, bbx_max)?;
         let (c, s, l) = self.with_read(py, |tree| {
             let leaves = collect_leaves(tree, bounds);
@@ -320,15 +414,16 @@ impl PyOcTree {
             let (c, s) = Self::centres_and_sizes(tree, &keyed);
             (c, s, leaves.iter().map(|l| l.log_odds).collect())
         });
-        Ok((rows_to_array(py, c), vec_to_array(py, s), vec_to_array(py, l)))
+        Ok((
+            rows_to_array(py, c),
+            vec_to_array(py, s),
+            vec_to_array(py, l),
+        ))
     }
 
     /// Leaves as OctoMap keys: lower-corner keys (M, 3) uint16, depths (M,) uint8 and
     /// log-odds (M,) float32 (for exact comparisons with OctoMap).
-    fn leaf_keys<'py>(
-        &self,
-        py: Python<'py>,
-    ) -> PyResult<(Bound<'py, PyArray2<u16>>, Bound<'py, PyArray1<u8>>, Bound<'py, PyArray1<f32>>)> {
+    fn leaf_keys<'py>(&self, py: Python<'py>) -> PyResult<KeyedLeaves<'py>> {
         let bounds = self.key_bounds(py, None, None)?;
         let leaves = self.with_read(py, |tree| collect_leaves(tree, bounds));
         let m = leaves.len();
@@ -355,7 +450,9 @@ impl PyOcTree {
     ) -> PyResult<(bool, Bound<'py, PyArray1<f64>>)> {
         let o = vector3(origin, "origin")?;
         let d = vector3(direction, "direction")?;
-        let hit = self.with_read(py, |tree| tree.cast_ray(o, d, max_range, ignore_unknown)).py()?;
+        let hit = self
+            .with_read(py, |tree| tree.cast_ray(o, d, max_range, ignore_unknown))
+            .py()?;
         Ok((hit.hit, vec_to_array(py, hit.end.to_vec())))
     }
 
@@ -369,10 +466,14 @@ impl PyOcTree {
         directions: &Bound<'py, PyAny>,
         max_range: Option<f64>,
         ignore_unknown: bool,
-    ) -> PyResult<(Bound<'py, PyArray1<bool>>, Bound<'py, PyArray2<f64>>)> {
+    ) -> PyResult<RayHits<'py>> {
         let dirs = self::points(directions, "directions")?;
         let single = vector3(origins, "origins").ok();
-        let many = if single.is_none() { Some(self::points(origins, "origins")?) } else { None };
+        let many = if single.is_none() {
+            Some(self::points(origins, "origins")?)
+        } else {
+            None
+        };
         let d = dirs.as_slice();
         if let Some(m) = &many {
             if m.as_slice().len() != d.len() {
@@ -386,15 +487,15 @@ impl PyOcTree {
         let o_many = many.as_ref().map(|m| m.as_slice());
         let results = self
             .with_read(py, |tree| {
-            d.iter()
-                .enumerate()
-                .map(|(i, &dir)| {
-                    let o = single.unwrap_or_else(|| o_many.map(|m| m[i]).unwrap_or_default());
-                    tree.cast_ray(o, dir, max_range, ignore_unknown)
-                })
-                .collect::<Result<Vec<_>, _>>()
-        })
-        .py()?;
+                d.iter()
+                    .enumerate()
+                    .map(|(i, &dir)| {
+                        let o = single.unwrap_or_else(|| o_many.map(|m| m[i]).unwrap_or_default());
+                        tree.cast_ray(o, dir, max_range, ignore_unknown)
+                    })
+                    .collect::<Result<Vec<_>, _>>()
+            })
+            .py()?;
         let hits = results.iter().map(|r| r.hit).collect();
         let ends = results.iter().map(|r| r.end).collect();
         Ok((vec_to_array(py, hits), rows_to_array(py, ends)))
@@ -459,9 +560,17 @@ impl PyOcTree {
         clamping_max: f64,
         occupancy_threshold: f64,
     ) -> PyResult<Self> {
-        let params = OccupancyParams { prob_hit, prob_miss, clamping_min, clamping_max, occupancy_threshold };
+        let params = OccupancyParams {
+            prob_hit,
+            prob_miss,
+            clamping_min,
+            clamping_max,
+            occupancy_threshold,
+        };
         let bytes = read_file(&path)?;
-        let tree = py.detach(|| OcTree::read_binary_bytes(&bytes, params)).py()?;
+        let tree = py
+            .detach(|| OcTree::read_binary_bytes(&bytes, params))
+            .py()?;
         Ok(Self::wrap(tree))
     }
 
@@ -479,7 +588,13 @@ impl PyOcTree {
         clamping_max: f64,
         occupancy_threshold: f64,
     ) -> PyResult<Self> {
-        let params = OccupancyParams { prob_hit, prob_miss, clamping_min, clamping_max, occupancy_threshold };
+        let params = OccupancyParams {
+            prob_hit,
+            prob_miss,
+            clamping_min,
+            clamping_max,
+            occupancy_threshold,
+        };
         let bytes = read_file(&path)?;
         let tree = py.detach(|| OcTree::read_full_bytes(&bytes, params)).py()?;
         Ok(Self::wrap(tree))
@@ -490,56 +605,75 @@ impl PyOcTree {
     /// Close the current frame of `dt` seconds: voxels hit since the last call are at
     /// 0.999, the others decay by C ← C + ln(C)·dt·α (per `decay_mode`).
     fn end_frame(&self, py: Python<'_>, dt: f64) -> PyResult<PyFrameReport> {
-        Ok(self.with_write(py, |t| t.danger_map_mut().end_frame(dt)).py()?.into())
+        Ok(self
+            .with_write(py, |t| t.danger_map_mut().end_frame(dt))
+            .py()?
+            .into())
     }
 
     /// Danger per point (float32 in [0, 0.999], 0 where never dangerous).
-    fn danger<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray1<f32>>> {
+    fn danger<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let pts = self::points(points, "points")?;
         let slice = pts.as_slice();
         let out = self.with_read(py, |tree| {
             slice
                 .iter()
-                .map(|&p| match tree.key_converter().coord_to_key_checked_f64(p) {
-                    Some(k) => tree.danger_map().value(k.morton()),
-                    None => 0.0,
-                })
+                .map(
+                    |&p| match tree.key_converter().coord_to_key_checked_f64(p) {
+                        Some(k) => tree.danger_map().value(k.morton()),
+                        None => 0.0,
+                    },
+                )
                 .collect::<Vec<f32>>()
         });
         Ok(vec_to_array(py, out))
     }
 
     /// Dangerous voxels: centres (M, 3), sizes (M,) and danger values (M,) float32.
-    fn danger_voxels<'py>(
-        &self,
-        py: Python<'py>,
-    ) -> (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f32>>) {
+    fn danger_voxels<'py>(&self, py: Python<'py>) -> ValuedVoxels<'py> {
         let (c, s, v) = self.with_read(py, |tree| {
             let cells = tree.danger_map().sorted_cells();
-            let keyed: Vec<(OcTreeKey, u32)> = cells.iter().map(|&(m, _)| (OcTreeKey::from_morton(m), 16)).collect();
+            let keyed: Vec<(OcTreeKey, u32)> = cells
+                .iter()
+                .map(|&(m, _)| (OcTreeKey::from_morton(m), 16))
+                .collect();
             let (c, s) = Self::centres_and_sizes(tree, &keyed);
             (c, s, cells.iter().map(|&(_, v)| v).collect())
         });
-        (rows_to_array(py, c), vec_to_array(py, s), vec_to_array(py, v))
+        (
+            rows_to_array(py, c),
+            vec_to_array(py, s),
+            vec_to_array(py, v),
+        )
     }
 
     /// Voxels hit during the last closed frame: centres (M, 3) and sizes (M,).
     fn current_obstacles<'py>(&self, py: Python<'py>) -> Voxels<'py> {
         let (c, s) = self.with_read(py, |tree| {
-            let keyed: Vec<(OcTreeKey, u32)> =
-                tree.danger_map().current_obstacles().iter().map(|&m| (OcTreeKey::from_morton(m), 16)).collect();
+            let keyed: Vec<(OcTreeKey, u32)> = tree
+                .danger_map()
+                .current_obstacles()
+                .iter()
+                .map(|&m| (OcTreeKey::from_morton(m), 16))
+                .collect();
             Self::centres_and_sizes(tree, &keyed)
         });
         (rows_to_array(py, c), vec_to_array(py, s))
     }
 
     fn __repr__(&self, py: Python<'_>) -> String {
-        self.with_read(py, |tree| format!(
-            "OcTree(resolution={}, nodes={}, dangerous_voxels={})",
-            tree.resolution(),
-            tree.size(),
-            tree.danger_map().len()
-        ))
+        self.with_read(py, |tree| {
+            format!(
+                "OcTree(resolution={}, nodes={}, dangerous_voxels={})",
+                tree.resolution(),
+                tree.size(),
+                tree.danger_map().len()
+            )
+        })
     }
 }
 
@@ -554,8 +688,14 @@ impl PyOcTree {
         let lo = bbx_min.map(|b| vector3(b, "bbx_min")).transpose()?;
         let hi = bbx_max.map(|b| vector3(b, "bbx_max")).transpose()?;
         self.with_read(py, |tree| {
-            let kmin = lo.map(|p| tree.key_of("bbx_min", p)).transpose()?.unwrap_or(OcTreeKey([0; 3]));
-            let kmax = hi.map(|p| tree.key_of("bbx_max", p)).transpose()?.unwrap_or(OcTreeKey([u16::MAX; 3]));
+            let kmin = lo
+                .map(|p| tree.key_of("bbx_min", p))
+                .transpose()?
+                .unwrap_or(OcTreeKey([0; 3]));
+            let kmax = hi
+                .map(|p| tree.key_of("bbx_max", p))
+                .transpose()?
+                .unwrap_or(OcTreeKey([u16::MAX; 3]));
             Ok((kmin, kmax))
         })
         .py()

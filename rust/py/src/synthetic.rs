@@ -11,7 +11,9 @@ use crate::convert::{rows_to_array, vec_to_array};
 fn pose_from(arr: PyReadonlyArray2<'_, f64>) -> PyResult<Matrix4<f64>> {
     let a = arr.as_array();
     if a.shape() != [4, 4] || !a.iter().all(|v| v.is_finite()) {
-        return Err(PyValueError::new_err("base_from_camera must be a finite (4, 4) matrix"));
+        return Err(PyValueError::new_err(
+            "base_from_camera must be a finite (4, 4) matrix",
+        ));
     }
     Ok(Matrix4::from_fn(|r, c| a[[r, c]]))
 }
@@ -36,22 +38,46 @@ pub fn render_depth_points<'py>(
     max_depth: f64,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let pose = pose_from(base_from_camera)?;
-    let camera = PinholeCamera { width, height, fx, fy, cx, cy, max_depth };
+    let camera = PinholeCamera {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+        max_depth,
+    };
     if width == 0 || height == 0 || !(fx > 0.0 && fy > 0.0 && max_depth > 0.0) {
-        return Err(PyValueError::new_err("camera needs a positive size, focal lengths and max_depth"));
+        return Err(PyValueError::new_err(
+            "camera needs a positive size, focal lengths and max_depth",
+        ));
     }
     let mut shapes: Vec<Shape> = floor_z.map(|z| Shape::Floor { z }).into_iter().collect();
     let np = PyModule::import(py, "numpy")?;
     let rows = |obj: &Bound<'py, PyAny>, n: usize, name: &str| -> PyResult<Vec<Vec<f64>>> {
-        let a = np.call_method1("asarray", (obj, np.getattr("float64")?))?.call_method1("reshape", (-1, n))?;
-        let a: PyReadonlyArray2<f64> = a.extract().map_err(|_| PyValueError::new_err(format!("{name} must be (K, {n})")))?;
-        Ok(a.as_array().rows().into_iter().map(|r| r.to_vec()).collect())
+        let a = np
+            .call_method1("asarray", (obj, np.getattr("float64")?))?
+            .call_method1("reshape", (-1, n))?;
+        let a: PyReadonlyArray2<f64> = a
+            .extract()
+            .map_err(|_| PyValueError::new_err(format!("{name} must be (K, {n})")))?;
+        Ok(a.as_array()
+            .rows()
+            .into_iter()
+            .map(|r| r.to_vec())
+            .collect())
     };
     for s in rows(spheres, 4, "spheres")? {
-        shapes.push(Shape::Sphere { center: [s[0], s[1], s[2]], radius: s[3] });
+        shapes.push(Shape::Sphere {
+            center: [s[0], s[1], s[2]],
+            radius: s[3],
+        });
     }
     for b in rows(boxes, 6, "boxes")? {
-        shapes.push(Shape::Box { lo: [b[0], b[1], b[2]], hi: [b[3], b[4], b[5]] });
+        shapes.push(Shape::Box {
+            lo: [b[0], b[1], b[2]],
+            hi: [b[3], b[4], b[5]],
+        });
     }
     let pts = py.detach(|| render_points(&camera, &pose, &shapes));
     Ok(rows_to_array(py, pts))
@@ -65,4 +91,3 @@ pub fn benchmark_frame(py: Python<'_>) -> (Bound<'_, PyArray2<f64>>, Bound<'_, P
     let origin = vec![pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
     (rows_to_array(py, pts), vec_to_array(py, origin))
 }
-

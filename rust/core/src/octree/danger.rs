@@ -31,7 +31,10 @@ pub struct DangerParams {
 
 impl Default for DangerParams {
     fn default() -> Self {
-        DangerParams { alpha: 0.3, mode: DecayMode::Observed }
+        DangerParams {
+            alpha: 0.3,
+            mode: DecayMode::Observed,
+        }
     }
 }
 
@@ -78,7 +81,10 @@ impl DangerMap {
 
     pub fn set_params(&mut self, params: DangerParams) -> Result<()> {
         if !(params.alpha.is_finite() && params.alpha >= 0.0) {
-            return Err(Error::InvalidArgument(format!("alpha must be finite and ≥ 0, got {}", params.alpha)));
+            return Err(Error::InvalidArgument(format!(
+                "alpha must be finite and ≥ 0, got {}",
+                params.alpha
+            )));
         }
         self.params = params;
         Ok(())
@@ -104,10 +110,15 @@ impl DangerMap {
     /// Close a frame lasting `dt` seconds: decay every unhit active cell per the mode.
     pub fn end_frame(&mut self, dt: f64) -> Result<FrameReport> {
         if !(dt.is_finite() && dt >= 0.0) {
-            return Err(Error::InvalidArgument(format!("dt must be a finite, non-negative time in seconds, got {dt}")));
+            return Err(Error::InvalidArgument(format!(
+                "dt must be a finite, non-negative time in seconds, got {dt}"
+            )));
         }
         let dt_alpha = dt * self.params.alpha;
-        let mut report = FrameReport { hit: self.frame_hits.len(), ..Default::default() };
+        let mut report = FrameReport {
+            hit: self.frame_hits.len(),
+            ..Default::default()
+        };
         let always = self.params.mode == DecayMode::Always;
         let (hits, seen) = (&self.frame_hits, &self.frame_seen_free);
         self.active.retain(|m, c| {
@@ -139,7 +150,9 @@ impl DangerMap {
     /// Set a cell's danger directly (e.g. restoring a saved map); 0 removes it.
     pub fn set_value(&mut self, m: u64, c: f32) -> Result<()> {
         if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
-            return Err(Error::InvalidArgument(format!("danger must lie in [0, 1], got {c}")));
+            return Err(Error::InvalidArgument(format!(
+                "danger must lie in [0, 1], got {c}"
+            )));
         }
         if c > 0.0 {
             self.active.insert(m, c.min(DANGER_ON_HIT));

@@ -37,16 +37,25 @@ struct Header {
 /// Parse the text header up to and including the `data` line (OctoMap's `readHeader`);
 /// returns the header and the offset of the first data byte.
 fn parse_header(bytes: &[u8], first_line: &str) -> Result<(Header, usize)> {
-    let line_end = |from: usize| bytes[from..].iter().position(|&b| b == b'\n').map(|i| from + i);
+    let line_end = |from: usize| {
+        bytes[from..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map(|i| from + i)
+    };
     let first_end = line_end(0).ok_or_else(|| Error::Format("missing header line".into()))?;
     let first = String::from_utf8_lossy(&bytes[..first_end]);
     if !first.starts_with(first_line) {
-        return Err(Error::Format(format!("first line must start with {first_line:?}, found {:?}", truncate(&first))));
+        return Err(Error::Format(format!(
+            "first line must start with {first_line:?}, found {:?}",
+            truncate(&first)
+        )));
     }
     let mut pos = first_end + 1;
     let (mut id, mut size, mut resolution) = (None, None, None);
     loop {
-        let end = line_end(pos).ok_or_else(|| Error::Format("header ends before the 'data' line".into()))?;
+        let end = line_end(pos)
+            .ok_or_else(|| Error::Format("header ends before the 'data' line".into()))?;
         let line = std::str::from_utf8(&bytes[pos..end])
             .map_err(|_| Error::Format("header is not text".into()))?
             .trim();
@@ -58,12 +67,19 @@ fn parse_header(bytes: &[u8], first_line: &str) -> Result<(Header, usize)> {
             Some("id") => id = words.next().map(str::to_owned),
             Some("size") => {
                 size = Some(
-                    words.next().and_then(|s| s.parse::<usize>().ok()).ok_or_else(|| Error::Format(format!("bad size line {line:?}")))?,
+                    words
+                        .next()
+                        .and_then(|s| s.parse::<usize>().ok())
+                        .ok_or_else(|| Error::Format(format!("bad size line {line:?}")))?,
                 )
             }
             Some("res") => {
-                resolution =
-                    Some(words.next().and_then(|s| s.parse::<f64>().ok()).ok_or_else(|| Error::Format(format!("bad res line {line:?}")))?)
+                resolution = Some(
+                    words
+                        .next()
+                        .and_then(|s| s.parse::<f64>().ok())
+                        .ok_or_else(|| Error::Format(format!("bad res line {line:?}")))?,
+                )
             }
             // OctoMap skips unknown keywords and blank lines too.
             _ => {}
@@ -73,9 +89,18 @@ fn parse_header(bytes: &[u8], first_line: &str) -> Result<(Header, usize)> {
     let size = size.ok_or_else(|| Error::Format("header has no 'size'".into()))?;
     let resolution = resolution.ok_or_else(|| Error::Format("header has no 'res'".into()))?;
     if !(resolution.is_finite() && resolution > 0.0) {
-        return Err(Error::Format(format!("resolution must be positive, found {resolution}")));
+        return Err(Error::Format(format!(
+            "resolution must be positive, found {resolution}"
+        )));
     }
-    Ok((Header { id, size, resolution }, pos))
+    Ok((
+        Header {
+            id,
+            size,
+            resolution,
+        },
+        pos,
+    ))
 }
 
 fn truncate(s: &str) -> String {
@@ -91,10 +116,13 @@ struct Reader<'a> {
 impl Reader<'_> {
     fn take<const N: usize>(&mut self) -> Result<[u8; N]> {
         let end = self.pos + N;
-        let chunk = self
-            .bytes
-            .get(self.pos..end)
-            .ok_or_else(|| Error::Format(format!("data ends early (byte {} of {})", self.pos, self.bytes.len())))?;
+        let chunk = self.bytes.get(self.pos..end).ok_or_else(|| {
+            Error::Format(format!(
+                "data ends early (byte {} of {})",
+                self.pos,
+                self.bytes.len()
+            ))
+        })?;
         self.pos = end;
         Ok(chunk.try_into().expect("slice length is N"))
     }
@@ -129,16 +157,27 @@ impl OcTree {
                     }
                 }
             } else {
-                class[n as usize] =
-                    if self.is_occupied_log_odds(self.arena.value(n)) { Class::Occupied } else { Class::Free };
+                class[n as usize] = if self.is_occupied_log_odds(self.arena.value(n)) {
+                    Class::Occupied
+                } else {
+                    Class::Free
+                };
             }
         }
         for depth in (1..TREE_DEPTH as usize).rev() {
             let mut pruned = 0;
             for &n in &inner_by_depth[depth] {
                 let children = self.arena.children(n);
-                let first = if children[0] == NONE { Class::Inner } else { class[children[0] as usize] };
-                if first != Class::Inner && children.iter().all(|&c| c != NONE && class[c as usize] == first) {
+                let first = if children[0] == NONE {
+                    Class::Inner
+                } else {
+                    class[children[0] as usize]
+                };
+                if first != Class::Inner
+                    && children
+                        .iter()
+                        .all(|&c| c != NONE && class[c as usize] == first)
+                {
                     class[n as usize] = first;
                     pruned += 1;
                 }
@@ -165,7 +204,11 @@ impl OcTree {
         if class[n as usize] == Class::Inner || n == self.root {
             for c in self.arena.children(n) {
                 if c != NONE {
-                    count += if class[c as usize] == Class::Inner { self.count_written(c, class) } else { 1 };
+                    count += if class[c as usize] == Class::Inner {
+                        self.count_written(c, class)
+                    } else {
+                        1
+                    };
                 }
             }
         }
@@ -205,7 +248,11 @@ impl OcTree {
             tree.read_binary_node(tree.root, 0, &mut r)?;
         }
         if tree.size() != head.size {
-            return Err(Error::Format(format!("header says {} nodes, data holds {}", head.size, tree.size())));
+            return Err(Error::Format(format!(
+                "header says {} nodes, data holds {}",
+                head.size,
+                tree.size()
+            )));
         }
         Ok(tree)
     }
@@ -213,7 +260,9 @@ impl OcTree {
     fn read_binary_node(&mut self, node: u32, depth: u32, r: &mut Reader) -> Result<()> {
         let bits = r.take::<2>()?;
         if depth >= TREE_DEPTH && bits != [0, 0] {
-            return Err(Error::Format(format!("nodes nested deeper than {TREE_DEPTH} levels")));
+            return Err(Error::Format(format!(
+                "nodes nested deeper than {TREE_DEPTH} levels"
+            )));
         }
         let mut inner = Vec::new();
         for i in 0..8 {
@@ -231,7 +280,9 @@ impl OcTree {
         for c in inner {
             self.read_binary_node(c, depth + 1, r)?;
             if !self.arena.has_children(c) {
-                return Err(Error::Format("a node marked as inner has no children".into()));
+                return Err(Error::Format(
+                    "a node marked as inner has no children".into(),
+                ));
             }
             let max = self.max_child_log_odds(c);
             self.arena.set_value(c, max);
@@ -265,7 +316,10 @@ impl OcTree {
     pub fn read_full_bytes(bytes: &[u8], params: OccupancyParams) -> Result<OcTree> {
         let (head, start) = parse_header(bytes, FULL_HEADER)?;
         if head.id != TREE_TYPE {
-            return Err(Error::Format(format!("tree type {:?} is not supported, only {TREE_TYPE:?}", head.id)));
+            return Err(Error::Format(format!(
+                "tree type {:?} is not supported, only {TREE_TYPE:?}",
+                head.id
+            )));
         }
         let mut tree = OcTree::with_params(head.resolution, params)?;
         if head.size > 0 {
@@ -276,12 +330,16 @@ impl OcTree {
             while let Some((n, depth)) = stack.pop() {
                 let value = f32::from_le_bytes(r.take::<4>()?);
                 if !value.is_finite() {
-                    return Err(Error::Format(format!("node log-odds {value} is not finite")));
+                    return Err(Error::Format(format!(
+                        "node log-odds {value} is not finite"
+                    )));
                 }
                 tree.arena.set_value(n, value);
                 let [mask] = r.take::<1>()?;
                 if mask != 0 && depth >= TREE_DEPTH {
-                    return Err(Error::Format(format!("nodes nested deeper than {TREE_DEPTH} levels")));
+                    return Err(Error::Format(format!(
+                        "nodes nested deeper than {TREE_DEPTH} levels"
+                    )));
                 }
                 let mut created = Vec::new();
                 for i in 0..8 {
@@ -293,7 +351,11 @@ impl OcTree {
             }
         }
         if tree.size() != head.size {
-            return Err(Error::Format(format!("header says {} nodes, data holds {}", head.size, tree.size())));
+            return Err(Error::Format(format!(
+                "header says {} nodes, data holds {}",
+                head.size,
+                tree.size()
+            )));
         }
         Ok(tree)
     }

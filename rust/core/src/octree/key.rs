@@ -70,6 +70,22 @@ fn compact(code: u64) -> u16 {
     x as u16
 }
 
+/// `x.floor()` without a libm call (baseline x86-64 has no rounding instruction):
+/// exact for |x| < 2^52, and NaN or huge values stay out of the key range.
+#[inline(always)]
+fn fast_floor(x: f64) -> f64 {
+    if x.abs() < 4_503_599_627_370_496.0 {
+        let t = x as i64 as f64; // truncates toward zero, exactly
+        if t > x {
+            t - 1.0
+        } else {
+            t
+        }
+    } else {
+        x
+    }
+}
+
 /// Conversions between metric coordinates and keys for one resolution.
 #[derive(Clone, Copy, Debug)]
 pub struct KeyConverter {
@@ -80,7 +96,10 @@ pub struct KeyConverter {
 impl KeyConverter {
     /// `resolution` must be finite and positive (checked by the caller).
     pub fn new(resolution: f64) -> Self {
-        KeyConverter { resolution, resolution_factor: 1.0 / resolution }
+        KeyConverter {
+            resolution,
+            resolution_factor: 1.0 / resolution,
+        }
     }
 
     #[inline]
@@ -103,7 +122,7 @@ impl KeyConverter {
     /// OctoMap's `coordToKeyChecked` for one axis.
     #[inline]
     pub fn coord_to_key_axis_checked(&self, coordinate: f64) -> Option<u16> {
-        let scaled = (self.resolution_factor * coordinate).floor();
+        let scaled = fast_floor(self.resolution_factor * coordinate);
         // `floor` of NaN stays NaN and fails both comparisons.
         if scaled >= -(TREE_MAX_VAL as f64) && scaled < TREE_MAX_VAL as f64 {
             Some((scaled as i32 + TREE_MAX_VAL) as u16)
@@ -170,7 +189,10 @@ impl KeyConverter {
 
     /// Smallest and largest coordinate that still maps to a key.
     pub fn metric_limits(&self) -> (f64, f64) {
-        (-(TREE_MAX_VAL as f64) * self.resolution, TREE_MAX_VAL as f64 * self.resolution)
+        (
+            -(TREE_MAX_VAL as f64) * self.resolution,
+            TREE_MAX_VAL as f64 * self.resolution,
+        )
     }
 }
 
@@ -183,7 +205,10 @@ mod tests {
         let k = OcTreeKey([0xabcd, 0x1234, 0xfe01]);
         assert_eq!(OcTreeKey::from_morton(k.morton()), k);
         for level in 0..16 {
-            assert_eq!(((k.morton() >> (3 * level)) & 7) as usize, k.child_index(level));
+            assert_eq!(
+                ((k.morton() >> (3 * level)) & 7) as usize,
+                k.child_index(level)
+            );
         }
     }
 
@@ -197,6 +222,35 @@ mod tests {
         assert_eq!(c.coord_to_key_axis_checked(1638.39), Some(65535));
         assert_eq!(c.coord_to_key_axis_checked(1638.4), None);
         assert_eq!(c.coord_to_key_axis_checked(-1638.4), Some(0));
+    }
+
+    #[test]
+    fn fast_floor_is_floor() {
+        for x in [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            32767.999,
+            -32768.0001,
+            1e300,
+            -1e300,
+            4.6e15,
+            -4.6e15,
+            1e-320,
+        ] {
+            assert_eq!(fast_floor(x), x.floor(), "{x}");
+        }
+        assert!(fast_floor(f64::NAN).is_nan());
+        let mut v = 1e-3f64;
+        while v < 1e6 {
+            for x in [v, -v, v.next_up(), -v.next_up()] {
+                assert_eq!(fast_floor(x), x.floor(), "{x}");
+            }
+            v *= 1.0001;
+        }
     }
 
     #[test]

@@ -33,7 +33,9 @@ impl OccupancyParams {
             if p.is_finite() && p > 0.0 && p < 1.0 {
                 Ok(())
             } else {
-                Err(Error::InvalidArgument(format!("{name} must be a probability in (0, 1), got {p}")))
+                Err(Error::InvalidArgument(format!(
+                    "{name} must be a probability in (0, 1), got {p}"
+                )))
             }
         };
         open("prob_hit", self.prob_hit)?;
@@ -96,6 +98,21 @@ pub struct Leaf {
 }
 
 /// Occupancy octree with OctoMap's semantics plus a per-voxel danger map.
+///
+/// ```
+/// use earcore_core::octree::OcTree;
+///
+/// let mut tree = OcTree::new(0.1)?;
+/// // One scan from the origin: a wall point 2 m ahead.
+/// let report = tree.insert_point_cloud(&[[2.05, 0.05, 0.05]], [0.05, 0.05, 0.05], None, false)?;
+/// assert_eq!((report.free_cells, report.occupied_cells), (20, 1));
+/// let wall = tree.key_of("point", [2.05, 0.05, 0.05])?;
+/// assert!(tree.is_occupied_log_odds(tree.search(wall, 0).unwrap()));
+/// // The voxel just hit is dangerous until it has been seen free long enough.
+/// tree.danger_map_mut().end_frame(1.0 / 15.0)?;
+/// assert_eq!(tree.danger_map().value(wall.morton()), 0.999);
+/// # Ok::<(), earcore_core::Error>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct OcTree {
     pub(crate) conv: KeyConverter,
@@ -113,7 +130,9 @@ impl OcTree {
 
     pub fn with_params(resolution: f64, params: OccupancyParams) -> Result<Self> {
         if !(resolution.is_finite() && resolution > 0.0) {
-            return Err(Error::InvalidArgument(format!("resolution must be a positive number of metres, got {resolution}")));
+            return Err(Error::InvalidArgument(format!(
+                "resolution must be a positive number of metres, got {resolution}"
+            )));
         }
         params.validate()?;
         Ok(OcTree {
@@ -192,7 +211,11 @@ impl OcTree {
         if self.root == NONE {
             return None;
         }
-        let depth = if depth == 0 || depth > TREE_DEPTH { TREE_DEPTH } else { depth };
+        let depth = if depth == 0 || depth > TREE_DEPTH {
+            TREE_DEPTH
+        } else {
+            depth
+        };
         let key = key.at_depth(depth);
         let mut node = self.root;
         for d in 0..depth {
@@ -207,13 +230,16 @@ impl OcTree {
 
     /// Log-odds of the node holding `key` at `depth`, `None` where unknown.
     pub fn search(&self, key: OcTreeKey, depth: u32) -> Option<f32> {
-        self.search_node(key, depth).map(|(n, _)| self.arena.value(n))
+        self.search_node(key, depth)
+            .map(|(n, _)| self.arena.value(n))
     }
 
     /// Add `delta` to the log-odds of one cell (OctoMap's `updateNode(key, float)`).
     pub fn update_node_log_odds(&mut self, key: OcTreeKey, delta: f32) -> Result<()> {
         if !delta.is_finite() {
-            return Err(Error::InvalidArgument(format!("log-odds update must be finite, got {delta}")));
+            return Err(Error::InvalidArgument(format!(
+                "log-odds update must be finite, got {delta}"
+            )));
         }
         self.apply_sorted_updates(&[(key.morton(), delta)]);
         Ok(())
@@ -232,7 +258,10 @@ impl OcTree {
     /// cell's abort depends only on the leaf that held it before the batch, and pruning
     /// is decided once all children are final.
     pub fn apply_sorted_updates(&mut self, updates: &[KeyUpdate]) {
-        debug_assert!(updates.windows(2).all(|w| w[0].0 < w[1].0), "updates must be sorted and distinct");
+        debug_assert!(
+            updates.windows(2).all(|w| w[0].0 < w[1].0),
+            "updates must be sorted and distinct"
+        );
         if updates.is_empty() {
             return;
         }
@@ -246,7 +275,13 @@ impl OcTree {
     }
 
     /// Returns whether anything below `node` changed.
-    fn update_recursive(&mut self, node: u32, just_created: bool, depth: u32, updates: &[KeyUpdate]) -> bool {
+    fn update_recursive(
+        &mut self,
+        node: u32,
+        just_created: bool,
+        depth: u32,
+        updates: &[KeyUpdate],
+    ) -> bool {
         let filtered: Vec<KeyUpdate>;
         let mut updates = updates;
         if !just_created && !self.arena.has_children(node) {
@@ -256,7 +291,11 @@ impl OcTree {
             let (lo, hi) = (self.lo.clamp_min, self.lo.clamp_max);
             let aborts = |d: f32| (d >= 0.0 && v >= hi) || (d <= 0.0 && v <= lo);
             if updates.iter().any(|&(_, d)| aborts(d)) {
-                filtered = updates.iter().copied().filter(|&(_, d)| !aborts(d)).collect();
+                filtered = updates
+                    .iter()
+                    .copied()
+                    .filter(|&(_, d)| !aborts(d))
+                    .collect();
                 if filtered.is_empty() {
                     return false;
                 }
@@ -391,7 +430,11 @@ impl OcTree {
         let mut stack = vec![(self.root, 0u32, OcTreeKey([0, 0, 0]))];
         while let Some((n, depth, base)) = stack.pop() {
             if !self.arena.has_children(n) {
-                f(Leaf { key: base, depth, log_odds: self.arena.value(n) });
+                f(Leaf {
+                    key: base,
+                    depth,
+                    log_odds: self.arena.value(n),
+                });
                 continue;
             }
             let level = TREE_DEPTH - 1 - depth;
@@ -433,13 +476,17 @@ impl OcTree {
     /// Key of a metric point, or an error naming the point when it is off the map.
     pub fn key_of(&self, what: &'static str, p: [f64; 3]) -> Result<OcTreeKey> {
         if !p.iter().all(|c| c.is_finite()) {
-            return Err(Error::InvalidArgument(format!("{what} {p:?} is not finite")));
+            return Err(Error::InvalidArgument(format!(
+                "{what} {p:?} is not finite"
+            )));
         }
-        self.conv.coord_to_key_checked_f64(p).ok_or(Error::OutOfBounds {
-            what,
-            point: p,
-            limit: self.conv.metric_limits().1,
-        })
+        self.conv
+            .coord_to_key_checked_f64(p)
+            .ok_or(Error::OutOfBounds {
+                what,
+                point: p,
+                limit: self.conv.metric_limits().1,
+            })
     }
 
     pub fn danger_map(&self) -> &DangerMap {

@@ -33,7 +33,11 @@ pub fn normalized(v: Point3f) -> Point3f {
 /// `origin + direction * (float) range`.
 #[inline]
 pub fn point_at(origin: Point3f, direction: Point3f, range: f32) -> Point3f {
-    [origin[0] + direction[0] * range, origin[1] + direction[1] * range, origin[2] + direction[2] * range]
+    [
+        origin[0] + direction[0] * range,
+        origin[1] + direction[1] * range,
+        origin[2] + direction[2] * range,
+    ]
 }
 
 /// DDA state shared by both traversals.
@@ -47,9 +51,19 @@ impl Dda {
     /// `half_step` is how OctoMap offsets the cell centre to its border:
     /// computeRayKeys casts `step·res/2` to float, castRay keeps it double.
     #[inline]
-    fn new(conv: &KeyConverter, key: OcTreeKey, origin: Point3f, direction: Point3f, half_step_as_float: bool) -> Self {
+    fn new(
+        conv: &KeyConverter,
+        key: OcTreeKey,
+        origin: Point3f,
+        direction: Point3f,
+        half_step_as_float: bool,
+    ) -> Self {
         let res = conv.resolution();
-        let mut dda = Dda { step: [0; 3], t_max: [f64::MAX; 3], t_delta: [f64::MAX; 3] };
+        let mut dda = Dda {
+            step: [0; 3],
+            t_max: [f64::MAX; 3],
+            t_delta: [f64::MAX; 3],
+        };
         for i in 0..3 {
             let d = direction[i];
             dda.step[i] = if d > 0.0 {
@@ -61,7 +75,11 @@ impl Dda {
             };
             if dda.step[i] != 0 {
                 let half = f64::from(dda.step[i]) * res * 0.5;
-                let half = if half_step_as_float { f64::from(half as f32) } else { half };
+                let half = if half_step_as_float {
+                    f64::from(half as f32)
+                } else {
+                    half
+                };
                 let border = conv.key_to_coord_axis(key.0[i]) + half;
                 dda.t_max[i] = (border - f64::from(origin[i])) / f64::from(d);
                 dda.t_delta[i] = res / f64::from(d.abs());
@@ -106,25 +124,107 @@ impl<F: FnMut(OcTreeKey)> RayCells for F {
 /// included and the end cell excluded (OctoMap's `computeRayKeys`). Returns `false`
 /// (visiting nothing) when either point is off the map.
 #[inline]
-pub fn compute_ray_keys(conv: &KeyConverter, origin: Point3f, end: Point3f, mut visit: impl FnMut(OcTreeKey)) -> bool {
+pub fn compute_ray_keys(
+    conv: &KeyConverter,
+    origin: Point3f,
+    end: Point3f,
+    mut visit: impl FnMut(OcTreeKey),
+) -> bool {
     walk_ray(conv, origin, end, &mut visit)
+}
+
+/// The state a ray's walk starts from (OctoMap's initialisation phase).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct RayStart {
+    pub key_origin: OcTreeKey,
+    pub key_end: OcTreeKey,
+    pub step: [i32; 3],
+    pub t_max: [f64; 3],
+    pub t_delta: [f64; 3],
+    /// Ray length (float, widened).
+    pub length: f64,
+}
+
+/// What walking a ray involves.
+pub(crate) enum RayPlan {
+    /// An end is off the map: OctoMap visits nothing (and reports failure).
+    OffMap,
+    /// Both ends in one cell: nothing to visit.
+    SameCell,
+    Walk(RayStart),
+}
+
+#[inline(always)]
+pub(crate) fn plan_ray(conv: &KeyConverter, origin: Point3f, end: Point3f) -> RayPlan {
+    let (Some(key_origin), Some(key_end)) = (
+        conv.coord_to_key_checked(origin),
+        conv.coord_to_key_checked(end),
+    ) else {
+        return RayPlan::OffMap;
+    };
+    if key_origin == key_end {
+        return RayPlan::SameCell;
+    }
+    let mut direction = sub(end, origin);
+    let length = norm(direction) as f32;
+    direction = [
+        direction[0] / length,
+        direction[1] / length,
+        direction[2] / length,
+    ];
+    let dda = Dda::new(conv, key_origin, origin, direction, true);
+    RayStart {
+        key_origin,
+        key_end,
+        step: dda.step,
+        t_max: dda.t_max,
+        t_delta: dda.t_delta,
+        length: f64::from(length),
+    }
+    .into()
+}
+
+impl From<RayStart> for RayPlan {
+    fn from(r: RayStart) -> Self {
+        RayPlan::Walk(r)
+    }
 }
 
 /// [`compute_ray_keys`] for any [`RayCells`] receiver.
 #[inline(always)]
-pub fn walk_ray<V: RayCells>(conv: &KeyConverter, origin: Point3f, end: Point3f, cells: &mut V) -> bool {
-    let (Some(key_origin), Some(key_end)) = (conv.coord_to_key_checked(origin), conv.coord_to_key_checked(end)) else {
-        return false;
-    };
-    if key_origin == key_end {
-        return true;
+pub fn walk_ray<V: RayCells>(
+    conv: &KeyConverter,
+    origin: Point3f,
+    end: Point3f,
+    cells: &mut V,
+) -> bool {
+    match plan_ray(conv, origin, end) {
+        RayPlan::OffMap => false,
+        RayPlan::SameCell => true,
+        RayPlan::Walk(start) => {
+            walk_from(&start, cells);
+            true
+        }
     }
+}
+
+/// The incremental phase of OctoMap's `computeRayKeys`, origin cell included.
+#[inline(always)]
+pub(crate) fn walk_from<V: RayCells>(start: &RayStart, cells: &mut V) {
+    let RayStart {
+        key_origin,
+        key_end,
+        step: dda_step,
+        t_max,
+        t_delta,
+        length,
+    } = *start;
     cells.cell(key_origin, 3);
-    let mut direction = sub(end, origin);
-    let length = norm(direction) as f32;
-    direction = [direction[0] / length, direction[1] / length, direction[2] / length];
-    let dda = Dda::new(conv, key_origin, origin, direction, true);
-    let length = f64::from(length);
+    let dda = Dda {
+        step: dda_step,
+        t_max,
+        t_delta,
+    };
     // Everything in scalars so the loop lives in registers (an indexed u16 key array
     // made every step wait on a store-to-load forward). The axis choice stays a
     // branch: prediction runs ahead of the float dependency chain, which a
@@ -132,8 +232,16 @@ pub fn walk_ray<V: RayCells>(conv: &KeyConverter, origin: Point3f, end: Point3f,
     let [sx, sy, sz] = dda.step;
     let [dx, dy, dz] = dda.t_delta;
     let [mut tx, mut ty, mut tz] = dda.t_max;
-    let (mut kx, mut ky, mut kz) = (i32::from(key_origin.0[0]), i32::from(key_origin.0[1]), i32::from(key_origin.0[2]));
-    let (ex, ey, ez) = (i32::from(key_end.0[0]), i32::from(key_end.0[1]), i32::from(key_end.0[2]));
+    let (mut kx, mut ky, mut kz) = (
+        i32::from(key_origin.0[0]),
+        i32::from(key_origin.0[1]),
+        i32::from(key_origin.0[2]),
+    );
+    let (ex, ey, ez) = (
+        i32::from(key_end.0[0]),
+        i32::from(key_end.0[1]),
+        i32::from(key_end.0[2]),
+    );
     // After a step on `$axis`: stop at the end cell, or once past the end point's
     // distance without reaching its cell (rounding); else report the cell.
     macro_rules! arrive {
@@ -170,7 +278,6 @@ pub fn walk_ray<V: RayCells>(conv: &KeyConverter, origin: Point3f, end: Point3f,
             arrive!(2);
         }
     }
-    true
 }
 
 /// `std::min(std::min(a, b), c)` as C++ evaluates it (no NaN handling needed here).
@@ -210,8 +317,18 @@ pub fn cast_ray(
     };
     let mut key = conv.coord_to_key_checked(origin)?;
     match occupancy(key) {
-        Some(true) => return Some(RayHit { hit: true, end: centre(key) }),
-        None if !ignore_unknown => return Some(RayHit { hit: false, end: centre(key) }),
+        Some(true) => {
+            return Some(RayHit {
+                hit: true,
+                end: centre(key),
+            })
+        }
+        None if !ignore_unknown => {
+            return Some(RayHit {
+                hit: false,
+                end: centre(key),
+            })
+        }
         _ => {}
     }
     let direction = normalized(direction);
@@ -226,7 +343,10 @@ pub fn cast_ray(
         let dim = dda.next_axis();
         let k = i32::from(key.0[dim]);
         if (dda.step[dim] < 0 && k == 0) || (dda.step[dim] > 0 && k == 2 * TREE_MAX_VAL - 1) {
-            return Some(RayHit { hit: false, end: centre(key) });
+            return Some(RayHit {
+                hit: false,
+                end: centre(key),
+            });
         }
         key.0[dim] = (k + dda.step[dim]) as u16;
         dda.t_max[dim] += dda.t_delta[dim];
@@ -238,12 +358,25 @@ pub fn cast_ray(
                 dist_sq += f64::from(d * d); // float product, double sum, as in OctoMap
             }
             if dist_sq > max_range_sq {
-                return Some(RayHit { hit: false, end: centre(key) });
+                return Some(RayHit {
+                    hit: false,
+                    end: centre(key),
+                });
             }
         }
         match occupancy(key) {
-            Some(true) => return Some(RayHit { hit: true, end: centre(key) }),
-            None if !ignore_unknown => return Some(RayHit { hit: false, end: centre(key) }),
+            Some(true) => {
+                return Some(RayHit {
+                    hit: true,
+                    end: centre(key),
+                })
+            }
+            None if !ignore_unknown => {
+                return Some(RayHit {
+                    hit: false,
+                    end: centre(key),
+                })
+            }
             _ => {}
         }
     }
@@ -260,16 +393,24 @@ impl super::occupancy::OcTree {
     ) -> crate::Result<RayHit> {
         use crate::Error;
         if !direction.iter().all(|c| c.is_finite()) || direction == [0.0; 3] {
-            return Err(Error::InvalidArgument(format!("direction {direction:?} must be finite and non-zero")));
+            return Err(Error::InvalidArgument(format!(
+                "direction {direction:?} must be finite and non-zero"
+            )));
         }
         if let Some(r) = max_range {
             if !(r.is_finite() && r > 0.0) {
-                return Err(Error::InvalidArgument(format!("max_range must be a positive distance in metres, got {r}")));
+                return Err(Error::InvalidArgument(format!(
+                    "max_range must be a positive distance in metres, got {r}"
+                )));
             }
         }
         self.key_of("origin", origin)?;
         let o = [origin[0] as f32, origin[1] as f32, origin[2] as f32];
-        let d = [direction[0] as f32, direction[1] as f32, direction[2] as f32];
+        let d = [
+            direction[0] as f32,
+            direction[1] as f32,
+            direction[2] as f32,
+        ];
         let occupancy = |k: OcTreeKey| self.search(k, 0).map(|l| self.is_occupied_log_odds(l));
         cast_ray(self.key_converter(), o, d, ignore_unknown, max_range.unwrap_or(-1.0), occupancy).ok_or_else(|| {
             Error::InvalidArgument(format!("cannot cast a ray from {origin:?} along {direction:?} (off the map or zero in float precision)"))

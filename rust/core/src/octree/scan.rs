@@ -2,9 +2,12 @@
 //! free cells along them, occupied end cells) with the same cells and values, done
 //! as one sorted batch.
 
+use super::key::KeyConverter;
 use super::key::OcTreeKey;
 use super::occupancy::{KeyUpdate, OcTree};
-use super::ray::{compute_ray_keys, walk_ray, Point3f};
+use super::ray::{
+    compute_ray_keys, norm, normalized, plan_ray, point_at, sub, walk_from, Point3f, RayPlan,
+};
 use super::volume::KeyVolume;
 use crate::error::{Error, Result};
 use crate::threads;
@@ -36,7 +39,11 @@ impl OcTree {
         discretize: bool,
     ) -> Result<InsertReport> {
         let (origin, points) = self.checked_scan(points, origin, max_range)?;
-        let rays = if discretize { self.discretized(&points) } else { points };
+        let rays = if discretize {
+            self.discretized(&points)
+        } else {
+            points
+        };
         let volume = self.trace(&rays, origin, max_range);
         let mut updates: Vec<KeyUpdate> = Vec::new();
         let mut hits = Vec::new();
@@ -49,17 +56,29 @@ impl OcTree {
         });
         self.danger.record_hits(hits.iter().copied());
         if !self.danger.is_empty() {
-            self.danger.record_seen_free(|code| volume.is_free(OcTreeKey::from_morton(code)));
+            self.danger
+                .record_seen_free(|code| volume.is_free(OcTreeKey::from_morton(code)));
         }
         self.apply_sorted_updates(&updates);
-        Ok(InsertReport { rays: rays.len(), free_cells: updates.len() - hits.len(), occupied_cells: hits.len() })
+        Ok(InsertReport {
+            rays: rays.len(),
+            free_cells: updates.len() - hits.len(),
+            occupied_cells: hits.len(),
+        })
     }
 
     /// Validate a scan and convert it to OctoMap's float points.
-    fn checked_scan(&self, points: &[[f64; 3]], origin: [f64; 3], max_range: Option<f64>) -> Result<(Point3f, Vec<Point3f>)> {
+    fn checked_scan(
+        &self,
+        points: &[[f64; 3]],
+        origin: [f64; 3],
+        max_range: Option<f64>,
+    ) -> Result<(Point3f, Vec<Point3f>)> {
         if let Some(r) = max_range {
             if !(r.is_finite() && r > 0.0) {
-                return Err(Error::InvalidArgument(format!("max_range must be a positive distance in metres, got {r}")));
+                return Err(Error::InvalidArgument(format!(
+                    "max_range must be a positive distance in metres, got {r}"
+                )));
             }
         }
         if points.is_empty() {
@@ -75,7 +94,9 @@ impl OcTree {
         let mut out = Vec::with_capacity(points.len());
         for (i, &p) in points.iter().enumerate() {
             if !p.iter().all(|c| c.is_finite()) {
-                return Err(Error::InvalidArgument(format!("point {i} {p:?} is not finite")));
+                return Err(Error::InvalidArgument(format!(
+                    "point {i} {p:?} is not finite"
+                )));
             }
             let p32 = to_f32(p);
             if self.conv.coord_to_key_checked(p32).is_none() {
@@ -87,40 +108,59 @@ impl OcTree {
     }
 
     fn out_of_bounds(&self, what: &'static str, point: [f64; 3]) -> Error {
-        Error::OutOfBounds { what, point, limit: self.conv.metric_limits().1 }
+        Error::OutOfBounds {
+            what,
+            point,
+            limit: self.conv.metric_limits().1,
+        }
     }
 
     /// OctoMap's `computeDiscreteUpdate`: one ray per distinct end cell, to its centre.
     fn discretized(&self, points: &[Point3f]) -> Vec<Point3f> {
-        let mut codes: Vec<u64> =
-            points.iter().filter_map(|&p| self.conv.coord_to_key_checked(p)).map(OcTreeKey::morton).collect();
+        let mut codes: Vec<u64> = points
+            .iter()
+            .filter_map(|&p| self.conv.coord_to_key_checked(p))
+            .map(OcTreeKey::morton)
+            .collect();
         codes.sort_unstable();
         codes.dedup();
-        codes.into_iter().map(|m| self.conv.key_to_point(OcTreeKey::from_morton(m))).collect()
+        codes
+            .into_iter()
+            .map(|m| self.conv.key_to_point(OcTreeKey::from_morton(m)))
+            .collect()
     }
 
     /// Mark the cells of every ray (OctoMap's `computeUpdate`), split over threads.
     fn trace(&self, points: &[Point3f], origin: Point3f, max_range: Option<f64>) -> KeyVolume {
-        const PARTS_PER_THREAD: usize = 4;
-        let parts = (threads::num_threads() * PARTS_PER_THREAD).max(1);
-        let chunk = points.len().div_ceil(parts).max(1024);
-        let chunks: Vec<&[Point3f]> = points.chunks(chunk).collect();
+        // One volume per thread (each covers the whole scan's box, so fewer is
+        // cheaper to zero and merge); threads take interleaved chunks of the image
+        // rows, which balances long and short rays between them.
+        const CHUNK: usize = 2048;
+        let parts: Vec<usize> =
+            (0..threads::num_threads().clamp(1, points.len().div_ceil(CHUNK).max(1))).collect();
         let conv = &self.conv;
         let (lo, hi) = key_bounds(conv, origin, points);
-        let volumes = threads::map_parts(&chunks, |part| {
+        let volumes = threads::map_parts(&parts, |&part| {
             let mut volume = KeyVolume::with_bounds(lo, hi);
-            for &p in part.iter() {
-                trace_ray(conv, origin, p, max_range, &mut volume);
+            for chunk in points.chunks(CHUNK).skip(part).step_by(parts.len()) {
+                trace_part(conv, origin, chunk, max_range, &mut volume);
             }
             volume
         });
-        volumes.into_iter().reduce(KeyVolume::merge).unwrap_or_default()
+        volumes
+            .into_iter()
+            .reduce(KeyVolume::merge)
+            .unwrap_or_default()
     }
 }
 
 /// Key box holding the origin and every point, one cell wider on each side (a ray's
 /// cells lie between its end cells, give or take rounding).
-fn key_bounds(conv: &super::key::KeyConverter, origin: Point3f, points: &[Point3f]) -> (OcTreeKey, OcTreeKey) {
+fn key_bounds(
+    conv: &super::key::KeyConverter,
+    origin: Point3f,
+    points: &[Point3f],
+) -> (OcTreeKey, OcTreeKey) {
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
     for p in points.iter().chain(std::iter::once(&origin)) {
@@ -132,42 +172,62 @@ fn key_bounds(conv: &super::key::KeyConverter, origin: Point3f, points: &[Point3
     // Points were validated, so both corners map to keys; clamp the widened box.
     let key = |p: Point3f| conv.coord_to_key_checked(p).unwrap_or_default();
     let (klo, khi) = (key(lo), key(hi));
-    (OcTreeKey(klo.0.map(|k| k.saturating_sub(1))), OcTreeKey(khi.0.map(|k| k.saturating_add(1))))
+    (
+        OcTreeKey(klo.0.map(|k| k.saturating_sub(1))),
+        OcTreeKey(khi.0.map(|k| k.saturating_add(1))),
+    )
 }
 
-/// One ray of `computeUpdate`, float arithmetic as in OctoMap.
-#[inline]
-fn trace_ray(conv: &super::key::KeyConverter, origin: Point3f, p: Point3f, max_range: Option<f64>, volume: &mut KeyVolume) {
-    let within = match max_range {
-        None => true,
-        Some(r) => super::ray::norm(super::ray::sub(p, origin)) <= r,
-    };
-    let end = if within {
-        p
-    } else {
-        let r = max_range.unwrap_or(f64::INFINITY);
-        super::ray::point_at(origin, super::ray::normalized(super::ray::sub(p, origin)), r as f32)
-    };
-    mark_ray_free(conv, origin, end, volume);
-    if within {
-        if let Some(k) = conv.coord_to_key_checked(p) {
-            volume.mark_occupied(k);
+/// The rays of one part of a scan (OctoMap's `computeUpdate`, float arithmetic as in
+/// OctoMap): end cells marked occupied, then every ray's cells marked free, four rays
+/// at a time where the CPU allows.
+fn trace_part(
+    conv: &KeyConverter,
+    origin: Point3f,
+    points: &[Point3f],
+    max_range: Option<f64>,
+    volume: &mut KeyVolume,
+) {
+    let mut starts = Vec::with_capacity(points.len());
+    let mut ends = Vec::with_capacity(points.len());
+    for &p in points {
+        let within = match max_range {
+            None => true,
+            Some(r) => norm(sub(p, origin)) <= r,
+        };
+        let end = if within {
+            if let Some(k) = conv.coord_to_key_checked(p) {
+                volume.mark_occupied(k);
+            }
+            p
+        } else {
+            // Cut at max_range: free cells only, no hit.
+            let r = max_range.unwrap_or(f64::INFINITY);
+            point_at(origin, normalized(sub(p, origin)), r as f32)
+        };
+        if let RayPlan::Walk(start) = plan_ray(conv, origin, end) {
+            starts.push(start);
+            ends.push(end);
         }
     }
-}
-
-/// Mark the free cells of one ray: through the dense box when every cell fits in it
-/// (the fast path), else cell by cell through the general store.
-#[inline]
-fn mark_ray_free(conv: &super::key::KeyConverter, origin: Point3f, end: Point3f, volume: &mut KeyVolume) {
-    if let Some(mut dense) = volume.dense_marker() {
-        walk_ray(conv, origin, end, &mut dense);
-        if !dense.outside {
-            return;
+    // Rays with a cell outside the dense box (rounding at its edge, or no box at all)
+    // are redone through the general store; marking twice is harmless.
+    let mut redo: Vec<usize> = Vec::new();
+    match volume.dense_marker() {
+        Some(mut dense) => {
+            for (i, start) in starts.iter().enumerate() {
+                dense.outside = false;
+                walk_from(start, &mut dense);
+                if dense.outside {
+                    redo.push(i);
+                }
+            }
         }
+        None => redo.extend(0..starts.len()),
     }
-    // Marking is idempotent, so cells the fast path already marked may be marked again.
-    compute_ray_keys(conv, origin, end, |k| volume.mark_free(k));
+    for i in redo {
+        compute_ray_keys(conv, origin, ends[i], |k| volume.mark_free(k));
+    }
 }
 
 #[inline]

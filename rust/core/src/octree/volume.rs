@@ -50,9 +50,17 @@ impl Dense {
         }
         let stride = [512, 512 * bricks[0], 512 * bricks[0] * bricks[1]];
         let tables = [0, 1, 2].map(|a| {
-            (0..dims[a]).map(|c| ((c / 8) * stride[a]) as u32 + (SPREAD3[c % 8] << a)).collect::<Vec<u32>>()
+            (0..dims[a])
+                .map(|c| ((c / 8) * stride[a]) as u32 + (SPREAD3[c % 8] << a))
+                .collect::<Vec<u32>>()
         });
-        Some(Dense { lo, dims, tables, free: vec![0; n * BRICK_WORDS], occupied: vec![0; n * BRICK_WORDS] })
+        Some(Dense {
+            lo,
+            dims,
+            tables,
+            free: vec![0; n * BRICK_WORDS],
+            occupied: vec![0; n * BRICK_WORDS],
+        })
     }
 
     #[inline(always)]
@@ -77,7 +85,10 @@ impl Dense {
         let base = self.lo.map(|k| k >> 3);
         (0..self.free.len() / BRICK_WORDS).filter_map(move |s| {
             let w = s * BRICK_WORDS..(s + 1) * BRICK_WORDS;
-            let bits = BrickBits { free: &self.free[w.clone()], occupied: &self.occupied[w] };
+            let bits = BrickBits {
+                free: &self.free[w.clone()],
+                occupied: &self.occupied[w],
+            };
             if bits.free.iter().chain(bits.occupied).all(|&x| x == 0) {
                 return None;
             }
@@ -114,7 +125,11 @@ impl Sparse {
                 let next = self.bricks.len() as u32;
                 let i = *self.index.entry(b).or_insert(next);
                 if i == next {
-                    self.bricks.push(Brick { coords: b, free: [0; BRICK_WORDS], occupied: [0; BRICK_WORDS] });
+                    self.bricks.push(Brick {
+                        coords: b,
+                        free: [0; BRICK_WORDS],
+                        occupied: [0; BRICK_WORDS],
+                    });
                 }
                 self.cached = Some((b, i));
                 i
@@ -124,14 +139,17 @@ impl Sparse {
     }
 
     fn find(&self, key: OcTreeKey) -> Option<&Brick> {
-        self.index.get(&key.0.map(|k| k >> 3)).map(|&i| &self.bricks[i as usize])
+        self.index
+            .get(&key.0.map(|k| k >> 3))
+            .map(|&i| &self.bricks[i as usize])
     }
 }
 
 #[inline(always)]
 fn local_index(key: OcTreeKey) -> usize {
-    (SPREAD3[(key.0[0] & 7) as usize] | (SPREAD3[(key.0[1] & 7) as usize] << 1) | (SPREAD3[(key.0[2] & 7) as usize] << 2))
-        as usize
+    (SPREAD3[(key.0[0] & 7) as usize]
+        | (SPREAD3[(key.0[1] & 7) as usize] << 1)
+        | (SPREAD3[(key.0[2] & 7) as usize] << 2)) as usize
 }
 
 #[derive(Clone, Debug, Default)]
@@ -148,7 +166,10 @@ impl KeyVolume {
 
     /// An empty volume expecting cells within the key box `[lo, hi]` (others still work).
     pub fn with_bounds(lo: OcTreeKey, hi: OcTreeKey) -> Self {
-        KeyVolume { dense: Dense::new(lo, hi), sparse: Sparse::default() }
+        KeyVolume {
+            dense: Dense::new(lo, hi),
+            sparse: Sparse::default(),
+        }
     }
 
     #[inline(always)]
@@ -173,7 +194,11 @@ impl KeyVolume {
     fn mark_sparse(&mut self, key: OcTreeKey, occupied: bool) {
         let l = local_index(key);
         let b = self.sparse.brick_mut(key);
-        let words = if occupied { &mut b.occupied } else { &mut b.free };
+        let words = if occupied {
+            &mut b.occupied
+        } else {
+            &mut b.free
+        };
         words[l >> 6] |= 1 << (l & 63);
     }
 
@@ -182,7 +207,11 @@ impl KeyVolume {
     /// ray's state in memory, halving the speed), so it reports keys it cannot hold.
     #[inline(always)]
     pub fn dense_marker(&mut self) -> Option<DenseMarker<'_>> {
-        self.dense.as_mut().map(|dense| DenseMarker { dense, offsets: [0; 3], outside: false })
+        self.dense.as_mut().map(|dense| DenseMarker {
+            dense,
+            offsets: [0; 3],
+            outside: false,
+        })
     }
 
     /// Whether `key` is marked free and not occupied.
@@ -194,12 +223,17 @@ impl KeyVolume {
             }
         }
         let l = local_index(key);
-        self.sparse.find(key).is_some_and(|b| test(b.free[l >> 6], b.occupied[l >> 6], l))
+        self.sparse
+            .find(key)
+            .is_some_and(|b| test(b.free[l >> 6], b.occupied[l >> 6], l))
     }
 
     /// Union with another volume (the per-thread volumes of a parallel scan).
     pub fn merge(mut self, other: KeyVolume) -> KeyVolume {
-        let KeyVolume { dense: other_dense, sparse: other_sparse } = other;
+        let KeyVolume {
+            dense: other_dense,
+            sparse: other_sparse,
+        } = other;
         if let Some(od) = other_dense {
             match &mut self.dense {
                 Some(d) if d.same_box(&od) => {
@@ -245,7 +279,13 @@ impl KeyVolume {
             bricks.extend(d.bricks());
         }
         bricks.extend(self.sparse.bricks.iter().map(|b| {
-            (OcTreeKey(b.coords).morton(), BrickBits { free: &b.free, occupied: &b.occupied })
+            (
+                OcTreeKey(b.coords).morton(),
+                BrickBits {
+                    free: &b.free,
+                    occupied: &b.occupied,
+                },
+            )
         }));
         bricks.sort_unstable_by_key(|&(code, _)| code);
         // A brick can be in both stores only after merging unlike volumes; those
@@ -282,40 +322,6 @@ impl KeyVolume {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn check(mut v: KeyVolume, mut w: KeyVolume) {
-        let keys = [OcTreeKey([9, 3, 700]), OcTreeKey([1, 2, 3]), OcTreeKey([65535, 0, 8]), OcTreeKey([8, 8, 8])];
-        for k in keys {
-            v.mark_free(k);
-        }
-        v.mark_occupied(keys[1]);
-        w.mark_occupied(OcTreeKey([4, 4, 4]));
-        w.mark_free(keys[0]);
-        let v = v.merge(w);
-        let mut out = Vec::new();
-        v.for_each_sorted(|m, occ| out.push((m, occ)));
-        let mut expected: Vec<(u64, bool)> = keys.iter().map(|k| (k.morton(), *k == keys[1])).collect();
-        expected.push((OcTreeKey([4, 4, 4]).morton(), true));
-        expected.sort();
-        assert_eq!(out, expected);
-        assert_eq!(v.counts(), (3, 2));
-        assert!(v.is_free(keys[0]) && !v.is_free(keys[1]) && !v.is_free(OcTreeKey([5, 5, 5])));
-    }
-
-    #[test]
-    fn cells_come_out_sorted_and_occupied_wins() {
-        check(KeyVolume::new(), KeyVolume::new());
-        // Dense boxes covering only some of the cells: the rest go to the sparse store.
-        let (lo, hi) = (OcTreeKey([0, 0, 0]), OcTreeKey([20, 20, 20]));
-        check(KeyVolume::with_bounds(lo, hi), KeyVolume::with_bounds(lo, hi));
-        check(KeyVolume::with_bounds(lo, hi), KeyVolume::new());
-        check(KeyVolume::new(), KeyVolume::with_bounds(OcTreeKey([3, 1, 600]), OcTreeKey([30, 9, 800])));
-    }
-}
-
 /// See [`KeyVolume::dense_marker`]. As a [`RayCells`] receiver it keeps each axis's
 /// bit offset and refreshes only the axis that moved (one table load per cell).
 pub struct DenseMarker<'a> {
@@ -328,7 +334,9 @@ pub struct DenseMarker<'a> {
 impl DenseMarker<'_> {
     #[inline(always)]
     fn offset(&self, axis: usize, k: u16) -> Option<u32> {
-        self.dense.tables[axis].get(usize::from(k.wrapping_sub(self.dense.lo[axis]))).copied()
+        self.dense.tables[axis]
+            .get(usize::from(k.wrapping_sub(self.dense.lo[axis])))
+            .copied()
     }
 }
 
@@ -337,10 +345,23 @@ impl RayCells for DenseMarker<'_> {
     fn cell(&mut self, key: OcTreeKey, moved: usize) {
         // `moved` is a constant at each call site once inlined, so this match folds away.
         let ok = match moved {
-            0 => self.offset(0, key.0[0]).map(|o| self.offsets[0] = o).is_some(),
-            1 => self.offset(1, key.0[1]).map(|o| self.offsets[1] = o).is_some(),
-            2 => self.offset(2, key.0[2]).map(|o| self.offsets[2] = o).is_some(),
-            _ => match (self.offset(0, key.0[0]), self.offset(1, key.0[1]), self.offset(2, key.0[2])) {
+            0 => self
+                .offset(0, key.0[0])
+                .map(|o| self.offsets[0] = o)
+                .is_some(),
+            1 => self
+                .offset(1, key.0[1])
+                .map(|o| self.offsets[1] = o)
+                .is_some(),
+            2 => self
+                .offset(2, key.0[2])
+                .map(|o| self.offsets[2] = o)
+                .is_some(),
+            _ => match (
+                self.offset(0, key.0[0]),
+                self.offset(1, key.0[1]),
+                self.offset(2, key.0[2]),
+            ) {
                 (Some(x), Some(y), Some(z)) => {
                     self.offsets = [x, y, z];
                     true
@@ -357,5 +378,51 @@ impl RayCells for DenseMarker<'_> {
         } else {
             self.outside = true;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check(mut v: KeyVolume, mut w: KeyVolume) {
+        let keys = [
+            OcTreeKey([9, 3, 700]),
+            OcTreeKey([1, 2, 3]),
+            OcTreeKey([65535, 0, 8]),
+            OcTreeKey([8, 8, 8]),
+        ];
+        for k in keys {
+            v.mark_free(k);
+        }
+        v.mark_occupied(keys[1]);
+        w.mark_occupied(OcTreeKey([4, 4, 4]));
+        w.mark_free(keys[0]);
+        let v = v.merge(w);
+        let mut out = Vec::new();
+        v.for_each_sorted(|m, occ| out.push((m, occ)));
+        let mut expected: Vec<(u64, bool)> =
+            keys.iter().map(|k| (k.morton(), *k == keys[1])).collect();
+        expected.push((OcTreeKey([4, 4, 4]).morton(), true));
+        expected.sort();
+        assert_eq!(out, expected);
+        assert_eq!(v.counts(), (3, 2));
+        assert!(v.is_free(keys[0]) && !v.is_free(keys[1]) && !v.is_free(OcTreeKey([5, 5, 5])));
+    }
+
+    #[test]
+    fn cells_come_out_sorted_and_occupied_wins() {
+        check(KeyVolume::new(), KeyVolume::new());
+        // Dense boxes covering only some of the cells: the rest go to the sparse store.
+        let (lo, hi) = (OcTreeKey([0, 0, 0]), OcTreeKey([20, 20, 20]));
+        check(
+            KeyVolume::with_bounds(lo, hi),
+            KeyVolume::with_bounds(lo, hi),
+        );
+        check(KeyVolume::with_bounds(lo, hi), KeyVolume::new());
+        check(
+            KeyVolume::new(),
+            KeyVolume::with_bounds(OcTreeKey([3, 1, 600]), OcTreeKey([30, 9, 800])),
+        );
     }
 }
