@@ -5,7 +5,7 @@ cell, ~213k points within 3 m; the same frame criterion uses). Both libraries in
 it into an empty tree; the results must be byte-identical (.ot), and the ratio of
 median times is printed along with bytes per node.
 
-    python benches/bench_vs_octomap.py [--repeats 7]
+    python benches/bench_vs_octomap.py [--repeats 11]
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import earcore
 
 
 def median_time(fn, repeats: int) -> tuple[float, object]:
+    fn()  # warm-up: page faults, thread pool start, CPU clock ramp
     times, result = [], None
     for _ in range(repeats):
         start = time.perf_counter()
@@ -35,7 +36,7 @@ def main() -> None:
     import pyoctomap
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--repeats", type=int, default=11)
     args = parser.parse_args()
 
     points, origin = earcore.synthetic.benchmark_frame()

@@ -66,6 +66,16 @@ def obstacle_centre(t: float, sweep_s: float) -> np.ndarray | None:
     return np.array([0.45, -0.7 + 1.4 * s, 1.0])
 
 
+def show_progress(done: int, total: int) -> None:
+    """A bar redrawn in place on a terminal; a line per quarter in logs."""
+    if sys.stderr.isatty():
+        if done % max(1, total // 60) == 0 or done == total:
+            bar = "#" * (30 * done // total)
+            print(f"\r  frames [{bar:<30}] {done}/{total}", end="", file=sys.stderr, flush=True)
+    elif done * 4 // total != (done - 1) * 4 // total:
+        print(f"  frames {done}/{total}", file=sys.stderr, flush=True)
+
+
 def run(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     tree = OcTree(config.resolution, danger_alpha=config.danger_alpha)
     dt = 1.0 / config.rate_hz
@@ -95,10 +105,9 @@ def run(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
         max_left = max(max_left, left)
         if centre is None and cleared_at is None and left == 0:
             cleared_at = t - config.sweep_s
-        if progress and (i % max(1, n_frames // 50) == 0 or i == n_frames - 1):
-            bar = "#" * (30 * (i + 1) // n_frames)
-            print(f"\r  frames [{bar:<30}] {i + 1}/{n_frames}", end="", file=sys.stderr, flush=True)
-    if progress:
+        if progress:
+            show_progress(i + 1, n_frames)
+    if progress and sys.stderr.isatty():
         print(file=sys.stderr)
     elapsed = time.perf_counter() - start
 
