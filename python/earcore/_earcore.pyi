@@ -18,6 +18,10 @@ __all__ = [
     "get_num_threads",
     "render_depth_points",
     "benchmark_frame",
+    "depth_to_points_raw",
+    "crop_indices",
+    "statistical_outlier_indices",
+    "voxel_downsample_raw",
 ]
 
 __version__: str
@@ -153,3 +157,26 @@ def render_depth_points(
     max_depth: float = 4.5,
 ) -> _F64: ...
 def benchmark_frame() -> tuple[_F64, _F64]: ...
+def depth_to_points_raw(
+    depth: _ArrayLike,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    distortion: _ArrayLike | None = None,
+    depth_scale: float = 1.0,
+    min_depth: float = 0.0,
+    max_depth: float | None = None,
+    base_from_camera: _ArrayLike | None = None,
+) -> tuple[_F64, npt.NDArray[np.uint32]]: ...
+def crop_indices(
+    points: _ArrayLike,
+    center: _ArrayLike | None = None,
+    radius: float | None = None,
+    box_min: _ArrayLike | None = None,
+    box_max: _ArrayLike | None = None,
+) -> npt.NDArray[np.uint32]: ...
+def statistical_outlier_indices(
+    points: _ArrayLike, k: int = 20, std_ratio: float = 2.0
+) -> tuple[npt.NDArray[np.uint32], _F64]: ...
+def voxel_downsample_raw(points: _ArrayLike, voxel_size: float, values: _ArrayLike | None = None) -> tuple[_F64, _F64 | None]: ...

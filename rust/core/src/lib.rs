@@ -3,7 +3,9 @@
 //! No Python here: the `earcore-py` crate wraps this one for `import earcore`.
 //! nalgebra comes through parry (`earcore_core::na`) so the two never disagree.
 
+pub mod cloud;
 pub mod error;
+pub mod geometry;
 pub mod octree;
 pub mod synthetic;
 pub mod threads;

@@ -91,3 +91,27 @@ pub fn rows_to_array<'py>(py: Python<'py>, rows: Vec<[f64; 3]>) -> Bound<'py, Py
 pub fn vec_to_array<'py, T: numpy::Element>(py: Python<'py>, v: Vec<T>) -> Bound<'py, PyArray1<T>> {
     v.into_pyarray(py)
 }
+
+/// A (4, 4) float64 rigid transform (checked by the core where it is used).
+pub fn pose(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<earcore_core::na::Matrix4<f64>> {
+    let converted = as_contiguous_f64(obj)
+        .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("{name} must be a (4, 4) matrix: {e}")))?;
+    let arr: PyReadonlyArray2<f64> =
+        converted.extract().map_err(|_| PyValueError::new_err(format!("{name} must be a (4, 4) matrix")))?;
+    let a = arr.as_array();
+    if a.shape() != [4, 4] {
+        return Err(PyValueError::new_err(format!("{name} must be a (4, 4) matrix, got shape {:?}", a.shape())));
+    }
+    Ok(earcore_core::na::Matrix4::from_fn(|r, c| a[[r, c]]))
+}
+
+/// Numbers as a flat float64 vector (e.g. distortion coefficients).
+pub fn numbers(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f64>> {
+    let np = PyModule::import(obj.py(), "numpy")?;
+    let a = np
+        .call_method1("ascontiguousarray", (obj, np.getattr("float64")?))
+        .and_then(|a| a.call_method1("ravel", ()))
+        .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("{name} must be numbers: {e}")))?;
+    let arr: PyReadonlyArray1<f64> = a.extract()?;
+    Ok(arr.as_slice()?.to_vec())
+}

@@ -1,5 +1,6 @@
 //! Python bindings: this file only wires the modules together.
 
+mod cloud;
 mod convert;
 mod errors;
 mod octree;
@@ -32,5 +33,9 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_depth_points, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::benchmark_frame, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::depth_to_points_raw, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::crop_indices, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::statistical_outlier_indices, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::voxel_downsample_raw, m)?)?;
     Ok(())
 }

@@ -1,0 +1,89 @@
+"""Point-cloud pre-processing (Paper II, §C.2): depth images to points, crop,
+statistical outlier removal, voxel-grid down-sampling. The loops run in Rust; these
+functions pick rows (colours, normals, any per-point values) with the indices it returns.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from earcore import _earcore
+
+__all__ = ["crop", "depth_to_points", "remove_statistical_outliers", "voxel_downsample"]
+
+
+def depth_to_points(
+    depth: npt.ArrayLike,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    *,
+    distortion: npt.ArrayLike | None = None,
+    depth_scale: float = 1.0,
+    min_depth: float = 0.0,
+    max_depth: float | None = None,
+    base_from_camera: npt.ArrayLike | None = None,
+    colour: npt.ArrayLike | None = None,
+    return_pixels: bool = False,
+):
+    """Back-project a depth image (H, W) through a pinhole camera.
+
+    Depth is the z coordinate in metres after multiplying by `depth_scale` (0.001 for
+    millimetre images); 0, NaN and values outside [`min_depth`, `max_depth`] are dropped.
+    `distortion` is OpenCV's (k1, k2, p1, p2[, k3]); pixel (u, v) has its centre at (u, v).
+    Points come in the camera frame (x right, y down, z forward), or in the base frame
+    when `base_from_camera` (4×4) is given.
+
+    Returns the points (N, 3); with `colour` (H, W, C) also the colours (N, C) of the
+    same pixels; with `return_pixels` also the flat pixel index (row·W + column) of each.
+    """
+    points, pixels = _earcore.depth_to_points_raw(
+        depth, fx, fy, cx, cy, distortion, depth_scale, min_depth, max_depth, base_from_camera
+    )
+    out = [points]
+    if colour is not None:
+        colour = np.asarray(colour)
+        shape = np.shape(depth)
+        if colour.shape[:2] != tuple(shape[:2]):
+            raise ValueError(f"colour must be an (H, W[, C]) image matching depth {shape}, got {colour.shape}")
+        out.append(colour.reshape(shape[0] * shape[1], -1)[pixels])
+    if return_pixels:
+        out.append(pixels)
+    return out[0] if len(out) == 1 else tuple(out)
+
+
+def crop(
+    points: npt.ArrayLike,
+    *,
+    center: npt.ArrayLike = (0.0, 0.0, 0.0),
+    radius: float = 1.5,
+    box_min: npt.ArrayLike | None = None,
+    box_max: npt.ArrayLike | None = None,
+    return_index: bool = False,
+):
+    """Keep the points within `radius` of `center` (Paper II: 1.5 m around the robot
+    base), or inside the box [`box_min`, `box_max`] when both are given."""
+    idx = _earcore.crop_indices(points, center, radius, box_min, box_max)
+    kept = np.asarray(points, dtype=np.float64)[idx]
+    return (kept, idx) if return_index else kept
+
+
+def remove_statistical_outliers(points: npt.ArrayLike, k: int = 20, std_ratio: float = 2.0, *, return_index: bool = False):
+    """Drop points whose mean distance to their `k` nearest neighbours exceeds the mean
+    of those distances by more than `std_ratio` standard deviations (PCL's definition:
+    the point itself is not its own neighbour; σ is the sample standard deviation)."""
+    idx, _ = _earcore.statistical_outlier_indices(points, k, std_ratio)
+    kept = np.asarray(points, dtype=np.float64)[idx]
+    return (kept, idx) if return_index else kept
+
+
+def voxel_downsample(points: npt.ArrayLike, voxel_size: float, values: npt.ArrayLike | None = None):
+    """Replace the points of every voxel (edge `voxel_size`, grid anchored at the origin)
+    by their centroid. With `values` (N,) or (N, C) (colours, normals...), also return
+    their per-voxel means. Voxels come in the order of their first point."""
+    centroids, means = _earcore.voxel_downsample_raw(points, voxel_size, values)
+    if values is None:
+        return centroids
+    return centroids, (means[:, 0] if np.ndim(values) == 1 else means)

@@ -1,0 +1,145 @@
+//! A static k-d tree over 3D points for k-nearest-neighbour queries: built once
+//! (median splits on the widest axis, leaves of up to 8 points), queried many times,
+//! from any number of threads.
+
+/// A leaf holds at most this many points.
+const LEAF_SIZE: usize = 8;
+
+#[derive(Clone, Copy, Debug)]
+enum Node {
+    /// Points `order[start..end]`.
+    Leaf { start: u32, end: u32 },
+    /// Points with `axis` coordinate below `value` go left (ties may go either way).
+    Split { axis: u8, value: f64, left: u32, right: u32 },
+}
+
+#[derive(Clone, Debug)]
+pub struct KdTree {
+    points: Vec<[f64; 3]>,
+    /// Point indices, permuted so that every leaf's points are contiguous.
+    order: Vec<u32>,
+    nodes: Vec<Node>,
+}
+
+impl KdTree {
+    /// Build over `points` (they are copied).
+    pub fn new(points: &[[f64; 3]]) -> Self {
+        let mut tree = KdTree { points: points.to_vec(), order: (0..points.len() as u32).collect(), nodes: Vec::new() };
+        if !points.is_empty() {
+            let n = points.len();
+            tree.build(0, n);
+        }
+        tree
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    pub fn points(&self) -> &[[f64; 3]] {
+        &self.points
+    }
+
+    /// Build the subtree over `order[start..end]`; returns its node index.
+    fn build(&mut self, start: usize, end: usize) -> u32 {
+        let id = self.nodes.len() as u32;
+        if end - start <= LEAF_SIZE {
+            self.nodes.push(Node::Leaf { start: start as u32, end: end as u32 });
+            return id;
+        }
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for &i in &self.order[start..end] {
+            let p = self.points[i as usize];
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let axis = (0..3).max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b]))).unwrap_or(0);
+        let mid = start + (end - start) / 2;
+        let pts = &self.points;
+        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| pts[a as usize][axis].total_cmp(&pts[b as usize][axis]));
+        let value = self.points[self.order[mid] as usize][axis];
+        self.nodes.push(Node::Leaf { start: 0, end: 0 }); // placeholder, filled below
+        let left = self.build(start, mid);
+        let right = self.build(mid, end);
+        self.nodes[id as usize] = Node::Split { axis: axis as u8, value, left, right };
+        id
+    }
+
+    /// The `k` nearest points to `q` as (squared distance, index), nearest first,
+    /// leaving out the point with index `exclude` (a query point's own entry).
+    pub fn knn(&self, q: [f64; 3], k: usize, exclude: Option<u32>, out: &mut Vec<(f64, u32)>) {
+        out.clear();
+        if k == 0 || self.nodes.is_empty() {
+            return;
+        }
+        self.search(0, q, k, exclude, out);
+    }
+
+    fn search(&self, node: u32, q: [f64; 3], k: usize, exclude: Option<u32>, best: &mut Vec<(f64, u32)>) {
+        match self.nodes[node as usize] {
+            Node::Leaf { start, end } => {
+                for &i in &self.order[start as usize..end as usize] {
+                    if Some(i) == exclude {
+                        continue;
+                    }
+                    let p = self.points[i as usize];
+                    let d = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+                    if best.len() < k || d < best[best.len() - 1].0 {
+                        // Insert in order (k is small: a shift beats a heap).
+                        let at = best.partition_point(|&(bd, bi)| (bd, bi) < (d, i));
+                        if best.len() == k {
+                            best.pop();
+                        }
+                        best.insert(at, (d, i));
+                    }
+                }
+            }
+            Node::Split { axis, value, left, right } => {
+                let diff = q[axis as usize] - value;
+                let (near, far) = if diff < 0.0 { (left, right) } else { (right, left) };
+                self.search(near, q, k, exclude, best);
+                if best.len() < k || diff * diff <= best[best.len() - 1].0 {
+                    self.search(far, q, k, exclude, best);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn knn_equals_brute_force() {
+        let mut s = 12345u64;
+        let mut rnd = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut pts: Vec<[f64; 3]> = (0..2000).map(|_| [rnd(), rnd(), rnd() * 0.1]).collect();
+        pts.extend_from_slice(&pts[..50].to_vec()); // duplicates
+        let tree = KdTree::new(&pts);
+        let mut out = Vec::new();
+        for qi in 0..290 {
+            let q = pts[qi * 7];
+            tree.knn(q, 10, Some((qi * 7) as u32), &mut out);
+            let mut brute: Vec<(f64, u32)> = pts
+                .iter()
+                .enumerate()
+                .filter(|&(i, _)| i != qi * 7)
+                .map(|(i, p)| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2), i as u32))
+                .collect();
+            brute.sort_by(|a, b| a.partial_cmp(b).unwrap());
+            brute.truncate(10);
+            assert_eq!(out, brute);
+        }
+    }
+}

@@ -1,0 +1,139 @@
+//! Point-cloud functions: depth back-projection, crop, outlier removal, voxel grid.
+//! They return indices where the Python layer selects rows (colours, normals...).
+
+use earcore_core::cloud::{self, BrownConrady, DepthFrame, Intrinsics, OutlierParams};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use crate::convert::{numbers, points, pose, rows_to_array, vec_to_array, vector3};
+use crate::errors::IntoPyResult;
+
+/// (points (N, 3), pixel index (N,) uint32) of the valid pixels of a depth image.
+#[pyfunction]
+#[pyo3(signature = (depth, fx, fy, cx, cy, distortion=None, depth_scale=1.0, min_depth=0.0, max_depth=None, base_from_camera=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn depth_to_points_raw<'py>(
+    py: Python<'py>,
+    depth: &Bound<'py, PyAny>,
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    distortion: Option<&Bound<'py, PyAny>>,
+    depth_scale: f64,
+    min_depth: f64,
+    max_depth: Option<f64>,
+    base_from_camera: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>)> {
+    let np = PyModule::import(py, "numpy")?;
+    let img = np
+        .call_method1("ascontiguousarray", (depth, np.getattr("float32")?))
+        .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("depth must be an (H, W) array of numbers: {e}")))?;
+    let img: PyReadonlyArray2<f32> = img.extract().map_err(|_| {
+        PyValueError::new_err(format!("depth must be an (H, W) image, got shape {:?}", depth.getattr("shape").ok()))
+    })?;
+    let (height, width) = (img.shape()[0], img.shape()[1]);
+    let lens = match distortion {
+        None => None,
+        Some(d) => {
+            let c = numbers(d, "distortion")?;
+            match c.as_slice() {
+                [k1, k2, p1, p2] => Some(BrownConrady { k1: *k1, k2: *k2, p1: *p1, p2: *p2, k3: 0.0 }),
+                [k1, k2, p1, p2, k3] => Some(BrownConrady { k1: *k1, k2: *k2, p1: *p1, p2: *p2, k3: *k3 }),
+                _ => {
+                    return Err(PyValueError::new_err(format!(
+                        "distortion must be OpenCV's (k1, k2, p1, p2[, k3]), got {} numbers",
+                        c.len()
+                    )))
+                }
+            }
+        }
+    };
+    let pose = base_from_camera.map(|p| pose(p, "base_from_camera")).transpose()?;
+    let depth = img.as_slice()?;
+    let k = Intrinsics { fx, fy, cx, cy };
+    let (pts, pixels) = py
+        .detach(|| {
+            let frame = DepthFrame { depth, width, height, scale: depth_scale };
+            cloud::depth_to_points(&frame, &k, lens.as_ref(), min_depth, max_depth.unwrap_or(f64::INFINITY), pose.as_ref())
+        })
+        .py()?;
+    Ok((rows_to_array(py, pts), vec_to_array(py, pixels)))
+}
+
+/// Indices of the points inside a sphere (`center`, `radius`) or a box (`box_min`, `box_max`).
+#[pyfunction]
+#[pyo3(signature = (points, center=None, radius=None, box_min=None, box_max=None))]
+pub fn crop_indices<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    center: Option<&Bound<'py, PyAny>>,
+    radius: Option<f64>,
+    box_min: Option<&Bound<'py, PyAny>>,
+    box_max: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArray1<u32>>> {
+    let pts = self::points(points, "points")?;
+    let slice = pts.as_slice();
+    let idx = match (box_min, box_max) {
+        (Some(lo), Some(hi)) => {
+            let (lo, hi) = (vector3(lo, "box_min")?, vector3(hi, "box_max")?);
+            py.detach(|| cloud::crop_box(slice, lo, hi)).py()?
+        }
+        (None, None) => {
+            let c = center.map(|c| vector3(c, "center")).transpose()?.unwrap_or([0.0; 3]);
+            let r = radius.unwrap_or(1.5);
+            py.detach(|| cloud::crop_sphere(slice, c, r)).py()?
+        }
+        _ => return Err(PyValueError::new_err("give both box_min and box_max for a box crop")),
+    };
+    Ok(vec_to_array(py, idx))
+}
+
+/// Inlier indices and every point's mean distance to its k nearest neighbours.
+#[pyfunction]
+#[pyo3(signature = (points, k=20, std_ratio=2.0))]
+pub fn statistical_outlier_indices<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    k: usize,
+    std_ratio: f64,
+) -> PyResult<(Bound<'py, PyArray1<u32>>, Bound<'py, PyArray1<f64>>)> {
+    let pts = self::points(points, "points")?;
+    let slice = pts.as_slice();
+    let (idx, dist) = py.detach(|| cloud::statistical_outliers(slice, OutlierParams { k, std_ratio })).py()?;
+    Ok((vec_to_array(py, idx), vec_to_array(py, dist)))
+}
+
+/// Voxel centroids (M, 3) and, with `values` (N, C), their per-voxel means (M, C).
+#[pyfunction]
+#[pyo3(signature = (points, voxel_size, values=None))]
+pub fn voxel_downsample_raw<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    voxel_size: f64,
+    values: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyArray2<f64>>>)> {
+    let pts = self::points(points, "points")?;
+    let slice = pts.as_slice();
+    let np = PyModule::import(py, "numpy")?;
+    let vals = match values {
+        None => None,
+        Some(v) => {
+            let a = np.call_method1("ascontiguousarray", (v, np.getattr("float64")?))?;
+            let a = if a.getattr("ndim")?.extract::<usize>()? == 1 { a.call_method1("reshape", (-1, 1))? } else { a };
+            let arr: PyReadonlyArray2<f64> =
+                a.extract().map_err(|_| PyValueError::new_err("values must be an (N, C) array"))?;
+            Some(arr)
+        }
+    };
+    let stride = vals.as_ref().map_or(0, |v| v.shape()[1]);
+    let vslice = vals.as_ref().map(|v| v.as_slice()).transpose()?;
+    let (centroids, means) =
+        py.detach(|| cloud::voxel_downsample(slice, voxel_size, vslice.map(|v| (v, stride)))).py()?;
+    let m = centroids.len();
+    let means = vals.map(|_| {
+        numpy::IntoPyArray::into_pyarray(means, py).reshape([m, stride]).expect("M rows of C values")
+    });
+    Ok((rows_to_array(py, centroids), means))
+}
