@@ -46,7 +46,7 @@ test-python: wheel ## install the wheel into a fresh venv and run pytest against
 	$(TEST_VENV)/bin/python -m pip install $(PIP_FLAGS) "$$(ls dist/earcore-*.whl)[test]"
 	cd tests && ../$(TEST_VENV)/bin/python -m pytest -q -p no:cacheprovider .
 
-test: test-rust test-python ## every test: cargo test (core) + pytest (installed wheel)
+test: lint test-rust test-python ## every test: rustfmt + clippy, cargo test (core), pytest (installed wheel)
 
 bench: develop ## criterion benches, then earcore vs pyoctomap side by side
 	cargo bench --bench octree

@@ -7,14 +7,20 @@ use crate::na::Matrix4;
 /// (to 1e-6) and a bottom row of (0, 0, 0, 1).
 pub fn check_rigid(m: &Matrix4<f64>, name: &str) -> Result<()> {
     if !m.iter().all(|v| v.is_finite()) {
-        return Err(Error::InvalidArgument(format!("{name} has non-finite entries")));
+        return Err(Error::InvalidArgument(format!(
+            "{name} has non-finite entries"
+        )));
     }
     let bottom = [m[(3, 0)], m[(3, 1)], m[(3, 2)], m[(3, 3)]];
     if bottom != [0.0, 0.0, 0.0, 1.0] {
-        return Err(Error::InvalidArgument(format!("{name} must end with the row (0, 0, 0, 1), got {bottom:?}")));
+        return Err(Error::InvalidArgument(format!(
+            "{name} must end with the row (0, 0, 0, 1), got {bottom:?}"
+        )));
     }
     let r = m.fixed_view::<3, 3>(0, 0);
-    let err = (r.transpose() * r - crate::na::Matrix3::identity()).abs().max();
+    let err = (r.transpose() * r - crate::na::Matrix3::identity())
+        .abs()
+        .max();
     if err > 1e-6 || r.determinant() < 0.0 {
         return Err(Error::InvalidArgument(format!(
             "{name} is not a rigid transform (rotation part off orthonormal by {err:.2e} or a reflection)"

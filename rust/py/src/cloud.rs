@@ -9,6 +9,13 @@ use pyo3::prelude::*;
 use crate::convert::{numbers, points, pose, rows_to_array, vec_to_array, vector3};
 use crate::errors::IntoPyResult;
 
+/// Points and, per point, the index of the pixel (or input row) it came from.
+type PointsAndIndex<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>);
+/// Kept indices and a float per input point.
+type IndexAndValues<'py> = (Bound<'py, PyArray1<u32>>, Bound<'py, PyArray1<f64>>);
+/// Centroids and optional per-voxel means.
+type Centroids<'py> = (Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyArray2<f64>>>);
+
 /// (points (N, 3), pixel index (N,) uint32) of the valid pixels of a depth image.
 #[pyfunction]
 #[pyo3(signature = (depth, fx, fy, cx, cy, distortion=None, depth_scale=1.0, min_depth=0.0, max_depth=None, base_from_camera=None))]
@@ -25,13 +32,20 @@ pub fn depth_to_points_raw<'py>(
     min_depth: f64,
     max_depth: Option<f64>,
     base_from_camera: Option<&Bound<'py, PyAny>>,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>)> {
+) -> PyResult<PointsAndIndex<'py>> {
     let np = PyModule::import(py, "numpy")?;
     let img = np
         .call_method1("ascontiguousarray", (depth, np.getattr("float32")?))
-        .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("depth must be an (H, W) array of numbers: {e}")))?;
+        .map_err(|e| {
+            pyo3::exceptions::PyTypeError::new_err(format!(
+                "depth must be an (H, W) array of numbers: {e}"
+            ))
+        })?;
     let img: PyReadonlyArray2<f32> = img.extract().map_err(|_| {
-        PyValueError::new_err(format!("depth must be an (H, W) image, got shape {:?}", depth.getattr("shape").ok()))
+        PyValueError::new_err(format!(
+            "depth must be an (H, W) image, got shape {:?}",
+            depth.getattr("shape").ok()
+        ))
     })?;
     let (height, width) = (img.shape()[0], img.shape()[1]);
     let lens = match distortion {
@@ -39,8 +53,20 @@ pub fn depth_to_points_raw<'py>(
         Some(d) => {
             let c = numbers(d, "distortion")?;
             match c.as_slice() {
-                [k1, k2, p1, p2] => Some(BrownConrady { k1: *k1, k2: *k2, p1: *p1, p2: *p2, k3: 0.0 }),
-                [k1, k2, p1, p2, k3] => Some(BrownConrady { k1: *k1, k2: *k2, p1: *p1, p2: *p2, k3: *k3 }),
+                [k1, k2, p1, p2] => Some(BrownConrady {
+                    k1: *k1,
+                    k2: *k2,
+                    p1: *p1,
+                    p2: *p2,
+                    k3: 0.0,
+                }),
+                [k1, k2, p1, p2, k3] => Some(BrownConrady {
+                    k1: *k1,
+                    k2: *k2,
+                    p1: *p1,
+                    p2: *p2,
+                    k3: *k3,
+                }),
                 _ => {
                     return Err(PyValueError::new_err(format!(
                         "distortion must be OpenCV's (k1, k2, p1, p2[, k3]), got {} numbers",
@@ -50,13 +76,27 @@ pub fn depth_to_points_raw<'py>(
             }
         }
     };
-    let pose = base_from_camera.map(|p| pose(p, "base_from_camera")).transpose()?;
+    let pose = base_from_camera
+        .map(|p| pose(p, "base_from_camera"))
+        .transpose()?;
     let depth = img.as_slice()?;
     let k = Intrinsics { fx, fy, cx, cy };
     let (pts, pixels) = py
         .detach(|| {
-            let frame = DepthFrame { depth, width, height, scale: depth_scale };
-            cloud::depth_to_points(&frame, &k, lens.as_ref(), min_depth, max_depth.unwrap_or(f64::INFINITY), pose.as_ref())
+            let frame = DepthFrame {
+                depth,
+                width,
+                height,
+                scale: depth_scale,
+            };
+            cloud::depth_to_points(
+                &frame,
+                &k,
+                lens.as_ref(),
+                min_depth,
+                max_depth.unwrap_or(f64::INFINITY),
+                pose.as_ref(),
+            )
         })
         .py()?;
     Ok((rows_to_array(py, pts), vec_to_array(py, pixels)))
@@ -81,11 +121,18 @@ pub fn crop_indices<'py>(
             py.detach(|| cloud::crop_box(slice, lo, hi)).py()?
         }
         (None, None) => {
-            let c = center.map(|c| vector3(c, "center")).transpose()?.unwrap_or([0.0; 3]);
+            let c = center
+                .map(|c| vector3(c, "center"))
+                .transpose()?
+                .unwrap_or([0.0; 3]);
             let r = radius.unwrap_or(1.5);
             py.detach(|| cloud::crop_sphere(slice, c, r)).py()?
         }
-        _ => return Err(PyValueError::new_err("give both box_min and box_max for a box crop")),
+        _ => {
+            return Err(PyValueError::new_err(
+                "give both box_min and box_max for a box crop",
+            ))
+        }
     };
     Ok(vec_to_array(py, idx))
 }
@@ -98,10 +145,12 @@ pub fn statistical_outlier_indices<'py>(
     points: &Bound<'py, PyAny>,
     k: usize,
     std_ratio: f64,
-) -> PyResult<(Bound<'py, PyArray1<u32>>, Bound<'py, PyArray1<f64>>)> {
+) -> PyResult<IndexAndValues<'py>> {
     let pts = self::points(points, "points")?;
     let slice = pts.as_slice();
-    let (idx, dist) = py.detach(|| cloud::statistical_outliers(slice, OutlierParams { k, std_ratio })).py()?;
+    let (idx, dist) = py
+        .detach(|| cloud::statistical_outliers(slice, OutlierParams { k, std_ratio }))
+        .py()?;
     Ok((vec_to_array(py, idx), vec_to_array(py, dist)))
 }
 
@@ -113,7 +162,7 @@ pub fn voxel_downsample_raw<'py>(
     points: &Bound<'py, PyAny>,
     voxel_size: f64,
     values: Option<&Bound<'py, PyAny>>,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyArray2<f64>>>)> {
+) -> PyResult<Centroids<'py>> {
     let pts = self::points(points, "points")?;
     let slice = pts.as_slice();
     let np = PyModule::import(py, "numpy")?;
@@ -121,19 +170,27 @@ pub fn voxel_downsample_raw<'py>(
         None => None,
         Some(v) => {
             let a = np.call_method1("ascontiguousarray", (v, np.getattr("float64")?))?;
-            let a = if a.getattr("ndim")?.extract::<usize>()? == 1 { a.call_method1("reshape", (-1, 1))? } else { a };
-            let arr: PyReadonlyArray2<f64> =
-                a.extract().map_err(|_| PyValueError::new_err("values must be an (N, C) array"))?;
+            let a = if a.getattr("ndim")?.extract::<usize>()? == 1 {
+                a.call_method1("reshape", (-1, 1))?
+            } else {
+                a
+            };
+            let arr: PyReadonlyArray2<f64> = a
+                .extract()
+                .map_err(|_| PyValueError::new_err("values must be an (N, C) array"))?;
             Some(arr)
         }
     };
     let stride = vals.as_ref().map_or(0, |v| v.shape()[1]);
     let vslice = vals.as_ref().map(|v| v.as_slice()).transpose()?;
-    let (centroids, means) =
-        py.detach(|| cloud::voxel_downsample(slice, voxel_size, vslice.map(|v| (v, stride)))).py()?;
+    let (centroids, means) = py
+        .detach(|| cloud::voxel_downsample(slice, voxel_size, vslice.map(|v| (v, stride))))
+        .py()?;
     let m = centroids.len();
     let means = vals.map(|_| {
-        numpy::IntoPyArray::into_pyarray(means, py).reshape([m, stride]).expect("M rows of C values")
+        numpy::IntoPyArray::into_pyarray(means, py)
+            .reshape([m, stride])
+            .expect("M rows of C values")
     });
     Ok((rows_to_array(py, centroids), means))
 }

@@ -94,13 +94,18 @@ pub fn vec_to_array<'py, T: numpy::Element>(py: Python<'py>, v: Vec<T>) -> Bound
 
 /// A (4, 4) float64 rigid transform (checked by the core where it is used).
 pub fn pose(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<earcore_core::na::Matrix4<f64>> {
-    let converted = as_contiguous_f64(obj)
-        .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("{name} must be a (4, 4) matrix: {e}")))?;
-    let arr: PyReadonlyArray2<f64> =
-        converted.extract().map_err(|_| PyValueError::new_err(format!("{name} must be a (4, 4) matrix")))?;
+    let converted = as_contiguous_f64(obj).map_err(|e| {
+        pyo3::exceptions::PyTypeError::new_err(format!("{name} must be a (4, 4) matrix: {e}"))
+    })?;
+    let arr: PyReadonlyArray2<f64> = converted
+        .extract()
+        .map_err(|_| PyValueError::new_err(format!("{name} must be a (4, 4) matrix")))?;
     let a = arr.as_array();
     if a.shape() != [4, 4] {
-        return Err(PyValueError::new_err(format!("{name} must be a (4, 4) matrix, got shape {:?}", a.shape())));
+        return Err(PyValueError::new_err(format!(
+            "{name} must be a (4, 4) matrix, got shape {:?}",
+            a.shape()
+        )));
     }
     Ok(earcore_core::na::Matrix4::from_fn(|r, c| a[[r, c]]))
 }
@@ -111,7 +116,9 @@ pub fn numbers(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f64>> {
     let a = np
         .call_method1("ascontiguousarray", (obj, np.getattr("float64")?))
         .and_then(|a| a.call_method1("ravel", ()))
-        .map_err(|e| pyo3::exceptions::PyTypeError::new_err(format!("{name} must be numbers: {e}")))?;
+        .map_err(|e| {
+            pyo3::exceptions::PyTypeError::new_err(format!("{name} must be numbers: {e}"))
+        })?;
     let arr: PyReadonlyArray1<f64> = a.extract()?;
     Ok(arr.as_slice()?.to_vec())
 }

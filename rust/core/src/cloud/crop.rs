@@ -4,8 +4,10 @@ use crate::error::{Error, Result};
 
 /// Indices of the points within `radius` of `center` (boundary included).
 pub fn crop_sphere(points: &[[f64; 3]], center: [f64; 3], radius: f64) -> Result<Vec<u32>> {
-    if !(radius.is_finite() && radius >= 0.0) || !center.iter().all(|c| c.is_finite()) {
-        return Err(Error::InvalidArgument(format!("crop sphere needs a finite centre and radius >= 0, got {center:?}, {radius}")));
+    if !(radius.is_finite() && radius >= 0.0 && center.iter().all(|c| c.is_finite())) {
+        return Err(Error::InvalidArgument(format!(
+            "crop sphere needs a finite centre and radius >= 0, got {center:?}, {radius}"
+        )));
     }
     let r2 = radius * radius;
     Ok(filter(points, |p| {
@@ -17,11 +19,20 @@ pub fn crop_sphere(points: &[[f64; 3]], center: [f64; 3], radius: f64) -> Result
 /// Indices of the points inside the axis-aligned box `[lo, hi]` (faces included).
 pub fn crop_box(points: &[[f64; 3]], lo: [f64; 3], hi: [f64; 3]) -> Result<Vec<u32>> {
     if !(0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] <= hi[a]) {
-        return Err(Error::InvalidArgument(format!("crop box needs finite corners with lo <= hi, got {lo:?}, {hi:?}")));
+        return Err(Error::InvalidArgument(format!(
+            "crop box needs finite corners with lo <= hi, got {lo:?}, {hi:?}"
+        )));
     }
-    Ok(filter(points, |p| (0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a])))
+    Ok(filter(points, |p| {
+        (0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a])
+    }))
 }
 
 fn filter(points: &[[f64; 3]], keep: impl Fn(&[f64; 3]) -> bool) -> Vec<u32> {
-    points.iter().enumerate().filter(|(_, p)| keep(p)).map(|(i, _)| i as u32).collect()
+    points
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| keep(p))
+        .map(|(i, _)| i as u32)
+        .collect()
 }

@@ -80,20 +80,35 @@ pub fn depth_to_points(
     max_depth: f64,
     base_from_camera: Option<&Matrix4<f64>>,
 ) -> Result<(Vec<[f64; 3]>, Vec<u32>)> {
-    if !(k.fx.is_finite() && k.fy.is_finite() && k.fx > 0.0 && k.fy > 0.0 && k.cx.is_finite() && k.cy.is_finite()) {
-        return Err(Error::InvalidArgument(format!("intrinsics need finite fx, fy > 0 and finite cx, cy, got {k:?}")));
+    if !(k.fx.is_finite()
+        && k.fy.is_finite()
+        && k.fx > 0.0
+        && k.fy > 0.0
+        && k.cx.is_finite()
+        && k.cy.is_finite())
+    {
+        return Err(Error::InvalidArgument(format!(
+            "intrinsics need finite fx, fy > 0 and finite cx, cy, got {k:?}"
+        )));
     }
     if frame.depth.len() != frame.width * frame.height || frame.width == 0 || frame.height == 0 {
-        return Err(Error::InvalidArgument("depth image is empty or its size does not match".into()));
+        return Err(Error::InvalidArgument(
+            "depth image is empty or its size does not match".into(),
+        ));
     }
     if u32::try_from(frame.depth.len()).is_err() {
         return Err(Error::InvalidArgument("depth image is too large".into()));
     }
     if !(frame.scale.is_finite() && frame.scale > 0.0) {
-        return Err(Error::InvalidArgument(format!("depth_scale must be positive, got {}", frame.scale)));
+        return Err(Error::InvalidArgument(format!(
+            "depth_scale must be positive, got {}",
+            frame.scale
+        )));
     }
     if !(min_depth >= 0.0 && max_depth > min_depth) {
-        return Err(Error::InvalidArgument(format!("need 0 <= min_depth < max_depth, got {min_depth}, {max_depth}")));
+        return Err(Error::InvalidArgument(format!(
+            "need 0 <= min_depth < max_depth, got {min_depth}, {max_depth}"
+        )));
     }
     if let Some(pose) = base_from_camera {
         crate::geometry::check_rigid(pose, "base_from_camera")?;

@@ -10,7 +10,12 @@ enum Node {
     /// Points `order[start..end]`.
     Leaf { start: u32, end: u32 },
     /// Points with `axis` coordinate below `value` go left (ties may go either way).
-    Split { axis: u8, value: f64, left: u32, right: u32 },
+    Split {
+        axis: u8,
+        value: f64,
+        left: u32,
+        right: u32,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -18,17 +23,29 @@ pub struct KdTree {
     points: Vec<[f64; 3]>,
     /// Point indices, permuted so that every leaf's points are contiguous.
     order: Vec<u32>,
+    /// `points[order[i]]`: the leaves' points side by side, for cache-friendly scans.
+    ordered: Vec<[f64; 3]>,
     nodes: Vec<Node>,
 }
 
 impl KdTree {
     /// Build over `points` (they are copied).
     pub fn new(points: &[[f64; 3]]) -> Self {
-        let mut tree = KdTree { points: points.to_vec(), order: (0..points.len() as u32).collect(), nodes: Vec::new() };
+        let mut tree = KdTree {
+            points: points.to_vec(),
+            order: (0..points.len() as u32).collect(),
+            ordered: Vec::new(),
+            nodes: Vec::new(),
+        };
         if !points.is_empty() {
             let n = points.len();
             tree.build(0, n);
         }
+        tree.ordered = tree
+            .order
+            .iter()
+            .map(|&i| tree.points[i as usize])
+            .collect();
         tree
     }
 
@@ -48,7 +65,10 @@ impl KdTree {
     fn build(&mut self, start: usize, end: usize) -> u32 {
         let id = self.nodes.len() as u32;
         if end - start <= LEAF_SIZE {
-            self.nodes.push(Node::Leaf { start: start as u32, end: end as u32 });
+            self.nodes.push(Node::Leaf {
+                start: start as u32,
+                end: end as u32,
+            });
             return id;
         }
         let mut lo = [f64::INFINITY; 3];
@@ -60,15 +80,24 @@ impl KdTree {
                 hi[a] = hi[a].max(p[a]);
             }
         }
-        let axis = (0..3).max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b]))).unwrap_or(0);
+        let axis = (0..3)
+            .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+            .unwrap_or(0);
         let mid = start + (end - start) / 2;
         let pts = &self.points;
-        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| pts[a as usize][axis].total_cmp(&pts[b as usize][axis]));
+        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| {
+            pts[a as usize][axis].total_cmp(&pts[b as usize][axis])
+        });
         let value = self.points[self.order[mid] as usize][axis];
         self.nodes.push(Node::Leaf { start: 0, end: 0 }); // placeholder, filled below
         let left = self.build(start, mid);
         let right = self.build(mid, end);
-        self.nodes[id as usize] = Node::Split { axis: axis as u8, value, left, right };
+        self.nodes[id as usize] = Node::Split {
+            axis: axis as u8,
+            value,
+            left,
+            right,
+        };
         id
     }
 
@@ -82,28 +111,50 @@ impl KdTree {
         self.search(0, q, k, exclude, out);
     }
 
-    fn search(&self, node: u32, q: [f64; 3], k: usize, exclude: Option<u32>, best: &mut Vec<(f64, u32)>) {
+    fn search(
+        &self,
+        node: u32,
+        q: [f64; 3],
+        k: usize,
+        exclude: Option<u32>,
+        best: &mut Vec<(f64, u32)>,
+    ) {
         match self.nodes[node as usize] {
             Node::Leaf { start, end } => {
-                for &i in &self.order[start as usize..end as usize] {
+                let (start, end) = (start as usize, end as usize);
+                for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
                     if Some(i) == exclude {
                         continue;
                     }
-                    let p = self.points[i as usize];
                     let d = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
-                    if best.len() < k || d < best[best.len() - 1].0 {
-                        // Insert in order (k is small: a shift beats a heap).
-                        let at = best.partition_point(|&(bd, bi)| (bd, bi) < (d, i));
-                        if best.len() == k {
-                            best.pop();
-                        }
-                        best.insert(at, (d, i));
+                    let full = best.len() == k;
+                    if full && (d, i) >= best[k - 1] {
+                        continue;
                     }
+                    // Insert in order, shifting by hand (k is small: no heap, no memmove call).
+                    if !full {
+                        best.push((d, i));
+                    }
+                    let mut at = best.len() - 1;
+                    while at > 0 && best[at - 1] > (d, i) {
+                        best[at] = best[at - 1];
+                        at -= 1;
+                    }
+                    best[at] = (d, i);
                 }
             }
-            Node::Split { axis, value, left, right } => {
+            Node::Split {
+                axis,
+                value,
+                left,
+                right,
+            } => {
                 let diff = q[axis as usize] - value;
-                let (near, far) = if diff < 0.0 { (left, right) } else { (right, left) };
+                let (near, far) = if diff < 0.0 {
+                    (left, right)
+                } else {
+                    (right, left)
+                };
                 self.search(near, q, k, exclude, best);
                 if best.len() < k || diff * diff <= best[best.len() - 1].0 {
                     self.search(far, q, k, exclude, best);
@@ -121,11 +172,14 @@ mod tests {
     fn knn_equals_brute_force() {
         let mut s = 12345u64;
         let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64
         };
         let mut pts: Vec<[f64; 3]> = (0..2000).map(|_| [rnd(), rnd(), rnd() * 0.1]).collect();
-        pts.extend_from_slice(&pts[..50].to_vec()); // duplicates
+        let duplicates = pts[..50].to_vec();
+        pts.extend(duplicates);
         let tree = KdTree::new(&pts);
         let mut out = Vec::new();
         for qi in 0..290 {
@@ -135,7 +189,12 @@ mod tests {
                 .iter()
                 .enumerate()
                 .filter(|&(i, _)| i != qi * 7)
-                .map(|(i, p)| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2), i as u32))
+                .map(|(i, p)| {
+                    (
+                        (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2),
+                        i as u32,
+                    )
+                })
                 .collect();
             brute.sort_by(|a, b| a.partial_cmp(b).unwrap());
             brute.truncate(10);

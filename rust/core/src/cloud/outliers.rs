@@ -16,14 +16,22 @@ pub struct OutlierParams {
 
 impl Default for OutlierParams {
     fn default() -> Self {
-        OutlierParams { k: 20, std_ratio: 2.0 }
+        OutlierParams {
+            k: 20,
+            std_ratio: 2.0,
+        }
     }
 }
 
 /// Indices of the inliers (ascending) and every point's mean neighbour distance.
-pub fn statistical_outliers(points: &[[f64; 3]], params: OutlierParams) -> Result<(Vec<u32>, Vec<f64>)> {
+pub fn statistical_outliers(
+    points: &[[f64; 3]],
+    params: OutlierParams,
+) -> Result<(Vec<u32>, Vec<f64>)> {
     if params.k == 0 || !params.std_ratio.is_finite() {
-        return Err(Error::InvalidArgument(format!("need k >= 1 and a finite std_ratio, got {params:?}")));
+        return Err(Error::InvalidArgument(format!(
+            "need k >= 1 and a finite std_ratio, got {params:?}"
+        )));
     }
     if points.len() <= params.k {
         return Err(Error::InvalidArgument(format!(
@@ -33,7 +41,10 @@ pub fn statistical_outliers(points: &[[f64; 3]], params: OutlierParams) -> Resul
         )));
     }
     if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err(Error::InvalidArgument(format!("point {i} {:?} is not finite", points[i])));
+        return Err(Error::InvalidArgument(format!(
+            "point {i} {:?} is not finite",
+            points[i]
+        )));
     }
     let tree = KdTree::new(points);
     const CHUNK: usize = 4096;
@@ -50,8 +61,14 @@ pub fn statistical_outliers(points: &[[f64; 3]], params: OutlierParams) -> Resul
     let mean_distance: Vec<f64> = parts.concat();
     let n = mean_distance.len() as f64;
     let mean = mean_distance.iter().sum::<f64>() / n;
-    let variance = mean_distance.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    let variance = mean_distance
+        .iter()
+        .map(|d| (d - mean).powi(2))
+        .sum::<f64>()
+        / (n - 1.0);
     let threshold = mean + params.std_ratio * variance.sqrt();
-    let inliers = (0..points.len() as u32).filter(|&i| mean_distance[i as usize] <= threshold).collect();
+    let inliers = (0..points.len() as u32)
+        .filter(|&i| mean_distance[i as usize] <= threshold)
+        .collect();
     Ok((inliers, mean_distance))
 }

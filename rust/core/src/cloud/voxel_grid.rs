@@ -14,12 +14,17 @@ pub fn voxel_downsample(
     values: Option<(&[f64], usize)>,
 ) -> Result<(Vec<[f64; 3]>, Vec<f64>)> {
     if !(voxel_size.is_finite() && voxel_size > 0.0) {
-        return Err(Error::InvalidArgument(format!("voxel_size must be a positive length, got {voxel_size}")));
+        return Err(Error::InvalidArgument(format!(
+            "voxel_size must be a positive length, got {voxel_size}"
+        )));
     }
     let stride = values.map_or(0, |(_, s)| s);
     if let Some((v, s)) = values {
         if v.len() != points.len() * s {
-            return Err(Error::InvalidArgument(format!("values must have one row per point ({} rows of {s})", points.len())));
+            return Err(Error::InvalidArgument(format!(
+                "values must have one row per point ({} rows of {s})",
+                points.len()
+            )));
         }
     }
     let inv = 1.0 / voxel_size;
@@ -29,7 +34,9 @@ pub fn voxel_downsample(
     let mut value_sums: Vec<f64> = Vec::new();
     for (i, p) in points.iter().enumerate() {
         if !p.iter().all(|c| c.is_finite()) {
-            return Err(Error::InvalidArgument(format!("point {i} {p:?} is not finite")));
+            return Err(Error::InvalidArgument(format!(
+                "point {i} {p:?} is not finite"
+            )));
         }
         let key = p.map(|c| (c * inv).floor() as i64);
         let next = sums.len() as u32;
@@ -49,7 +56,11 @@ pub fn voxel_downsample(
             }
         }
     }
-    let centroids = sums.iter().zip(&counts).map(|(s, &c)| s.map(|x| x / f64::from(c))).collect();
+    let centroids = sums
+        .iter()
+        .zip(&counts)
+        .map(|(s, &c)| s.map(|x| x / f64::from(c)))
+        .collect();
     for (slot, &c) in counts.iter().enumerate() {
         for j in 0..stride {
             value_sums[slot * stride + j] /= f64::from(c);
