@@ -7,10 +7,26 @@ use earcore_core::octree::OcTree;
 use earcore_core::synthetic::{benchmark_scene, render_points};
 use earcore_core::threads;
 
-fn insert_frame(c: &mut Criterion) {
+/// The benchmark frame: points and sensor origin.
+fn frame() -> (Vec<[f64; 3]>, [f64; 3]) {
     let (camera, pose, shapes) = benchmark_scene();
-    let points = render_points(&camera, &pose, &shapes);
-    let origin = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
+    (
+        render_points(&camera, &pose, &shapes),
+        [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]],
+    )
+}
+
+/// The benchmark frame inserted into a 5 cm map.
+fn mapped_frame() -> (Vec<[f64; 3]>, OcTree) {
+    let (points, origin) = frame();
+    let mut tree = OcTree::new(0.05).expect("valid resolution");
+    tree.insert_point_cloud(&points, origin, None, false)
+        .expect("valid scan");
+    (points, tree)
+}
+
+fn insert_frame(c: &mut Criterion) {
+    let (points, origin) = frame();
     let mut group = c.benchmark_group("insert_point_cloud");
     group.throughput(Throughput::Elements(points.len() as u64));
     group.sample_size(20);
@@ -45,12 +61,7 @@ fn insert_frame(c: &mut Criterion) {
 }
 
 fn queries(c: &mut Criterion) {
-    let (camera, pose, shapes) = benchmark_scene();
-    let points = render_points(&camera, &pose, &shapes);
-    let origin = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
-    let mut tree = OcTree::new(0.05).expect("valid resolution");
-    tree.insert_point_cloud(&points, origin, None, false)
-        .expect("valid scan");
+    let (points, tree) = mapped_frame();
     let mut group = c.benchmark_group("queries");
     group.throughput(Throughput::Elements(points.len() as u64));
     group.bench_function("search 217k points", |b| {
@@ -68,12 +79,7 @@ fn queries(c: &mut Criterion) {
 }
 
 fn danger_frame(c: &mut Criterion) {
-    let (camera, pose, shapes) = benchmark_scene();
-    let points = render_points(&camera, &pose, &shapes);
-    let origin = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
-    let mut tree = OcTree::new(0.05).expect("valid resolution");
-    tree.insert_point_cloud(&points, origin, None, false)
-        .expect("valid scan");
+    let (_, mut tree) = mapped_frame();
     c.bench_function("end_frame with the frame's hits active", |b| {
         b.iter(|| {
             tree.danger_map_mut()

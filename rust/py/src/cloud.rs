@@ -99,7 +99,7 @@ pub fn depth_to_points_raw<'py>(
             )
         })
         .py()?;
-    Ok((rows_to_array(py, pts), vec_to_array(py, pixels)))
+    Ok((rows_to_array(py, pts)?, vec_to_array(py, pixels)))
 }
 
 /// Indices of the points inside a sphere (`center`, `radius`) or a box (`box_min`, `box_max`).
@@ -114,7 +114,7 @@ pub fn crop_indices<'py>(
     box_max: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray1<u32>>> {
     let pts = self::points(points, "points")?;
-    let slice = pts.as_slice();
+    let slice = pts.as_slice()?;
     let idx = match (box_min, box_max) {
         (Some(lo), Some(hi)) => {
             let (lo, hi) = (vector3(lo, "box_min")?, vector3(hi, "box_max")?);
@@ -147,7 +147,7 @@ pub fn statistical_outlier_indices<'py>(
     std_ratio: f64,
 ) -> PyResult<IndexAndValues<'py>> {
     let pts = self::points(points, "points")?;
-    let slice = pts.as_slice();
+    let slice = pts.as_slice()?;
     let (idx, dist) = py
         .detach(|| cloud::statistical_outliers(slice, OutlierParams { k, std_ratio }))
         .py()?;
@@ -164,7 +164,7 @@ pub fn voxel_downsample_raw<'py>(
     values: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Centroids<'py>> {
     let pts = self::points(points, "points")?;
-    let slice = pts.as_slice();
+    let slice = pts.as_slice()?;
     let np = PyModule::import(py, "numpy")?;
     let vals = match values {
         None => None,
@@ -187,10 +187,8 @@ pub fn voxel_downsample_raw<'py>(
         .detach(|| cloud::voxel_downsample(slice, voxel_size, vslice.map(|v| (v, stride))))
         .py()?;
     let m = centroids.len();
-    let means = vals.map(|_| {
-        numpy::IntoPyArray::into_pyarray(means, py)
-            .reshape([m, stride])
-            .expect("M rows of C values")
-    });
-    Ok((rows_to_array(py, centroids), means))
+    let means = vals
+        .map(|_| numpy::IntoPyArray::into_pyarray(means, py).reshape([m, stride]))
+        .transpose()?;
+    Ok((rows_to_array(py, centroids)?, means))
 }

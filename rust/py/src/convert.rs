@@ -15,12 +15,15 @@ use pyo3::types::PyModule;
 pub struct Points<'py>(PyReadonlyArray2<'py, f64>);
 
 impl Points<'_> {
-    pub fn as_slice(&self) -> &[[f64; 3]] {
-        let flat = self.0.as_slice().expect("made C-contiguous in `points`");
-        // (N, 3) contiguous float64 is N consecutive [f64; 3].
+    pub fn as_slice(&self) -> PyResult<&[[f64; 3]]> {
+        // Made C-contiguous in `points`; (N, 3) contiguous float64 is N consecutive [f64; 3].
+        let flat = self
+            .0
+            .as_slice()
+            .map_err(|e| PyValueError::new_err(format!("points are not contiguous: {e}")))?;
         let (chunks, rest) = flat.as_chunks::<3>();
         debug_assert!(rest.is_empty());
-        chunks
+        Ok(chunks)
     }
 }
 
@@ -80,12 +83,15 @@ pub fn vector3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f64; 3]> {
 }
 
 /// Rows of three into an (M, 3) float64 array, without copying.
-pub fn rows_to_array<'py>(py: Python<'py>, rows: Vec<[f64; 3]>) -> Bound<'py, PyArray2<f64>> {
+pub fn rows_to_array<'py>(
+    py: Python<'py>,
+    rows: Vec<[f64; 3]>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let m = rows.len();
     let flat: Vec<f64> = rows.into_flattened();
-    Array2::from_shape_vec((m, 3), flat)
-        .expect("M rows of 3")
-        .into_pyarray(py)
+    let array =
+        Array2::from_shape_vec((m, 3), flat).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(array.into_pyarray(py))
 }
 
 pub fn vec_to_array<'py, T: numpy::Element>(py: Python<'py>, v: Vec<T>) -> Bound<'py, PyArray1<T>> {

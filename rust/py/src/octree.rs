@@ -149,6 +149,18 @@ impl PyOcTree {
         }
     }
 
+    /// Read a file and parse it with `reader` (detached from the GIL).
+    fn load(
+        py: Python<'_>,
+        path: &PathBuf,
+        params: OccupancyParams,
+        reader: fn(&[u8], OccupancyParams) -> earcore_core::Result<OcTree>,
+    ) -> PyResult<Self> {
+        let bytes = read_file(path)?;
+        let tree = py.detach(|| reader(&bytes, params)).py()?;
+        Ok(Self::wrap(tree))
+    }
+
     /// Run `f` on the tree under the read lock, detached from the GIL (waiting for a
     /// writer never stalls other Python threads).
     fn with_read<R: Send>(&self, py: Python<'_>, f: impl FnOnce(&OcTree) -> R + Send) -> R {
@@ -287,7 +299,7 @@ impl PyOcTree {
     ) -> PyResult<PyInsertReport> {
         let pts = self::points(points, "points")?;
         let origin = vector3(sensor_origin, "sensor_origin")?;
-        let slice = pts.as_slice();
+        let slice = pts.as_slice()?;
         let report = self
             .with_write(py, |t| {
                 t.insert_point_cloud(slice, origin, max_range, discretize)
@@ -303,7 +315,7 @@ impl PyOcTree {
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray1<i8>>> {
         let pts = self::points(points, "points")?;
-        let slice = pts.as_slice();
+        let slice = pts.as_slice()?;
         let out = self.with_read(py, |tree| {
             slice
                 .iter()
@@ -323,7 +335,7 @@ impl PyOcTree {
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let pts = self::points(points, "points")?;
-        let slice = pts.as_slice();
+        let slice = pts.as_slice()?;
         let out = self.with_read(py, |tree| {
             slice
                 .iter()
@@ -385,7 +397,7 @@ impl PyOcTree {
     }
 
     /// Centres (M, 3) and edge lengths (M,) of the occupied leaves.
-    fn occupied_voxels<'py>(&self, py: Python<'py>) -> Voxels<'py> {
+    fn occupied_voxels<'py>(&self, py: Python<'py>) -> PyResult<Voxels<'py>> {
         let (c, s) = self.with_read(py, |tree| {
             let mut leaves = Vec::new();
             tree.for_each_leaf(|l| {
@@ -395,7 +407,7 @@ impl PyOcTree {
             });
             Self::centres_and_sizes(tree, &leaves)
         });
-        (rows_to_array(py, c), vec_to_array(py, s))
+        Ok((rows_to_array(py, c)?, vec_to_array(py, s)))
     }
 
     /// Leaves (pruned ones included) as centres (M, 3), sizes (M,) and log-odds (M,),
@@ -415,7 +427,7 @@ impl PyOcTree {
             (c, s, leaves.iter().map(|l| l.log_odds).collect())
         });
         Ok((
-            rows_to_array(py, c),
+            rows_to_array(py, c)?,
             vec_to_array(py, s),
             vec_to_array(py, l),
         ))
@@ -428,7 +440,8 @@ impl PyOcTree {
         let leaves = self.with_read(py, |tree| collect_leaves(tree, bounds));
         let m = leaves.len();
         let keys: Vec<u16> = leaves.iter().flat_map(|l| l.key.0).collect();
-        let keys = numpy::ndarray::Array2::from_shape_vec((m, 3), keys).expect("M rows of 3");
+        let keys = numpy::ndarray::Array2::from_shape_vec((m, 3), keys)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
         Ok((
             numpy::IntoPyArray::into_pyarray(keys, py),
             vec_to_array(py, leaves.iter().map(|l| l.depth as u8).collect()),
@@ -474,17 +487,17 @@ impl PyOcTree {
         } else {
             None
         };
-        let d = dirs.as_slice();
+        let d = dirs.as_slice()?;
         if let Some(m) = &many {
-            if m.as_slice().len() != d.len() {
+            if m.as_slice()?.len() != d.len() {
                 return Err(PyValueError::new_err(format!(
                     "origins ({}) and directions ({}) must have the same length",
-                    m.as_slice().len(),
+                    m.as_slice()?.len(),
                     d.len()
                 )));
             }
         }
-        let o_many = many.as_ref().map(|m| m.as_slice());
+        let o_many = many.as_ref().map(|m| m.as_slice()).transpose()?;
         let results = self
             .with_read(py, |tree| {
                 d.iter()
@@ -498,7 +511,7 @@ impl PyOcTree {
             .py()?;
         let hits = results.iter().map(|r| r.hit).collect();
         let ends = results.iter().map(|r| r.end).collect();
-        Ok((vec_to_array(py, hits), rows_to_array(py, ends)))
+        Ok((vec_to_array(py, hits), rows_to_array(py, ends)?))
     }
 
     /// Collapse every set of eight equal leaves into their parent (OctoMap's `prune`).
@@ -567,11 +580,7 @@ impl PyOcTree {
             clamping_max,
             occupancy_threshold,
         };
-        let bytes = read_file(&path)?;
-        let tree = py
-            .detach(|| OcTree::read_binary_bytes(&bytes, params))
-            .py()?;
-        Ok(Self::wrap(tree))
+        Self::load(py, &path, params, OcTree::read_binary_bytes)
     }
 
     /// Load an OctoMap `.ot` file into a new tree.
@@ -595,9 +604,7 @@ impl PyOcTree {
             clamping_max,
             occupancy_threshold,
         };
-        let bytes = read_file(&path)?;
-        let tree = py.detach(|| OcTree::read_full_bytes(&bytes, params)).py()?;
-        Ok(Self::wrap(tree))
+        Self::load(py, &path, params, OcTree::read_full_bytes)
     }
 
     // ---- danger (Paper II, Eq. 1) ----
@@ -618,7 +625,7 @@ impl PyOcTree {
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let pts = self::points(points, "points")?;
-        let slice = pts.as_slice();
+        let slice = pts.as_slice()?;
         let out = self.with_read(py, |tree| {
             slice
                 .iter()
@@ -634,7 +641,7 @@ impl PyOcTree {
     }
 
     /// Dangerous voxels: centres (M, 3), sizes (M,) and danger values (M,) float32.
-    fn danger_voxels<'py>(&self, py: Python<'py>) -> ValuedVoxels<'py> {
+    fn danger_voxels<'py>(&self, py: Python<'py>) -> PyResult<ValuedVoxels<'py>> {
         let (c, s, v) = self.with_read(py, |tree| {
             let cells = tree.danger_map().sorted_cells();
             let keyed: Vec<(OcTreeKey, u32)> = cells
@@ -644,15 +651,15 @@ impl PyOcTree {
             let (c, s) = Self::centres_and_sizes(tree, &keyed);
             (c, s, cells.iter().map(|&(_, v)| v).collect())
         });
-        (
-            rows_to_array(py, c),
+        Ok((
+            rows_to_array(py, c)?,
             vec_to_array(py, s),
             vec_to_array(py, v),
-        )
+        ))
     }
 
     /// Voxels hit during the last closed frame: centres (M, 3) and sizes (M,).
-    fn current_obstacles<'py>(&self, py: Python<'py>) -> Voxels<'py> {
+    fn current_obstacles<'py>(&self, py: Python<'py>) -> PyResult<Voxels<'py>> {
         let (c, s) = self.with_read(py, |tree| {
             let keyed: Vec<(OcTreeKey, u32)> = tree
                 .danger_map()
@@ -662,7 +669,7 @@ impl PyOcTree {
                 .collect();
             Self::centres_and_sizes(tree, &keyed)
         });
-        (rows_to_array(py, c), vec_to_array(py, s))
+        Ok((rows_to_array(py, c)?, vec_to_array(py, s)))
     }
 
     fn __repr__(&self, py: Python<'_>) -> String {

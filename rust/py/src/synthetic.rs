@@ -80,14 +80,17 @@ pub fn render_depth_points<'py>(
         });
     }
     let pts = py.detach(|| render_points(&camera, &pose, &shapes));
-    Ok(rows_to_array(py, pts))
+    rows_to_array(py, pts)
 }
+
+/// Points (N, 3) and the sensor origin (3,).
+type Scan<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>);
 
 /// The scene all benchmarks share: returns (points (N, 3), sensor origin (3,)).
 #[pyfunction]
-pub fn benchmark_frame(py: Python<'_>) -> (Bound<'_, PyArray2<f64>>, Bound<'_, PyArray1<f64>>) {
+pub fn benchmark_frame(py: Python<'_>) -> PyResult<Scan<'_>> {
     let (camera, pose, shapes) = benchmark_scene();
     let pts = py.detach(|| render_points(&camera, &pose, &shapes));
     let origin = vec![pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
-    (rows_to_array(py, pts), vec_to_array(py, origin))
+    Ok((rows_to_array(py, pts)?, vec_to_array(py, origin)))
 }

@@ -315,21 +315,21 @@ pub fn cast_ray(
         let p = conv.key_to_point(k);
         [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]
     };
+    // Where the walk ends at `key`: an occupied cell (hit), or unknown space (miss).
+    let stop_at = |key: OcTreeKey| match occupancy(key) {
+        Some(true) => Some(RayHit {
+            hit: true,
+            end: centre(key),
+        }),
+        None if !ignore_unknown => Some(RayHit {
+            hit: false,
+            end: centre(key),
+        }),
+        _ => None,
+    };
     let mut key = conv.coord_to_key_checked(origin)?;
-    match occupancy(key) {
-        Some(true) => {
-            return Some(RayHit {
-                hit: true,
-                end: centre(key),
-            })
-        }
-        None if !ignore_unknown => {
-            return Some(RayHit {
-                hit: false,
-                end: centre(key),
-            })
-        }
-        _ => {}
+    if let Some(stop) = stop_at(key) {
+        return Some(stop);
     }
     let direction = normalized(direction);
     let dda_init = Dda::new(conv, key, origin, direction, false);
@@ -364,20 +364,8 @@ pub fn cast_ray(
                 });
             }
         }
-        match occupancy(key) {
-            Some(true) => {
-                return Some(RayHit {
-                    hit: true,
-                    end: centre(key),
-                })
-            }
-            None if !ignore_unknown => {
-                return Some(RayHit {
-                    hit: false,
-                    end: centre(key),
-                })
-            }
-            _ => {}
+        if let Some(stop) = stop_at(key) {
+            return Some(stop);
         }
     }
 }
