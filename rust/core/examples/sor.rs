@@ -1,19 +1,30 @@
-//! Statistical outlier removal on the benchmark frame (for profilers).
+//! Statistical outlier removal (k-d tree k-NN) on the benchmark frame's 2 cm voxel
+//! grid and on as many uniform random points, one thread (for profilers).
 use earcore_core::cloud::{statistical_outliers, voxel_downsample, OutlierParams};
 use earcore_core::synthetic::{benchmark_scene, render_points};
+
+fn time(label: &str, points: &[[f64; 3]]) {
+    let t = std::time::Instant::now();
+    for _ in 0..20 {
+        statistical_outliers(points, OutlierParams::default()).expect("enough points");
+    }
+    let ms = t.elapsed().as_secs_f64() * 1e3 / 20.0;
+    println!("{label}: {} points, {ms:.2} ms", points.len());
+}
 
 fn main() {
     earcore_core::threads::set_num_threads(1);
     let (camera, pose, shapes) = benchmark_scene();
     let points = render_points(&camera, &pose, &shapes);
-    let (v, _) = voxel_downsample(&points, 0.02, None).unwrap();
-    let t = std::time::Instant::now();
-    for _ in 0..20 {
-        statistical_outliers(&v, OutlierParams::default()).unwrap();
-    }
-    println!(
-        "{} points: {:.2} ms",
-        v.len(),
-        t.elapsed().as_secs_f64() * 1e3 / 20.0
-    );
+    let (surface, _) = voxel_downsample(&points, 0.02, None).expect("valid voxel size");
+    time("surface (2 cm voxel grid)", &surface);
+    let mut s = 1u64;
+    let mut rnd = || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let uniform: Vec<[f64; 3]> = (0..surface.len()).map(|_| [rnd(), rnd(), rnd()]).collect();
+    time("uniform in a cube", &uniform);
 }

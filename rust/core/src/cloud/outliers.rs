@@ -46,19 +46,7 @@ pub fn statistical_outliers(
             points[i]
         )));
     }
-    let tree = KdTree::new(points);
-    const CHUNK: usize = 4096;
-    let starts: Vec<usize> = (0..points.len()).step_by(CHUNK).collect();
-    let parts = threads::map_parts(&starts, |&start| {
-        let mut out = Vec::with_capacity(params.k);
-        (start..(start + CHUNK).min(points.len()))
-            .map(|i| {
-                tree.knn(points[i], params.k, Some(i as u32), &mut out);
-                out.iter().map(|&(d2, _)| d2.sqrt()).sum::<f64>() / out.len() as f64
-            })
-            .collect::<Vec<f64>>()
-    });
-    let mean_distance: Vec<f64> = parts.concat();
+    let mean_distance = mean_knn_distances(points, params.k);
     let n = mean_distance.len() as f64;
     let mean = mean_distance.iter().sum::<f64>() / n;
     let variance = mean_distance
@@ -71,4 +59,120 @@ pub fn statistical_outliers(
         .filter(|&i| mean_distance[i as usize] <= threshold)
         .collect();
     Ok((inliers, mean_distance))
+}
+
+/// Every point's mean distance to its `k` nearest neighbours (itself excluded).
+///
+/// A uniform grid does most of the work: with cells of edge `s`, the candidates of a
+/// point are the points of its 3×3×3 block of cells, and any point outside that block
+/// is at least `s` away; so when the k-th nearest candidate lies within `s`, the
+/// candidates hold the exact k nearest distances. The rest (sparse regions) ask a
+/// k-d tree. `s` is the 90th percentile of the k-th neighbour distance of a sample.
+fn mean_knn_distances(points: &[[f64; 3]], k: usize) -> Vec<f64> {
+    let tree = KdTree::new(points);
+    let mut out = Vec::with_capacity(k);
+    let kth = |i: usize, out: &mut Vec<(f64, u32)>| {
+        tree.knn(points[i], k, Some(i as u32), out);
+        out.last().map_or(0.0, |&(d2, _)| d2.sqrt())
+    };
+    let step = (points.len() / 64).max(1);
+    let mut sample: Vec<f64> = (0..points.len())
+        .step_by(step)
+        .map(|i| kth(i, &mut out))
+        .collect();
+    sample.sort_unstable_by(f64::total_cmp);
+    let cell = sample[(sample.len() * 9 / 10).min(sample.len() - 1)].max(1e-12);
+    let grid = Grid::new(points, cell);
+    // Work cell by cell: the points of one cell share their 27-cell candidate list.
+    let cell_list: Vec<([i64; 3], (u32, u32))> = grid.cells.iter().map(|(&c, &r)| (c, r)).collect();
+    let chunks: Vec<&[([i64; 3], (u32, u32))]> = cell_list.chunks(256).collect();
+    let parts = threads::map_parts(&chunks, |chunk| {
+        let mut block: Vec<([f64; 3], u32)> = Vec::new();
+        let mut candidates: Vec<f64> = Vec::new();
+        let mut nn = Vec::with_capacity(k);
+        let mut results: Vec<(u32, f64)> = Vec::new();
+        for &(c, (s, e)) in chunk.iter() {
+            grid.block(points, c, &mut block);
+            for &i in &grid.order[s as usize..e as usize] {
+                let q = points[i as usize];
+                candidates.clear();
+                candidates.extend(block.iter().filter(|&&(_, j)| j != i).map(|(p, _)| {
+                    (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)
+                }));
+                let mut mean = None;
+                if candidates.len() >= k {
+                    let (_, kth_d2, _) = candidates.select_nth_unstable_by(k - 1, f64::total_cmp);
+                    if kth_d2.sqrt() <= cell {
+                        mean = Some(
+                            candidates[..k].iter().map(|d2| d2.sqrt()).sum::<f64>() / k as f64,
+                        );
+                    }
+                }
+                let mean = mean.unwrap_or_else(|| {
+                    tree.knn(q, k, Some(i), &mut nn);
+                    nn.iter().map(|&(d2, _)| d2.sqrt()).sum::<f64>() / nn.len() as f64
+                });
+                results.push((i, mean));
+            }
+        }
+        results
+    });
+    let mut mean_distance = vec![0.0; points.len()];
+    for (i, m) in parts.into_iter().flatten() {
+        mean_distance[i as usize] = m;
+    }
+    mean_distance
+}
+
+/// Points bucketed by cell: `order[ranges[cell]]` are the indices in that cell.
+struct Grid {
+    inv: f64,
+    cells: rustc_hash::FxHashMap<[i64; 3], (u32, u32)>,
+    order: Vec<u32>,
+}
+
+impl Grid {
+    fn new(points: &[[f64; 3]], cell: f64) -> Self {
+        let inv = 1.0 / cell;
+        let key = |p: &[f64; 3]| p.map(|c| (c * inv).floor() as i64);
+        let mut keyed: Vec<([i64; 3], u32)> = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (key(p), i as u32))
+            .collect();
+        keyed.sort_unstable();
+        let mut cells = rustc_hash::FxHashMap::default();
+        let mut start = 0;
+        while start < keyed.len() {
+            let mut end = start + 1;
+            while end < keyed.len() && keyed[end].0 == keyed[start].0 {
+                end += 1;
+            }
+            cells.insert(keyed[start].0, (start as u32, end as u32));
+            start = end;
+        }
+        Grid {
+            inv,
+            cells,
+            order: keyed.into_iter().map(|(_, i)| i).collect(),
+        }
+    }
+
+    /// The points (position, index) of the 3×3×3 block of cells around cell `c`.
+    fn block(&self, points: &[[f64; 3]], c: [i64; 3], out: &mut Vec<([f64; 3], u32)>) {
+        out.clear();
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    if let Some(&(s, e)) = self.cells.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) {
+                        out.extend(
+                            self.order[s as usize..e as usize]
+                                .iter()
+                                .map(|&j| (points[j as usize], j)),
+                        );
+                    }
+                }
+            }
+        }
+    }
 }
