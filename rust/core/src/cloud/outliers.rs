@@ -124,9 +124,8 @@ fn mean_knn_distances(points: &[[f64; 3]], k: usize) -> Vec<f64> {
     mean_distance
 }
 
-/// Points bucketed by cell: `order[ranges[cell]]` are the indices in that cell.
+/// Points bucketed by cell: `order[start..end]` of a cell's range are its points.
 struct Grid {
-    inv: f64,
     cells: rustc_hash::FxHashMap<[i64; 3], (u32, u32)>,
     order: Vec<u32>,
 }
