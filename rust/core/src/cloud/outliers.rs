@@ -151,7 +151,6 @@ impl Grid {
             start = end;
         }
         Grid {
-            inv,
             cells,
             order: keyed.into_iter().map(|(_, i)| i).collect(),
         }
