@@ -84,8 +84,8 @@ fn mean_knn_distances(points: &[[f64; 3]], k: usize) -> Vec<f64> {
     let cell = sample[(sample.len() * 9 / 10).min(sample.len() - 1)].max(1e-12);
     let grid = Grid::new(points, cell);
     // Work cell by cell: the points of one cell share their 27-cell candidate list.
-    let cell_list: Vec<([i64; 3], (u32, u32))> = grid.cells.iter().map(|(&c, &r)| (c, r)).collect();
-    let chunks: Vec<&[([i64; 3], (u32, u32))]> = cell_list.chunks(256).collect();
+    let cell_list: Vec<CellRange> = grid.cells.iter().map(|(&c, &r)| (c, r)).collect();
+    let chunks: Vec<&[CellRange]> = cell_list.chunks(256).collect();
     let parts = threads::map_parts(&chunks, |chunk| {
         let mut block: Vec<([f64; 3], u32)> = Vec::new();
         let mut candidates: Vec<f64> = Vec::new();
@@ -123,6 +123,9 @@ fn mean_knn_distances(points: &[[f64; 3]], k: usize) -> Vec<f64> {
     }
     mean_distance
 }
+
+/// A cell's coordinates and the range of its points in `Grid::order`.
+type CellRange = ([i64; 3], (u32, u32));
 
 /// Points bucketed by cell: `order[start..end]` of a cell's range are its points.
 struct Grid {
