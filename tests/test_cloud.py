@@ -147,3 +147,34 @@ def test_voxel_grid_centroids_are_exact():
         earcore.voxel_downsample(pts, 0.0)
     with pytest.raises(ValueError):
         earcore.voxel_downsample(pts, 0.05, colours[:10])
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    cos = np.abs(np.sum(a * b, axis=1)) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+    return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+
+def test_normals_of_a_noisy_plane_and_a_sphere():
+    rng = np.random.default_rng(5)
+    n = np.array([0.3, 0.1, -1.0]) / np.linalg.norm([0.3, 0.1, -1.0])  # plane z = 0.3x + 0.1y + 1
+    xy = rng.uniform(-1, 1, (5000, 2))
+    plane = np.column_stack([xy, 0.3 * xy[:, 0] + 0.1 * xy[:, 1] + 1.0 + rng.normal(0, 0.001, 5000)])
+    normals, variation = earcore.estimate_normals(plane, 20, viewpoint=[0, 0, 5], return_variation=True)
+    assert np.median(angle_deg(normals, np.tile(n, (5000, 1)))) < 1.0
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0)
+    assert np.all(normals @ [0, 0, 1] > 0), "normals face the viewpoint above the plane"
+    assert np.median(variation) < 0.01
+    sphere = rng.normal(size=(8000, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    normals = earcore.estimate_normals(sphere, 15)  # viewpoint at the centre: normals point inwards
+    assert np.median(angle_deg(normals, sphere)) < 2.0
+    assert np.all(np.sum(normals * sphere, axis=1) < 0)
+
+
+def test_normals_reject_bad_input():
+    with pytest.raises(ValueError):
+        earcore.estimate_normals(np.zeros((10, 3)), k=20)
+    with pytest.raises(ValueError):
+        earcore.estimate_normals(np.zeros((50, 3)), k=1)
+    with pytest.raises(ValueError):
+        earcore.estimate_normals(np.full((50, 3), np.inf), k=5)

@@ -26,12 +26,19 @@ except ImportError as exc:  # pragma: no cover - exercised by `earcore --version
     ) from exc
 
 from earcore import synthetic  # noqa: E402  (light: numpy and the extension only)
-from earcore.cloud import crop, depth_to_points, remove_statistical_outliers, voxel_downsample  # noqa: E402
+from earcore.cloud import (  # noqa: E402
+    crop,
+    depth_to_points,
+    estimate_normals,
+    remove_statistical_outliers,
+    voxel_downsample,
+)
 
 __all__ = [
     "EarcoreError",
     "crop",
     "depth_to_points",
+    "estimate_normals",
     "remove_statistical_outliers",
     "voxel_downsample",
     "FrameReport",

@@ -22,6 +22,7 @@ __all__ = [
     "crop_indices",
     "statistical_outlier_indices",
     "voxel_downsample_raw",
+    "estimate_normals",
 ]
 
 __version__: str
@@ -180,3 +181,4 @@ def statistical_outlier_indices(
     points: _ArrayLike, k: int = 20, std_ratio: float = 2.0
 ) -> tuple[npt.NDArray[np.uint32], _F64]: ...
 def voxel_downsample_raw(points: _ArrayLike, voxel_size: float, values: _ArrayLike | None = None) -> tuple[_F64, _F64 | None]: ...
+def estimate_normals(points: _ArrayLike, k: int = 20, viewpoint: _ArrayLike | None = None) -> tuple[_F64, _F64]: ...

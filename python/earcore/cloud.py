@@ -10,7 +10,7 @@ import numpy.typing as npt
 
 from earcore import _earcore
 
-__all__ = ["crop", "depth_to_points", "remove_statistical_outliers", "voxel_downsample"]
+__all__ = ["crop", "depth_to_points", "estimate_normals", "remove_statistical_outliers", "voxel_downsample"]
 
 
 def depth_to_points(
@@ -87,3 +87,14 @@ def voxel_downsample(points: npt.ArrayLike, voxel_size: float, values: npt.Array
     if values is None:
         return centroids
     return centroids, (means[:, 0] if np.ndim(values) == 1 else means)
+
+
+def estimate_normals(
+    points: npt.ArrayLike, k: int = 20, *, viewpoint: npt.ArrayLike = (0.0, 0.0, 0.0), return_variation: bool = False
+):
+    """Unit surface normals (N, 3) from the principal components of each point and its
+    `k` nearest neighbours, turned to face `viewpoint` (the sensor; the camera-frame
+    origin by default). With `return_variation`, also each point's surface variation
+    λ_min / Σλ (0 on a plane, 1/3 for isotropic scatter)."""
+    normals, variation = _earcore.estimate_normals(points, k, viewpoint)
+    return (normals, variation) if return_variation else normals

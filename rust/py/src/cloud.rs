@@ -13,6 +13,8 @@ use crate::errors::IntoPyResult;
 type PointsAndIndex<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>);
 /// Kept indices and a float per input point.
 type IndexAndValues<'py> = (Bound<'py, PyArray1<u32>>, Bound<'py, PyArray1<f64>>);
+/// A vector and a float per point.
+type VectorsAndValues<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>);
 /// Centroids and optional per-voxel means.
 type Centroids<'py> = (Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyArray2<f64>>>);
 
@@ -191,4 +193,23 @@ pub fn voxel_downsample_raw<'py>(
         .map(|_| numpy::IntoPyArray::into_pyarray(means, py).reshape([m, stride]))
         .transpose()?;
     Ok((rows_to_array(py, centroids)?, means))
+}
+
+/// Unit normals (N, 3) facing `viewpoint`, and the surface variation (N,) of each point.
+#[pyfunction]
+#[pyo3(signature = (points, k=20, viewpoint=None))]
+pub fn estimate_normals<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    k: usize,
+    viewpoint: Option<&Bound<'py, PyAny>>,
+) -> PyResult<VectorsAndValues<'py>> {
+    let pts = self::points(points, "points")?;
+    let slice = pts.as_slice()?;
+    let vp = viewpoint
+        .map(|v| vector3(v, "viewpoint"))
+        .transpose()?
+        .unwrap_or([0.0; 3]);
+    let (normals, variation) = py.detach(|| cloud::estimate_normals(slice, k, vp)).py()?;
+    Ok((rows_to_array(py, normals)?, vec_to_array(py, variation)))
 }

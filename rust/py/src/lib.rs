@@ -37,5 +37,6 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cloud::crop_indices, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::statistical_outlier_indices, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::voxel_downsample_raw, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::estimate_normals, m)?)?;
     Ok(())
 }

@@ -1,14 +1,16 @@
 //! Point clouds: depth images to points, cropping, statistical outlier removal,
-//! voxel-grid down-sampling, and the k-d tree they share.
+//! voxel-grid down-sampling, surface normals, and the k-d tree they share.
 
 mod crop;
 mod depth;
 mod kdtree;
+mod normals;
 mod outliers;
 mod voxel_grid;
 
 pub use crop::{crop_box, crop_sphere};
 pub use depth::{depth_to_points, BrownConrady, DepthFrame, Intrinsics};
 pub use kdtree::KdTree;
+pub use normals::estimate_normals;
 pub use outliers::{statistical_outliers, OutlierParams};
 pub use voxel_grid::voxel_downsample;

@@ -1,0 +1,87 @@
+//! Surface normals by principal component analysis of each point's neighbourhood:
+//! the direction of least spread of the point and its k nearest neighbours, turned
+//! to face a viewpoint (the sensor).
+
+use super::kdtree::KdTree;
+use crate::error::{Error, Result};
+use crate::na::{Matrix3, SymmetricEigen, Vector3};
+use crate::threads;
+
+/// Unit normals (one per point) and the surface variation λ_min / (λ0 + λ1 + λ2)
+/// (0 on a perfect plane, 1/3 for isotropic scatter).
+pub fn estimate_normals(
+    points: &[[f64; 3]],
+    k: usize,
+    viewpoint: [f64; 3],
+) -> Result<(Vec<[f64; 3]>, Vec<f64>)> {
+    if k < 2 {
+        return Err(Error::InvalidArgument(format!(
+            "normals need k >= 2 neighbours, got {k}"
+        )));
+    }
+    if points.len() <= k {
+        return Err(Error::InvalidArgument(format!(
+            "normal estimation needs more points than k = {k} neighbours, got {}",
+            points.len()
+        )));
+    }
+    if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(Error::InvalidArgument(format!(
+            "point {i} {:?} is not finite",
+            points[i]
+        )));
+    }
+    if !viewpoint.iter().all(|c| c.is_finite()) {
+        return Err(Error::InvalidArgument(format!(
+            "viewpoint {viewpoint:?} is not finite"
+        )));
+    }
+    let tree = KdTree::new(points);
+    const CHUNK: usize = 4096;
+    let starts: Vec<usize> = (0..points.len()).step_by(CHUNK).collect();
+    let parts = threads::map_parts(&starts, |&start| {
+        let mut nn = Vec::with_capacity(k);
+        (start..(start + CHUNK).min(points.len()))
+            .map(|i| {
+                tree.knn(points[i], k, Some(i as u32), &mut nn);
+                let neighbourhood =
+                    std::iter::once(points[i]).chain(nn.iter().map(|&(_, j)| points[j as usize]));
+                normal_of(neighbourhood, nn.len() + 1, points[i], viewpoint)
+            })
+            .collect::<Vec<_>>()
+    });
+    Ok(parts.into_iter().flatten().unzip())
+}
+
+fn normal_of(
+    pts: impl Iterator<Item = [f64; 3]> + Clone,
+    n: usize,
+    at: [f64; 3],
+    viewpoint: [f64; 3],
+) -> ([f64; 3], f64) {
+    let mean = pts
+        .clone()
+        .fold(Vector3::zeros(), |acc, p| acc + Vector3::from(p))
+        / n as f64;
+    let cov = pts.fold(Matrix3::zeros(), |acc, p| {
+        let d = Vector3::from(p) - mean;
+        acc + d * d.transpose()
+    }) / n as f64;
+    let eig = SymmetricEigen::new(cov);
+    let (mut min_i, total) = (0, eig.eigenvalues.sum());
+    for i in 1..3 {
+        if eig.eigenvalues[i] < eig.eigenvalues[min_i] {
+            min_i = i;
+        }
+    }
+    let mut normal = eig.eigenvectors.column(min_i).into_owned();
+    if normal.dot(&(Vector3::from(viewpoint) - Vector3::from(at))) < 0.0 {
+        normal = -normal;
+    }
+    let variation = if total > 0.0 {
+        eig.eigenvalues[min_i].max(0.0) / total
+    } else {
+        0.0
+    };
+    ([normal.x, normal.y, normal.z], variation)
+}
