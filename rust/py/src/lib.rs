@@ -4,6 +4,7 @@ mod cloud;
 mod convert;
 mod errors;
 mod octree;
+mod surface;
 mod synthetic;
 
 use pyo3::prelude::*;
@@ -26,6 +27,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<octree::PyOcTree>()?;
     m.add_class::<octree::PyInsertReport>()?;
     m.add_class::<octree::PyFrameReport>()?;
+    m.add_class::<surface::PySurfaceMap>()?;
     m.add("EarcoreError", py.get_type::<errors::EarcoreError>())?;
     m.add("OutOfMapError", py.get_type::<errors::OutOfMapError>())?;
     m.add("MapFormatError", py.get_type::<errors::MapFormatError>())?;

@@ -8,6 +8,7 @@ mod key;
 mod occupancy;
 mod ray;
 mod scan;
+mod surface;
 mod volume;
 
 pub use danger::{decay_step, DangerMap, DangerParams, DecayMode, FrameReport, DANGER_ON_HIT};
@@ -15,4 +16,5 @@ pub use key::{KeyConverter, OcTreeKey, TREE_DEPTH, TREE_MAX_VAL};
 pub use occupancy::{logodds, probability, KeyUpdate, Leaf, OcTree, OccupancyParams};
 pub use ray::{cast_ray, compute_ray_keys, walk_ray, Point3f, RayCells, RayHit};
 pub use scan::InsertReport;
+pub use surface::{SurfaceMap, SurfaceNode, SurfaceParams, SurfaceSample};
 pub use volume::{DenseMarker, KeyVolume};

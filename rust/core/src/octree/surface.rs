@@ -1,0 +1,309 @@
+//! `SurfaceMap`: NOctoSLAM's octree (IROS 2017). Every node keeps an occupancy, a
+//! position that may leave its voxel centre, and a surface normal, so that
+//! point-to-plane ICP finds its reference point and normal in one descent, with no
+//! k-d tree and no separate normal estimation.
+//!
+//! Update = insertion, then propagation (digest §D):
+//! 1. each end point goes to its leaf and is blended with the stored position,
+//!    `n ← (n·p_occ + d·M) / (p_occ + M)` (occupancy probability p_occ before the hit,
+//!    sensor model M = prob_hit);
+//! 2. every inner node above a touched leaf is recomputed bottom-up from its direct
+//!    children: mean position (Eq. 3); normal from the PCA of the children's positions
+//!    (Eq. 4) when exactly two eigenvalues are similar (a plane), else the mean of the
+//!    children's normals, else none. Untouched branches are not visited, so an
+//!    update's cost does not grow with the map.
+
+use super::arena::{NodeArena, NONE};
+use super::key::{KeyConverter, OcTreeKey, TREE_DEPTH};
+use super::occupancy::{logodds, probability};
+use crate::error::{Error, Result};
+use crate::na::{Matrix3, SymmetricEigen, Vector3};
+
+/// One node of the surface map.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SurfaceNode {
+    pub log_odds: f32,
+    pub position: [f32; 3],
+    /// Unit normal; meaningful only when `has_normal`.
+    pub normal: [f32; 3],
+    pub has_normal: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfaceParams {
+    /// Sensor model M: probability that a hit is real (OctoMap's prob_hit).
+    pub prob_hit: f64,
+    /// Upper clamping bound of the occupancy.
+    pub clamping_max: f64,
+    /// Two eigenvalues λ_a ≤ λ_b are "similar" when λ_a ≥ similar · λ_b.
+    pub similar: f64,
+}
+
+impl Default for SurfaceParams {
+    fn default() -> Self {
+        SurfaceParams {
+            prob_hit: 0.7,
+            clamping_max: 0.971,
+            similar: 0.25,
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct SurfaceMap {
+    conv: KeyConverter,
+    params: SurfaceParams,
+    hit: f32,
+    clamp_max: f32,
+    arena: NodeArena<SurfaceNode>,
+    root: u32,
+}
+
+/// A node as reported by queries.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfaceSample {
+    pub key: OcTreeKey,
+    pub depth: u32,
+    pub node: SurfaceNode,
+}
+
+impl SurfaceMap {
+    pub fn new(resolution: f64, params: SurfaceParams) -> Result<Self> {
+        if !(resolution.is_finite() && resolution > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "resolution must be a positive number of metres, got {resolution}"
+            )));
+        }
+        let ok = |p: f64| p.is_finite() && p > 0.0 && p < 1.0;
+        if !(ok(params.prob_hit)
+            && ok(params.clamping_max)
+            && params.prob_hit <= params.clamping_max
+            && ok(params.similar))
+        {
+            return Err(Error::InvalidArgument(format!(
+                "surface map parameters out of range: {params:?}"
+            )));
+        }
+        Ok(SurfaceMap {
+            conv: KeyConverter::new(resolution),
+            hit: logodds(params.prob_hit),
+            clamp_max: logodds(params.clamping_max),
+            params,
+            arena: NodeArena::new(),
+            root: NONE,
+        })
+    }
+
+    pub fn resolution(&self) -> f64 {
+        self.conv.resolution()
+    }
+
+    pub fn key_converter(&self) -> &KeyConverter {
+        &self.conv
+    }
+
+    /// Number of nodes.
+    pub fn size(&self) -> usize {
+        self.arena.len()
+    }
+
+    pub fn memory_usage(&self) -> usize {
+        std::mem::size_of::<Self>() + self.arena.memory_usage()
+    }
+
+    /// Insert end points (map frame, metres) and propagate; returns the number of
+    /// distinct leaves touched. The input is checked before the map changes.
+    pub fn insert(&mut self, points: &[[f64; 3]]) -> Result<usize> {
+        let mut items = Vec::with_capacity(points.len());
+        for (i, &p) in points.iter().enumerate() {
+            if !p.iter().all(|c| c.is_finite()) {
+                return Err(Error::InvalidArgument(format!(
+                    "point {i} {p:?} is not finite"
+                )));
+            }
+            let key = self
+                .conv
+                .coord_to_key_checked_f64(p)
+                .ok_or(Error::OutOfBounds {
+                    what: "a point",
+                    point: p,
+                    limit: self.conv.metric_limits().1,
+                })?;
+            items.push((key.morton(), i as u32));
+        }
+        if items.is_empty() {
+            return Ok(0);
+        }
+        // Stable within a leaf: points blend in input order.
+        items.sort_by_key(|&(m, _)| m);
+        if self.root == NONE {
+            self.root = self.arena.alloc(SurfaceNode::default());
+        }
+        let mut touched = 0;
+        self.insert_recursive(self.root, 0, &items, points, &mut touched);
+        Ok(touched)
+    }
+
+    fn insert_recursive(
+        &mut self,
+        node: u32,
+        depth: u32,
+        items: &[(u64, u32)],
+        points: &[[f64; 3]],
+        touched: &mut usize,
+    ) {
+        if depth == TREE_DEPTH {
+            *touched += 1;
+            let mut n = self.arena.value(node);
+            let m = self.params.prob_hit;
+            for &(_, i) in items {
+                let d = points[i as usize];
+                // Hits only raise the log-odds: zero means this leaf has no position yet.
+                if n.log_odds == 0.0 {
+                    n.position = d.map(|c| c as f32);
+                } else {
+                    let p_occ = probability(n.log_odds);
+                    for (stored, new) in n.position.iter_mut().zip(d) {
+                        *stored = ((f64::from(*stored) * p_occ + new * m) / (p_occ + m)) as f32;
+                    }
+                }
+                n.log_odds = (n.log_odds + self.hit).min(self.clamp_max);
+            }
+            self.arena.set_value(node, n);
+            return;
+        }
+        let shift = 3 * (TREE_DEPTH - 1 - depth);
+        let mut rest = items;
+        while let Some(&(first, _)) = rest.first() {
+            let pos = ((first >> shift) & 7) as usize;
+            let end = rest.partition_point(|&(m, _)| ((m >> shift) & 7) as usize == pos);
+            let (group, tail) = rest.split_at(end);
+            rest = tail;
+            let child = match self.arena.child(node, pos) {
+                Some(c) => c,
+                None => self.arena.create_child(node, pos, SurfaceNode::default()),
+            };
+            self.insert_recursive(child, depth + 1, group, points, touched);
+        }
+        self.propagate(node);
+    }
+
+    /// Recompute an inner node from its direct children (Eqs. 3-4).
+    fn propagate(&mut self, node: u32) {
+        let children: Vec<SurfaceNode> = self
+            .arena
+            .children(node)
+            .into_iter()
+            .filter(|&c| c != NONE)
+            .map(|c| self.arena.value(c))
+            .collect();
+        let k = children.len() as f64;
+        let mean = children
+            .iter()
+            .fold(Vector3::zeros(), |acc, c| acc + pos(c))
+            / k;
+        let mut n = SurfaceNode {
+            log_odds: children.iter().map(|c| c.log_odds).fold(f32::MIN, f32::max),
+            position: [mean.x as f32, mean.y as f32, mean.z as f32],
+            ..Default::default()
+        };
+        if let Some(normal) = self.plane_normal(&children, mean) {
+            n.normal = normal;
+            n.has_normal = true;
+        } else {
+            let sum = children
+                .iter()
+                .filter(|c| c.has_normal)
+                .fold(Vector3::zeros(), |acc, c| {
+                    acc + Vector3::new(
+                        f64::from(c.normal[0]),
+                        f64::from(c.normal[1]),
+                        f64::from(c.normal[2]),
+                    )
+                });
+            if sum.norm() > 1e-9 {
+                let u = sum.normalize();
+                n.normal = [u.x as f32, u.y as f32, u.z as f32];
+                n.has_normal = true;
+            }
+        }
+        self.arena.set_value(node, n);
+    }
+
+    /// The PCA normal of the children's positions when they form a plane: the two
+    /// largest eigenvalues similar, the smallest not similar to them.
+    fn plane_normal(&self, children: &[SurfaceNode], mean: Vector3<f64>) -> Option<[f32; 3]> {
+        if children.len() < 3 {
+            return None;
+        }
+        let cov = children.iter().fold(Matrix3::zeros(), |acc, c| {
+            let d = pos(c) - mean;
+            acc + d * d.transpose()
+        }) / children.len() as f64;
+        let eig = SymmetricEigen::new(cov);
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+        let [l0, l1, l2] = order.map(|i| eig.eigenvalues[i].max(0.0));
+        let similar = |a: f64, b: f64| a >= self.params.similar * b;
+        if l2 > 0.0 && similar(l1, l2) && !similar(l0, l1) {
+            let v = eig.eigenvectors.column(order[0]);
+            Some([v[0] as f32, v[1] as f32, v[2] as f32])
+        } else {
+            None
+        }
+    }
+
+    /// Every node at `depth` (1..=16), or every node when `None`, depth first.
+    pub fn for_each_node(&self, depth: Option<u32>, mut f: impl FnMut(SurfaceSample)) {
+        if self.root == NONE {
+            return;
+        }
+        let mut stack = vec![(self.root, 0u32, OcTreeKey([0, 0, 0]))];
+        while let Some((n, d, base)) = stack.pop() {
+            if depth.is_none_or(|want| want == d) {
+                f(SurfaceSample {
+                    key: base,
+                    depth: d,
+                    node: self.arena.value(n),
+                });
+            }
+            if d == TREE_DEPTH || depth.is_some_and(|want| d >= want) {
+                continue;
+            }
+            let half = 1u16 << (TREE_DEPTH - 1 - d);
+            for (pos, c) in self.arena.children(n).into_iter().enumerate().rev() {
+                if c != NONE {
+                    let mut k = base.0;
+                    for (axis, bit) in [(0, 1), (1, 2), (2, 4)] {
+                        if pos & bit != 0 {
+                            k[axis] |= half;
+                        }
+                    }
+                    stack.push((c, d + 1, OcTreeKey(k)));
+                }
+            }
+        }
+    }
+
+    /// The node holding `key` at `depth` (16 = leaf), if it exists.
+    pub fn search(&self, key: OcTreeKey, depth: u32) -> Option<SurfaceNode> {
+        if self.root == NONE {
+            return None;
+        }
+        let mut node = self.root;
+        for d in 0..depth.min(TREE_DEPTH) {
+            node = self
+                .arena
+                .child(node, key.child_index(TREE_DEPTH - 1 - d))?;
+        }
+        Some(self.arena.value(node))
+    }
+}
+
+fn pos(c: &SurfaceNode) -> Vector3<f64> {
+    Vector3::new(
+        f64::from(c.position[0]),
+        f64::from(c.position[1]),
+        f64::from(c.position[2]),
+    )
+}
