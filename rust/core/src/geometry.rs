@@ -38,3 +38,96 @@ pub fn transform_points(m: &Matrix4<f64>, points: &mut [[f64; 3]]) {
         *p = [q.x, q.y, q.z];
     }
 }
+
+/// Eigenvalues (ascending) of a symmetric 3×3 matrix, and a unit eigenvector of the
+/// smallest, in closed form (trigonometric solution of the characteristic cubic;
+/// eigenvector from the largest cross product of two rows of A − λI). About ten
+/// times faster than an iterative solver; used for normals, where the smallest
+/// eigenvalue is well separated whenever its eigenvector matters. Eigenvalues are
+/// accurate to ~1e-8 relative (repeated eigenvalues lose about half the digits).
+pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Vector3<f64>) {
+    use crate::na::Vector3;
+    let off = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
+    let q = a.trace() / 3.0;
+    let spread =
+        (a[(0, 0)] - q).powi(2) + (a[(1, 1)] - q).powi(2) + (a[(2, 2)] - q).powi(2) + 2.0 * off;
+    if off <= f64::MIN_POSITIVE || spread <= f64::MIN_POSITIVE {
+        // Diagonal (or a multiple of the identity): the axes are eigenvectors.
+        let d = [a[(0, 0)], a[(1, 1)], a[(2, 2)]];
+        let min = (0..3).min_by(|&i, &j| d[i].total_cmp(&d[j])).unwrap_or(0);
+        let mut values = d;
+        values.sort_by(f64::total_cmp);
+        let mut v = Vector3::zeros();
+        v[min] = 1.0;
+        return (values, v);
+    }
+    let p = (spread / 6.0).sqrt();
+    let b = (a - crate::na::Matrix3::identity() * q) / p;
+    let r = (b.determinant() / 2.0).clamp(-1.0, 1.0);
+    let phi = r.acos() / 3.0;
+    let largest = q + 2.0 * p * phi.cos();
+    let smallest = q + 2.0 * p * (phi + 2.0 * std::f64::consts::PI / 3.0).cos();
+    let middle = 3.0 * q - largest - smallest;
+    let m = a - crate::na::Matrix3::identity() * smallest;
+    let rows = [
+        m.row(0).transpose(),
+        m.row(1).transpose(),
+        m.row(2).transpose(),
+    ];
+    let candidates = [
+        rows[0].cross(&rows[1]),
+        rows[0].cross(&rows[2]),
+        rows[1].cross(&rows[2]),
+    ];
+    let best = candidates
+        .iter()
+        .max_by(|x, y| x.norm_squared().total_cmp(&y.norm_squared()))
+        .copied()
+        .unwrap_or_default();
+    let v = if best.norm_squared() > 0.0 {
+        best.normalize()
+    } else {
+        Vector3::x()
+    };
+    ([smallest, middle, largest], v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::na::{Matrix3, Rotation3, SymmetricEigen, Vector3};
+
+    #[test]
+    fn closed_form_eigen_matches_nalgebra() {
+        for (i, d) in [
+            [1e-6, 1.0, 2.0],
+            [0.1, 0.1, 3.0],
+            [5.0, 1.0, 1.0],
+            [2.0, 2.0, 2.0],
+            [0.0, 1e-3, 1e-3],
+        ]
+        .iter()
+        .enumerate()
+        {
+            let r = Rotation3::from_euler_angles(0.3 * i as f64, -0.7, 1.1 + i as f64);
+            let a =
+                r.matrix() * Matrix3::from_diagonal(&Vector3::from(*d)) * r.matrix().transpose();
+            let (values, v) = symmetric_eigen3(&a);
+            let mut reference: Vec<f64> =
+                SymmetricEigen::new(a).eigenvalues.iter().copied().collect();
+            reference.sort_by(f64::total_cmp);
+            // Repeated eigenvalues cost the trigonometric solution about sqrt(eps) of accuracy.
+            for k in 0..3 {
+                assert!(
+                    (values[k] - reference[k]).abs() < 1e-6 * reference[2].max(1.0),
+                    "{values:?} vs {reference:?}"
+                );
+            }
+            assert!((v.norm() - 1.0).abs() < 1e-9);
+            if d[0] < d[1] {
+                // A unique smallest eigenvalue: v is its eigenvector.
+                assert!((a * v - v * values[0]).norm() < 1e-7, "{d:?}");
+            }
+        }
+    }
+}

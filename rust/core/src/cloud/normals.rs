@@ -4,7 +4,7 @@
 
 use super::kdtree::KdTree;
 use crate::error::{Error, Result};
-use crate::na::{Matrix3, SymmetricEigen, Vector3};
+use crate::na::{Matrix3, Vector3};
 use crate::threads;
 
 /// Unit normals (one per point) and the surface variation λ_min / (λ0 + λ1 + λ2)
@@ -67,19 +67,13 @@ fn normal_of(
         let d = Vector3::from(p) - mean;
         acc + d * d.transpose()
     }) / n as f64;
-    let eig = SymmetricEigen::new(cov);
-    let (mut min_i, total) = (0, eig.eigenvalues.sum());
-    for i in 1..3 {
-        if eig.eigenvalues[i] < eig.eigenvalues[min_i] {
-            min_i = i;
-        }
-    }
-    let mut normal = eig.eigenvectors.column(min_i).into_owned();
+    let (values, mut normal) = crate::geometry::symmetric_eigen3(&cov);
     if normal.dot(&(Vector3::from(viewpoint) - Vector3::from(at))) < 0.0 {
         normal = -normal;
     }
+    let total: f64 = values.iter().sum();
     let variation = if total > 0.0 {
-        eig.eigenvalues[min_i].max(0.0) / total
+        values[0].max(0.0) / total
     } else {
         0.0
     };

@@ -17,7 +17,7 @@ use super::arena::{NodeArena, NONE};
 use super::key::{KeyConverter, OcTreeKey, TREE_DEPTH};
 use super::occupancy::{logodds, probability};
 use crate::error::{Error, Result};
-use crate::na::{Matrix3, SymmetricEigen, Vector3};
+use crate::na::{Matrix3, Vector3};
 
 /// One node of the surface map.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -190,13 +190,16 @@ impl SurfaceMap {
 
     /// Recompute an inner node from its direct children (Eqs. 3-4).
     fn propagate(&mut self, node: u32) {
-        let children: Vec<SurfaceNode> = self
-            .arena
-            .children(node)
-            .into_iter()
-            .filter(|&c| c != NONE)
-            .map(|c| self.arena.value(c))
-            .collect();
+        // At most eight children: gather them on the stack (this runs per touched node).
+        let mut buffer = [SurfaceNode::default(); 8];
+        let mut count = 0;
+        for c in self.arena.children(node) {
+            if c != NONE {
+                buffer[count] = self.arena.value(c);
+                count += 1;
+            }
+        }
+        let children = &buffer[..count];
         let k = children.len() as f64;
         let mean = children
             .iter()
@@ -207,7 +210,7 @@ impl SurfaceMap {
             position: [mean.x as f32, mean.y as f32, mean.z as f32],
             ..Default::default()
         };
-        if let Some(normal) = self.plane_normal(&children, mean) {
+        if let Some(normal) = self.plane_normal(children, mean) {
             n.normal = normal;
             n.has_normal = true;
         } else {
@@ -240,14 +243,11 @@ impl SurfaceMap {
             let d = pos(c) - mean;
             acc + d * d.transpose()
         }) / children.len() as f64;
-        let eig = SymmetricEigen::new(cov);
-        let mut order = [0usize, 1, 2];
-        order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-        let [l0, l1, l2] = order.map(|i| eig.eigenvalues[i].max(0.0));
+        let ([l0, l1, l2], v) = crate::geometry::symmetric_eigen3(&cov);
+        let (l0, l1, l2) = (l0.max(0.0), l1.max(0.0), l2.max(0.0));
         let similar = |a: f64, b: f64| a >= self.params.similar * b;
         if l2 > 0.0 && similar(l1, l2) && !similar(l0, l1) {
-            let v = eig.eigenvectors.column(order[0]);
-            Some([v[0] as f32, v[1] as f32, v[2] as f32])
+            Some([v.x as f32, v.y as f32, v.z as f32])
         } else {
             None
         }
