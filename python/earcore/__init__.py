@@ -27,6 +27,12 @@ except ImportError as exc:  # pragma: no cover - exercised by `earcore --version
     ) from exc
 
 from earcore import synthetic  # noqa: E402  (light: numpy and the extension only)
+from earcore.registration import (  # noqa: E402
+    DegenerateAlignmentWarning,
+    IcpResult,
+    PlaneTarget,
+    icp_point_to_plane,
+)
 from earcore.cloud import (  # noqa: E402
     crop,
     depth_to_points,
@@ -36,7 +42,11 @@ from earcore.cloud import (  # noqa: E402
 )
 
 __all__ = [
+    "DegenerateAlignmentWarning",
     "EarcoreError",
+    "IcpResult",
+    "PlaneTarget",
+    "icp_point_to_plane",
     "crop",
     "depth_to_points",
     "estimate_normals",

@@ -10,6 +10,8 @@ __all__ = [
     "__version__",
     "OcTree",
     "SurfaceMap",
+    "PlaneTarget",
+    "IcpResult",
     "InsertReport",
     "FrameReport",
     "EarcoreError",
@@ -24,6 +26,7 @@ __all__ = [
     "statistical_outlier_indices",
     "voxel_downsample_raw",
     "estimate_normals",
+    "icp_point_to_plane_raw",
 ]
 
 __version__: str
@@ -155,6 +158,39 @@ class SurfaceMap:
     def __len__(self) -> int: ...
     def memory_usage(self) -> int: ...
 
+@final
+class PlaneTarget:
+    def __new__(cls, points: _ArrayLike, normals: _ArrayLike) -> PlaneTarget: ...
+    def __len__(self) -> int: ...
+
+@final
+class IcpResult:
+    @property
+    def transform(self) -> _F64: ...
+    @property
+    def rmse(self) -> float: ...
+    @property
+    def fitness(self) -> float: ...
+    @property
+    def iterations(self) -> int: ...
+    @property
+    def converged(self) -> bool: ...
+    @property
+    def degenerate(self) -> bool: ...
+    @property
+    def conditioning(self) -> float: ...
+
+def icp_point_to_plane_raw(
+    source: _ArrayLike,
+    target: PlaneTarget,
+    initial: _ArrayLike | None = None,
+    *,
+    max_iterations: int = 50,
+    max_correspondence_distance: float = 0.2,
+    translation_tolerance: float = 1e-07,
+    rotation_tolerance: float = 1e-07,
+    huber_delta: float | None = None,
+) -> IcpResult: ...
 def set_num_threads(n: int) -> None: ...
 def get_num_threads() -> int: ...
 def render_depth_points(

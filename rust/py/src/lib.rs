@@ -3,6 +3,7 @@
 mod cloud;
 mod convert;
 mod errors;
+mod icp;
 mod octree;
 mod surface;
 mod synthetic;
@@ -28,6 +29,8 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<octree::PyInsertReport>()?;
     m.add_class::<octree::PyFrameReport>()?;
     m.add_class::<surface::PySurfaceMap>()?;
+    m.add_class::<icp::PyPlaneTarget>()?;
+    m.add_class::<icp::PyIcpResult>()?;
     m.add("EarcoreError", py.get_type::<errors::EarcoreError>())?;
     m.add("OutOfMapError", py.get_type::<errors::OutOfMapError>())?;
     m.add("MapFormatError", py.get_type::<errors::MapFormatError>())?;
@@ -40,5 +43,6 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cloud::statistical_outlier_indices, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::voxel_downsample_raw, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::estimate_normals, m)?)?;
+    m.add_function(wrap_pyfunction!(icp::icp_point_to_plane_raw, m)?)?;
     Ok(())
 }

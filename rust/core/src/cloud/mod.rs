@@ -3,6 +3,7 @@
 
 mod crop;
 mod depth;
+mod icp;
 mod kdtree;
 mod normals;
 mod outliers;
@@ -10,6 +11,7 @@ mod voxel_grid;
 
 pub use crop::{crop_box, crop_sphere};
 pub use depth::{depth_to_points, BrownConrady, DepthFrame, Intrinsics};
+pub use icp::{icp_point_to_plane, IcpParams, IcpResult, PlaneTarget};
 pub use kdtree::KdTree;
 pub use normals::estimate_normals;
 pub use outliers::{statistical_outliers, OutlierParams};

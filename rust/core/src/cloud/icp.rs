@@ -1,0 +1,267 @@
+//! Point-to-plane ICP (Chen & Medioni; NOctoSLAM Eqs. 6-7): minimise
+//! Σ w_i ((T·p_i − q_i)·n_i)² over rigid T by Gauss-Newton on the small-angle pose,
+//! re-orthonormalised (exponential map) after every step.
+
+use super::kdtree::KdTree;
+use crate::error::{Error, Result};
+use crate::na::{Matrix4, Matrix6, Rotation3, SymmetricEigen, Translation3, Vector3, Vector6};
+use crate::threads;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IcpParams {
+    pub max_iterations: usize,
+    /// Pairs farther apart than this (metres) are ignored.
+    pub max_correspondence_distance: f64,
+    /// Stop when a step moves less than this (metres) ...
+    pub translation_tolerance: f64,
+    /// ... and turns less than this (radians).
+    pub rotation_tolerance: f64,
+    /// Huber kernel width in metres (`None`: plain least squares).
+    pub huber_delta: Option<f64>,
+}
+
+impl Default for IcpParams {
+    fn default() -> Self {
+        IcpParams {
+            max_iterations: 50,
+            max_correspondence_distance: 0.2,
+            translation_tolerance: 1e-7,
+            rotation_tolerance: 1e-7,
+            huber_delta: None,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IcpResult {
+    /// `target_from_source`.
+    pub transform: Matrix4<f64>,
+    /// Root mean square point-to-plane distance of the inlier pairs at the end.
+    pub rmse: f64,
+    /// Fraction of source points with a pair within the correspondence distance.
+    pub fitness: f64,
+    pub iterations: usize,
+    pub converged: bool,
+    /// The pairs cannot fix all six degrees of freedom (e.g. a single plane).
+    pub degenerate: bool,
+    /// Smallest / largest eigenvalue of the (scale-balanced) normal equations.
+    pub conditioning: f64,
+}
+
+/// Target points with unit normals and their k-d tree, built once and reused.
+#[derive(Clone, Debug)]
+pub struct PlaneTarget {
+    tree: KdTree,
+    normals: Vec<[f64; 3]>,
+}
+
+impl PlaneTarget {
+    pub fn new(points: &[[f64; 3]], normals: &[[f64; 3]]) -> Result<Self> {
+        if points.len() != normals.len() {
+            return Err(Error::InvalidArgument(format!(
+                "target needs one normal per point ({} points, {} normals)",
+                points.len(),
+                normals.len()
+            )));
+        }
+        if points.len() < 3 {
+            return Err(Error::InvalidArgument(format!(
+                "target needs at least 3 points, got {}",
+                points.len()
+            )));
+        }
+        let mut unit = Vec::with_capacity(normals.len());
+        for (i, (p, n)) in points.iter().zip(normals).enumerate() {
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            if !(p.iter().all(|c| c.is_finite()) && len.is_finite() && len > 1e-12) {
+                return Err(Error::InvalidArgument(format!(
+                    "target point {i} or its normal is not finite / zero"
+                )));
+            }
+            unit.push(n.map(|c| c / len));
+        }
+        Ok(PlaneTarget {
+            tree: KdTree::new(points),
+            normals: unit,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.normals.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.normals.is_empty()
+    }
+}
+
+/// Align `source` to `target` starting from `initial` (`target_from_source`).
+pub fn icp_point_to_plane(
+    source: &[[f64; 3]],
+    target: &PlaneTarget,
+    initial: &Matrix4<f64>,
+    params: IcpParams,
+) -> Result<IcpResult> {
+    crate::geometry::check_rigid(initial, "initial")?;
+    if source.len() < 6 {
+        return Err(Error::InvalidArgument(format!(
+            "ICP needs at least 6 source points, got {}",
+            source.len()
+        )));
+    }
+    if let Some(i) = source.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(Error::InvalidArgument(format!(
+            "source point {i} {:?} is not finite",
+            source[i]
+        )));
+    }
+    if !(params.max_correspondence_distance > 0.0 && params.max_iterations > 0) {
+        return Err(Error::InvalidArgument(format!(
+            "bad ICP parameters {params:?}"
+        )));
+    }
+    // Rotation columns scaled by the source's RMS radius so that the conditioning
+    // compares metres with metres.
+    let centroid = source
+        .iter()
+        .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
+        / source.len() as f64;
+    let radius = (source
+        .iter()
+        .map(|p| (Vector3::from(*p) - centroid).norm_squared())
+        .sum::<f64>()
+        / source.len() as f64)
+        .sqrt()
+        .max(1e-9);
+    let mut transform = *initial;
+    let mut result = IcpResult {
+        transform,
+        rmse: 0.0,
+        fitness: 0.0,
+        iterations: 0,
+        converged: false,
+        degenerate: false,
+        conditioning: 0.0,
+    };
+    for iteration in 1..=params.max_iterations {
+        let system = normal_equations(source, target, &transform, params);
+        result.iterations = iteration;
+        result.fitness = system.pairs as f64 / source.len() as f64;
+        result.rmse = if system.pairs > 0 {
+            (system.squared / system.pairs as f64).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        if system.pairs < 6 {
+            return Err(Error::InvalidArgument(format!(
+                "only {} source points have a target within {} m: give a closer initial pose or a larger max_correspondence_distance",
+                system.pairs, params.max_correspondence_distance
+            )));
+        }
+        let mut balanced = system.h;
+        for r in 0..6 {
+            for c in 0..6 {
+                balanced[(r, c)] /=
+                    if r < 3 { radius } else { 1.0 } * if c < 3 { radius } else { 1.0 };
+            }
+        }
+        let eig = SymmetricEigen::new(balanced).eigenvalues;
+        let (lo, hi) = eig.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &v| {
+            (lo.min(v), hi.max(v))
+        });
+        result.conditioning = if hi > 0.0 { lo.max(0.0) / hi } else { 0.0 };
+        result.degenerate = result.conditioning < 1e-6;
+        // Damped slightly so a degenerate system still gives a finite (minimum-norm-ish) step.
+        let damped = system.h + Matrix6::identity() * (1e-12 * system.h.trace().max(1e-300));
+        let Some(step) = damped.cholesky().map(|c| c.solve(&-system.g)) else {
+            result.degenerate = true;
+            break;
+        };
+        let omega = Vector3::new(step[0], step[1], step[2]);
+        let delta_t = Vector3::new(step[3], step[4], step[5]);
+        let delta =
+            Translation3::from(delta_t).to_homogeneous() * Rotation3::new(omega).to_homogeneous();
+        transform = delta * transform;
+        if omega.norm() < params.rotation_tolerance && delta_t.norm() < params.translation_tolerance
+        {
+            result.converged = true;
+            break;
+        }
+    }
+    // Re-orthonormalise the accumulated rotation (products drift by rounding).
+    let rotation = Rotation3::from_matrix(&transform.fixed_view::<3, 3>(0, 0).into_owned());
+    transform
+        .fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(rotation.matrix());
+    result.transform = transform;
+    Ok(result)
+}
+
+struct NormalEquations {
+    h: Matrix6<f64>,
+    g: Vector6<f64>,
+    squared: f64,
+    pairs: usize,
+}
+
+/// JᵀWJ and JᵀWr of the point-to-plane residuals at `transform`, with
+/// r = (p' − q)·n and J = [p' × n, n] for the step (ω, t) applied on the left.
+fn normal_equations(
+    source: &[[f64; 3]],
+    target: &PlaneTarget,
+    transform: &Matrix4<f64>,
+    params: IcpParams,
+) -> NormalEquations {
+    let r = transform.fixed_view::<3, 3>(0, 0).into_owned();
+    let t = transform.fixed_view::<3, 1>(0, 3).into_owned();
+    let max_d2 = params.max_correspondence_distance.powi(2);
+    const CHUNK: usize = 2048;
+    let starts: Vec<usize> = (0..source.len()).step_by(CHUNK).collect();
+    let parts = threads::map_parts(&starts, |&start| {
+        let mut nn = Vec::with_capacity(1);
+        let mut acc = NormalEquations {
+            h: Matrix6::zeros(),
+            g: Vector6::zeros(),
+            squared: 0.0,
+            pairs: 0,
+        };
+        for p in &source[start..(start + CHUNK).min(source.len())] {
+            let moved = r * Vector3::from(*p) + t;
+            target
+                .tree
+                .knn([moved.x, moved.y, moved.z], 1, None, &mut nn);
+            let Some(&(d2, j)) = nn.first() else { continue };
+            if d2 > max_d2 {
+                continue;
+            }
+            let q = Vector3::from(target.tree.points()[j as usize]);
+            let n = Vector3::from(target.normals[j as usize]);
+            let residual = (moved - q).dot(&n);
+            let weight = match params.huber_delta {
+                Some(delta) if residual.abs() > delta => delta / residual.abs(),
+                _ => 1.0,
+            };
+            let c = moved.cross(&n);
+            let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+            acc.h += jac * jac.transpose() * weight;
+            acc.g += jac * (residual * weight);
+            acc.squared += residual * residual;
+            acc.pairs += 1;
+        }
+        acc
+    });
+    parts.into_iter().fold(
+        NormalEquations {
+            h: Matrix6::zeros(),
+            g: Vector6::zeros(),
+            squared: 0.0,
+            pairs: 0,
+        },
+        |a, b| NormalEquations {
+            h: a.h + b.h,
+            g: a.g + b.g,
+            squared: a.squared + b.squared,
+            pairs: a.pairs + b.pairs,
+        },
+    )
+}
