@@ -98,3 +98,19 @@ def test_icp_rejects_bad_input(scene):
         earcore.PlaneTarget(pts[:10], np.zeros((10, 3)))
     with pytest.raises(TypeError):
         earcore.icp_point_to_plane(pts, pts)
+
+
+def test_alignment_against_a_surface_map(scene):
+    """NOctoSLAM's setting: register a scan against the surface map of earlier scans."""
+    pts, _ = scene
+    surface = earcore.SurfaceMap(0.02)
+    surface.insert(pts)
+    truth = pose([0.1, 0.3, 1.0], 2.0, [0.02, -0.015, 0.01])
+    source = (pts[1::4] - truth[:3, 3]) @ truth[:3, :3]
+    start_dt, start_dr = errors(np.eye(4), truth)
+    result = earcore.icp_point_to_plane(source, surface, max_correspondence_distance=0.1)
+    dt, dr = errors(result.transform, truth)
+    # Points whose branch has no normal yet (edges, sparse spots) get no pair.
+    assert result.fitness > 0.6
+    assert dt < 0.25 * start_dt and dr < 0.25 * start_dr, (dt, dr, start_dt, start_dr)
+    assert dt < 0.01 and dr < 0.5

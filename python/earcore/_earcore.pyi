@@ -182,7 +182,7 @@ class IcpResult:
 
 def icp_point_to_plane_raw(
     source: _ArrayLike,
-    target: PlaneTarget,
+    target: PlaneTarget | SurfaceMap,
     initial: _ArrayLike | None = None,
     *,
     max_iterations: int = 50,

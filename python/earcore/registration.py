@@ -6,7 +6,7 @@ import warnings
 
 import numpy.typing as npt
 
-from earcore._earcore import IcpResult, PlaneTarget, icp_point_to_plane_raw
+from earcore._earcore import IcpResult, PlaneTarget, SurfaceMap, icp_point_to_plane_raw
 
 __all__ = ["DegenerateAlignmentWarning", "IcpResult", "PlaneTarget", "icp_point_to_plane"]
 
@@ -26,8 +26,10 @@ def icp_point_to_plane(
     rotation_tolerance: float = 1e-7,
     huber_delta: float | None = None,
 ) -> IcpResult:
-    """Align `source` points (N, 3) to `target`, a `PlaneTarget` (build it once and
-    reuse it) or a `(points, normals)` pair, starting from `initial` (4×4
+    """Align `source` points (N, 3) to `target`: a `PlaneTarget` (build it once and
+    reuse it), a `(points, normals)` pair, or a `SurfaceMap` (NOctoSLAM's association:
+    the leaf's position with its parent's normal, else the deepest node with a normal;
+    nodes larger than `max_correspondence_distance` are not paired), from `initial` (4×4
     `target_from_source`, identity by default). Gauss-Newton on the small-angle pose,
     re-orthonormalised every step; `huber_delta` (metres) turns on a Huber kernel.
 
@@ -37,8 +39,10 @@ def icp_point_to_plane(
     """
     if isinstance(target, tuple) and len(target) == 2:
         target = PlaneTarget(*target)
-    if not isinstance(target, PlaneTarget):
-        raise TypeError(f"target must be a PlaneTarget or a (points, normals) pair, got {type(target).__name__}")
+    if not isinstance(target, (PlaneTarget, SurfaceMap)):
+        raise TypeError(
+            f"target must be a PlaneTarget, a SurfaceMap or a (points, normals) pair, got {type(target).__name__}"
+        )
     result = icp_point_to_plane_raw(
         source,
         target,

@@ -7,6 +7,7 @@ use pyo3::prelude::*;
 
 use crate::convert::{points, pose};
 use crate::errors::IntoPyResult;
+use crate::surface::PySurfaceMap;
 
 /// Target of point-to-plane ICP: points (N, 3) with normals (N, 3) and a neighbour
 /// index, built once and reused by every alignment against it.
@@ -76,7 +77,8 @@ fn to_py(py: Python<'_>, r: IcpResult) -> PyResult<PyIcpResult> {
     })
 }
 
-/// Align `source` (N, 3) to a `PlaneTarget` from `initial` (4, 4; identity if None).
+/// Align `source` (N, 3) to a `PlaneTarget` or a `SurfaceMap` from `initial` (4, 4;
+/// identity if None).
 #[pyfunction]
 #[pyo3(signature = (source, target, initial=None, *, max_iterations=50, max_correspondence_distance=0.2,
                     translation_tolerance=1e-7, rotation_tolerance=1e-7, huber_delta=None))]
@@ -84,7 +86,7 @@ fn to_py(py: Python<'_>, r: IcpResult) -> PyResult<PyIcpResult> {
 pub fn icp_point_to_plane_raw(
     py: Python<'_>,
     source: &Bound<'_, PyAny>,
-    target: &PyPlaneTarget,
+    target: &Bound<'_, PyAny>,
     initial: Option<&Bound<'_, PyAny>>,
     max_iterations: usize,
     max_correspondence_distance: f64,
@@ -105,8 +107,16 @@ pub fn icp_point_to_plane_raw(
         rotation_tolerance,
         huber_delta,
     };
-    let result = py
-        .detach(|| icp_point_to_plane(src, &target.inner, &initial, params))
-        .py()?;
-    to_py(py, result)
+    let result = if let Ok(t) = target.cast::<PyPlaneTarget>() {
+        let t = t.get();
+        py.detach(|| icp_point_to_plane(src, &t.inner, &initial, params))
+    } else if let Ok(m) = target.cast::<PySurfaceMap>() {
+        let m = m.get();
+        py.detach(|| icp_point_to_plane(src, &*m.read(), &initial, params))
+    } else {
+        return Err(pyo3::exceptions::PyTypeError::new_err(
+            "target must be a PlaneTarget or a SurfaceMap",
+        ));
+    };
+    to_py(py, result.py()?)
 }

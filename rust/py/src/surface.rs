@@ -22,6 +22,13 @@ pub struct PySurfaceMap {
     inner: RwLock<SurfaceMap>,
 }
 
+impl PySurfaceMap {
+    /// The map under its read lock (for ICP against it).
+    pub(crate) fn read(&self) -> parking_lot::RwLockReadGuard<'_, SurfaceMap> {
+        self.inner.read()
+    }
+}
+
 #[pymethods]
 impl PySurfaceMap {
     #[new]

@@ -48,6 +48,31 @@ pub struct IcpResult {
     pub conditioning: f64,
 }
 
+/// What ICP aligns to: for a (moved) source point, a reference point and unit normal.
+pub trait IcpTarget: Sync {
+    /// `max_distance` bounds how far the pair may be from `p`.
+    fn pair(&self, p: [f64; 3], max_distance: f64) -> Option<([f64; 3], [f64; 3])>;
+}
+
+impl IcpTarget for PlaneTarget {
+    fn pair(&self, p: [f64; 3], max_distance: f64) -> Option<([f64; 3], [f64; 3])> {
+        let mut nn = Vec::with_capacity(1);
+        self.tree.knn(p, 1, None, &mut nn);
+        let &(d2, j) = nn.first()?;
+        (d2 <= max_distance * max_distance)
+            .then(|| (self.tree.points()[j as usize], self.normals[j as usize]))
+    }
+}
+
+impl IcpTarget for crate::octree::SurfaceMap {
+    /// NOctoSLAM's descent; the depth of the node found bounds the distance: a node
+    /// larger than `max_distance` is too coarse to pair with.
+    fn pair(&self, p: [f64; 3], max_distance: f64) -> Option<([f64; 3], [f64; 3])> {
+        let (q, n, depth) = self.associate(p)?;
+        (self.key_converter().node_size(depth) <= max_distance).then_some((q, n))
+    }
+}
+
 /// Target points with unit normals and their k-d tree, built once and reused.
 #[derive(Clone, Debug)]
 pub struct PlaneTarget {
@@ -98,7 +123,7 @@ impl PlaneTarget {
 /// Align `source` to `target` starting from `initial` (`target_from_source`).
 pub fn icp_point_to_plane(
     source: &[[f64; 3]],
-    target: &PlaneTarget,
+    target: &impl IcpTarget,
     initial: &Matrix4<f64>,
     params: IcpParams,
 ) -> Result<IcpResult> {
@@ -208,17 +233,15 @@ struct NormalEquations {
 /// r = (p' − q)·n and J = [p' × n, n] for the step (ω, t) applied on the left.
 fn normal_equations(
     source: &[[f64; 3]],
-    target: &PlaneTarget,
+    target: &impl IcpTarget,
     transform: &Matrix4<f64>,
     params: IcpParams,
 ) -> NormalEquations {
     let r = transform.fixed_view::<3, 3>(0, 0).into_owned();
     let t = transform.fixed_view::<3, 1>(0, 3).into_owned();
-    let max_d2 = params.max_correspondence_distance.powi(2);
     const CHUNK: usize = 2048;
     let starts: Vec<usize> = (0..source.len()).step_by(CHUNK).collect();
     let parts = threads::map_parts(&starts, |&start| {
-        let mut nn = Vec::with_capacity(1);
         let mut acc = NormalEquations {
             h: Matrix6::zeros(),
             g: Vector6::zeros(),
@@ -227,15 +250,13 @@ fn normal_equations(
         };
         for p in &source[start..(start + CHUNK).min(source.len())] {
             let moved = r * Vector3::from(*p) + t;
-            target
-                .tree
-                .knn([moved.x, moved.y, moved.z], 1, None, &mut nn);
-            let Some(&(d2, j)) = nn.first() else { continue };
-            if d2 > max_d2 {
+            let Some((q, n)) = target.pair(
+                [moved.x, moved.y, moved.z],
+                params.max_correspondence_distance,
+            ) else {
                 continue;
-            }
-            let q = Vector3::from(target.tree.points()[j as usize]);
-            let n = Vector3::from(target.normals[j as usize]);
+            };
+            let (q, n) = (Vector3::from(q), Vector3::from(n));
             let residual = (moved - q).dot(&n);
             let weight = match params.huber_delta {
                 Some(delta) if residual.abs() > delta => delta / residual.abs(),

@@ -298,6 +298,35 @@ impl SurfaceMap {
         }
         Some(self.arena.value(node))
     }
+
+    /// NOctoSLAM's association for point-to-plane ICP: descend toward the leaf holding
+    /// `p`; if that leaf exists and its parent has a normal, pair `p` with the leaf's
+    /// position and the parent's normal, else with the deepest node passed that has a
+    /// normal. Returns (position, unit normal, depth of the node that gave the normal).
+    pub fn associate(&self, p: [f64; 3]) -> Option<([f64; 3], [f64; 3], u32)> {
+        let key = self.conv.coord_to_key_checked_f64(p)?;
+        if self.root == NONE {
+            return None;
+        }
+        let mut node = self.root;
+        let mut best: Option<(SurfaceNode, u32)> = None;
+        for d in 0..TREE_DEPTH {
+            let here = self.arena.value(node);
+            if here.has_normal {
+                best = Some((here, d));
+            }
+            let Some(child) = self.arena.child(node, key.child_index(TREE_DEPTH - 1 - d)) else {
+                break;
+            };
+            if d + 1 == TREE_DEPTH && here.has_normal {
+                // `child` is the leaf and `here` its parent, which has a normal.
+                let leaf = self.arena.value(child);
+                return Some((leaf.position.map(f64::from), here.normal.map(f64::from), d));
+            }
+            node = child;
+        }
+        best.map(|(n, d)| (n.position.map(f64::from), n.normal.map(f64::from), d))
+    }
 }
 
 fn pos(c: &SurfaceNode) -> Vector3<f64> {
