@@ -114,3 +114,32 @@ def test_alignment_against_a_surface_map(scene):
     assert result.fitness > 0.6
     assert dt < 0.25 * start_dt and dr < 0.25 * start_dr, (dt, dr, start_dt, start_dr)
     assert dt < 0.01 and dr < 0.5
+
+
+def test_multi_camera_fine_alignment():
+    """Three cameras around a cell, poses off by up to 3 cm / 3° (the reference camera
+    excepted), refined against each other to a few millimetres / tenths of a degree."""
+    spheres = [[0.2, 0.1, 1.0, 0.3], [-0.4, -0.5, 0.9, 0.15]]
+    boxes = [[-0.6, -0.4, 0.0, 0.6, 0.4, 0.75], [-1.6, -2.5, 0.0, -1.5, 2.5, 2.5], [-2.5, 1.5, 0.0, 2.5, 1.6, 2.5]]
+    camera = dict(width=320, height=240, fx=230, fy=230, cx=159.5, cy=119.5, max_depth=4.5)
+    truths = [
+        earcore.synthetic.look_at([2.2, -1.9, 1.6], [0.0, 0.0, 0.5]),
+        earcore.synthetic.look_at([2.4, 1.2, 1.8], [0.0, 0.0, 0.4]),
+        earcore.synthetic.look_at([0.3, -2.3, 2.2], [-0.3, 0.3, 0.3]),
+    ]
+    clouds = []
+    for t in truths:
+        world = earcore.synthetic.render_depth_points(t, spheres, boxes, 0.0, **camera)
+        clouds.append((world - t[:3, 3]) @ t[:3, :3])  # into the camera frame
+    rng = np.random.default_rng(3)
+    guesses = [truths[0]]
+    for t in truths[1:]:
+        axis = rng.normal(size=3)
+        guesses.append(t @ pose(axis, 3.0, rng.uniform(-1, 1, 3) / np.sqrt(3) * 0.03))
+    refined = earcore.refine_camera_poses(clouds, guesses)
+    np.testing.assert_array_equal(refined[0], truths[0])
+    for est, truth, guess in zip(refined[1:], truths[1:], guesses[1:]):
+        start = errors(guess, truth)
+        dt, dr = errors(est, truth)
+        assert start[1] > 2.9
+        assert dt <= 0.003 and dr <= 0.2, (dt, dr, start)

@@ -32,6 +32,7 @@ from earcore.registration import (  # noqa: E402
     IcpResult,
     PlaneTarget,
     icp_point_to_plane,
+    refine_camera_poses,
 )
 from earcore.cloud import (  # noqa: E402
     crop,
@@ -47,6 +48,7 @@ __all__ = [
     "IcpResult",
     "PlaneTarget",
     "icp_point_to_plane",
+    "refine_camera_poses",
     "crop",
     "depth_to_points",
     "estimate_normals",

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import warnings
 
+import numpy as np
 import numpy.typing as npt
 
 from earcore._earcore import IcpResult, PlaneTarget, SurfaceMap, icp_point_to_plane_raw
 
-__all__ = ["DegenerateAlignmentWarning", "IcpResult", "PlaneTarget", "icp_point_to_plane"]
+__all__ = ["DegenerateAlignmentWarning", "IcpResult", "PlaneTarget", "icp_point_to_plane", "refine_camera_poses"]
 
 
 class DegenerateAlignmentWarning(UserWarning):
@@ -61,3 +62,45 @@ def icp_point_to_plane(
             stacklevel=2,
         )
     return result
+
+
+def refine_camera_poses(
+    clouds: list[npt.ArrayLike],
+    base_from_cameras: list[npt.ArrayLike],
+    *,
+    reference: int = 0,
+    voxel_size: float = 0.01,
+    normal_neighbours: int = 20,
+    max_correspondence_distance: float = 0.1,
+    huber_delta: float | None = 0.01,
+) -> list[np.ndarray]:
+    """Paper II's fine alignment of several cameras: each camera's cloud (its own frame)
+    is aligned once with point-to-plane ICP to the clouds of the cameras refined before
+    it, starting from its calibrated `base_from_camera`. The `reference` camera's pose
+    is kept (it fixes the frame). Returns the refined `base_from_camera` poses.
+
+    Reuse the result for later frames until a camera or the robot base moves.
+    """
+    from earcore.cloud import estimate_normals, voxel_downsample
+
+    if len(clouds) != len(base_from_cameras) or len(clouds) < 2:
+        raise ValueError("give at least two clouds and one base_from_camera pose per cloud")
+    poses = [np.asarray(p, dtype=np.float64) for p in base_from_cameras]
+    local = [voxel_downsample(c, voxel_size) for c in clouds]
+    in_base = lambda i: local[i] @ poses[i][:3, :3].T + poses[i][:3, 3]  # noqa: E731
+    done = [reference]
+    order = [i for i in range(len(clouds)) if i != reference]
+    for i in order:
+        merged = voxel_downsample(np.vstack([in_base(j) for j in done]), voxel_size)
+        viewpoint = np.mean([poses[j][:3, 3] for j in done], axis=0)
+        normals = estimate_normals(merged, normal_neighbours, viewpoint=viewpoint)
+        result = icp_point_to_plane(
+            local[i],
+            PlaneTarget(merged, normals),
+            poses[i],
+            max_correspondence_distance=max_correspondence_distance,
+            huber_delta=huber_delta,
+        )
+        poses[i] = np.array(result.transform)
+        done.append(i)
+    return poses
