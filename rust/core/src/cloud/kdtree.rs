@@ -101,6 +101,54 @@ impl KdTree {
         id
     }
 
+    /// The nearest point to `q` as (squared distance, index); ties go to the lower index.
+    /// An iterative walk with a small stack (the hot path of point-to-plane ICP).
+    pub fn nearest(&self, q: [f64; 3]) -> Option<(f64, u32)> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let mut best = (f64::INFINITY, u32::MAX);
+        // (node, squared distance from q to the node's side of every split above it)
+        let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
+        stack.push((0, 0.0));
+        while let Some((node, bound)) = stack.pop() {
+            if bound > best.0 {
+                continue;
+            }
+            match self.nodes[node as usize] {
+                Node::Leaf { start, end } => {
+                    let (start, end) = (start as usize, end as usize);
+                    for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
+                        let d =
+                            (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+                        if d < best.0 || (d == best.0 && i < best.1) {
+                            best = (d, i);
+                        }
+                    }
+                }
+                Node::Split {
+                    axis,
+                    value,
+                    left,
+                    right,
+                } => {
+                    let diff = q[axis as usize] - value;
+                    let (near, far) = if diff < 0.0 {
+                        (left, right)
+                    } else {
+                        (right, left)
+                    };
+                    let far_bound = bound.max(diff * diff);
+                    if far_bound <= best.0 {
+                        stack.push((far, far_bound));
+                    }
+                    stack.push((near, bound));
+                }
+            }
+        }
+        Some(best)
+    }
+
     /// The `k` nearest points to `q` as (squared distance, index), nearest first,
     /// leaving out the point with index `exclude` (a query point's own entry).
     pub fn knn(&self, q: [f64; 3], k: usize, exclude: Option<u32>, out: &mut Vec<(f64, u32)>) {
@@ -167,6 +215,35 @@ impl KdTree {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nearest_equals_brute_force() {
+        let mut s = 777u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let pts: Vec<[f64; 3]> = (0..3000)
+            .map(|_| [rnd(), rnd() * 2.0, rnd() * 0.05])
+            .collect();
+        let tree = KdTree::new(&pts);
+        for _ in 0..500 {
+            let q = [rnd() * 1.2 - 0.1, rnd() * 2.2 - 0.1, rnd() * 0.3 - 0.1];
+            let brute = pts
+                .iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    (
+                        (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2),
+                        i as u32,
+                    )
+                })
+                .min_by(|a, b| a.partial_cmp(b).unwrap());
+            assert_eq!(tree.nearest(q), brute);
+        }
+    }
 
     #[test]
     fn knn_equals_brute_force() {
