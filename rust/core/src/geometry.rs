@@ -92,6 +92,37 @@ pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Ve
     ([smallest, middle, largest], v)
 }
 
+/// Indices of `points` in Morton order of their position within their bounding box.
+/// Queries made in this order walk the same part of a spatial index one after the
+/// other (cache hits instead of a memory miss per tree level).
+pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let scale = [0, 1, 2].map(|a| {
+        if hi[a] > lo[a] {
+            65535.0 / (hi[a] - lo[a])
+        } else {
+            0.0
+        }
+    });
+    let mut keyed: Vec<(u64, u32)> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let k = [0, 1, 2].map(|a| ((p[a] - lo[a]) * scale[a]) as u16);
+            (crate::octree::OcTreeKey(k).morton(), i as u32)
+        })
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -156,7 +156,7 @@ pub fn icp_point_to_plane(
         / source.len() as f64)
         .sqrt()
         .max(1e-9);
-    let order = spatial_order(source);
+    let order = crate::geometry::morton_order(source);
     let source: Vec<[f64; 3]> = order.iter().map(|&i| source[i as usize]).collect();
     let source = source.as_slice();
     let mut transform = *initial;
@@ -221,37 +221,6 @@ pub fn icp_point_to_plane(
         .copy_from(rotation.matrix());
     result.transform = transform;
     Ok(result)
-}
-
-/// Indices of `points` in Morton order of their position within the bounding box:
-/// consecutive queries then walk the same part of the target's index (cache hits
-/// instead of a memory miss per tree level).
-fn spatial_order(points: &[[f64; 3]]) -> Vec<u32> {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
-    let scale = [0, 1, 2].map(|a| {
-        if hi[a] > lo[a] {
-            65535.0 / (hi[a] - lo[a])
-        } else {
-            0.0
-        }
-    });
-    let mut keyed: Vec<(u64, u32)> = points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let k = [0, 1, 2].map(|a| ((p[a] - lo[a]) * scale[a]) as u16);
-            (crate::octree::OcTreeKey(k).morton(), i as u32)
-        })
-        .collect();
-    keyed.sort_unstable();
-    keyed.into_iter().map(|(_, i)| i).collect()
 }
 
 struct NormalEquations {

@@ -37,20 +37,32 @@ pub fn estimate_normals(
         )));
     }
     let tree = KdTree::new(points);
-    const CHUNK: usize = 4096;
-    let starts: Vec<usize> = (0..points.len()).step_by(CHUNK).collect();
-    let parts = threads::map_parts(&starts, |&start| {
+    // Queries in Morton order hit the tree's memory coherently; results go back in place.
+    let order = crate::geometry::morton_order(points);
+    let chunks: Vec<&[u32]> = order.chunks(4096).collect();
+    let parts = threads::map_parts(&chunks, |chunk| {
         let mut nn = Vec::with_capacity(k);
-        (start..(start + CHUNK).min(points.len()))
-            .map(|i| {
+        chunk
+            .iter()
+            .map(|&i| {
+                let i = i as usize;
                 tree.knn(points[i], k, Some(i as u32), &mut nn);
                 let neighbourhood =
                     std::iter::once(points[i]).chain(nn.iter().map(|&(_, j)| points[j as usize]));
-                normal_of(neighbourhood, nn.len() + 1, points[i], viewpoint)
+                (
+                    i,
+                    normal_of(neighbourhood, nn.len() + 1, points[i], viewpoint),
+                )
             })
             .collect::<Vec<_>>()
     });
-    Ok(parts.into_iter().flatten().unzip())
+    let mut normals = vec![[0.0; 3]; points.len()];
+    let mut variation = vec![0.0; points.len()];
+    for (i, (n, v)) in parts.into_iter().flatten() {
+        normals[i] = n;
+        variation[i] = v;
+    }
+    Ok((normals, variation))
 }
 
 fn normal_of(
