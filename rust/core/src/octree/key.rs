@@ -49,6 +49,25 @@ impl OcTreeKey {
     }
 }
 
+/// Split items sorted by Morton code (the `u64` of each pair) into the runs that fall
+/// into the same child of a node at `depth`: yields (child index, run). Batch updates
+/// walk the tree once this way instead of once per cell.
+pub(crate) fn child_runs<T>(
+    items: &[(u64, T)],
+    depth: u32,
+) -> impl Iterator<Item = (usize, &[(u64, T)])> {
+    let shift = 3 * (TREE_DEPTH - 1 - depth);
+    let mut rest = items;
+    std::iter::from_fn(move || {
+        let &(first, _) = rest.first()?;
+        let pos = ((first >> shift) & 7) as usize;
+        let end = rest.partition_point(|&(m, _)| ((m >> shift) & 7) as usize == pos);
+        let (run, tail) = rest.split_at(end);
+        rest = tail;
+        Some((pos, run))
+    })
+}
+
 /// Spread the 16 bits of `v` so that bit i lands on bit 3i.
 #[inline]
 fn spread(v: u16) -> u64 {

@@ -2,7 +2,7 @@
 
 use super::arena::{NodeArena, NONE};
 use super::danger::DangerMap;
-use super::key::{KeyConverter, OcTreeKey, TREE_DEPTH};
+use super::key::{child_runs, KeyConverter, OcTreeKey, TREE_DEPTH};
 use crate::error::{Error, Result};
 
 /// Sensor model and thresholds, as probabilities (OctoMap's defaults).
@@ -311,14 +311,8 @@ impl OcTree {
             return true;
         }
 
-        let shift = 3 * (TREE_DEPTH - 1 - depth);
-        let mut rest = updates;
         let mut changed = false;
-        while let Some(&(first, _)) = rest.first() {
-            let pos = ((first >> shift) & 7) as usize;
-            let end = rest.partition_point(|&(m, _)| ((m >> shift) & 7) as usize == pos);
-            let (group, tail) = rest.split_at(end);
-            rest = tail;
+        for (pos, group) in child_runs(updates, depth) {
             let (child, created) = match self.arena.child(node, pos) {
                 Some(c) => (c, false),
                 None => (self.arena.create_child(node, pos, 0.0), true),

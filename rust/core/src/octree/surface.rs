@@ -14,7 +14,7 @@
 //!    update's cost does not grow with the map.
 
 use super::arena::{NodeArena, NONE};
-use super::key::{KeyConverter, OcTreeKey, TREE_DEPTH};
+use super::key::{child_runs, KeyConverter, OcTreeKey, TREE_DEPTH};
 use super::occupancy::{logodds, probability};
 use crate::error::{Error, Result};
 use crate::na::{Matrix3, Vector3};
@@ -172,13 +172,7 @@ impl SurfaceMap {
             self.arena.set_value(node, n);
             return;
         }
-        let shift = 3 * (TREE_DEPTH - 1 - depth);
-        let mut rest = items;
-        while let Some(&(first, _)) = rest.first() {
-            let pos = ((first >> shift) & 7) as usize;
-            let end = rest.partition_point(|&(m, _)| ((m >> shift) & 7) as usize == pos);
-            let (group, tail) = rest.split_at(end);
-            rest = tail;
+        for (pos, group) in child_runs(items, depth) {
             let child = match self.arena.child(node, pos) {
                 Some(c) => c,
                 None => self.arena.create_child(node, pos, SurfaceNode::default()),
