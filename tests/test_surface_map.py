@@ -101,3 +101,26 @@ def test_surface_map_rejects_bad_input():
     with pytest.raises(ValueError):
         m.nodes(17)
     assert m.size() == 0 and m.insert(np.zeros((0, 3))) == 0
+
+
+def test_lidar_scans_of_the_room_register_against_the_surface_map():
+    """The NOctoSLAM setting in miniature: a VLP-16-like scan of the 8 × 8 × 3.5 m room
+    builds the map; the next scan, taken 5 cm / 1° further on, registers against it."""
+    rng = np.random.default_rng(11)
+    boxes = earcore.synthetic.lidar_room(rng)
+    first = np.eye(4)  # sensor z axis up, as a lidar is mounted
+    first[:3, 3] = [0.2, -0.3, 1.5]
+    scan = earcore.synthetic.render_lidar_scan(first, [], boxes, seed=1)
+    assert 14_000 <= len(scan) <= 15_040
+    surface = earcore.SurfaceMap(0.05)
+    surface.insert(scan @ first[:3, :3].T + first[:3, 3])
+    c, s = np.cos(np.radians(1.0)), np.sin(np.radians(1.0))
+    step = np.eye(4)
+    step[:2, :2] = [[c, -s], [s, c]]
+    step[:3, 3] = [0.04, 0.03, 0.0]
+    second = step @ first
+    scan2 = earcore.synthetic.render_lidar_scan(second, [], boxes, seed=2)
+    result = earcore.icp_point_to_plane(scan2, surface, first, max_correspondence_distance=0.5)
+    error = np.linalg.inv(second) @ result.transform
+    assert np.linalg.norm(error[:3, 3]) < 0.02
+    assert np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1))) < 0.3

@@ -21,6 +21,7 @@ __all__ = [
     "get_num_threads",
     "render_depth_points",
     "benchmark_frame",
+    "render_lidar_scan",
     "depth_to_points_raw",
     "crop_indices",
     "statistical_outlier_indices",
@@ -208,6 +209,19 @@ def render_depth_points(
     max_depth: float = 4.5,
 ) -> _F64: ...
 def benchmark_frame() -> tuple[_F64, _F64]: ...
+def render_lidar_scan(
+    base_from_sensor: npt.NDArray[np.float64],
+    spheres: _ArrayLike,
+    boxes: _ArrayLike,
+    floor_z: float | None = None,
+    *,
+    rings: int = 16,
+    azimuth_steps: int = 940,
+    vertical_fov_deg: float = 30.0,
+    max_range: float = 100.0,
+    noise_sigma: float = 0.015,
+    seed: int = 0,
+) -> _F64: ...
 def depth_to_points_raw(
     depth: _ArrayLike,
     fx: float,

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from earcore._earcore import benchmark_frame, render_depth_points
+from earcore._earcore import benchmark_frame, render_depth_points, render_lidar_scan
 
-__all__ = ["benchmark_frame", "look_at", "random_scene", "render_depth_points"]
+__all__ = ["benchmark_frame", "lidar_room", "look_at", "random_scene", "render_depth_points", "render_lidar_scan"]
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -32,3 +32,13 @@ def random_scene(rng: np.random.Generator, n_shapes: int = 8, extent: float = 1.
     half = rng.uniform(0.05, 0.35, size=(int((~is_sphere).sum()), 3))
     boxes = np.column_stack([centres[~is_sphere] - half, centres[~is_sphere] + half])
     return spheres.reshape(-1, 4), boxes.reshape(-1, 6)
+
+
+def lidar_room(rng: np.random.Generator, n_boxes: int = 12) -> np.ndarray:
+    """NOctoSLAM's test room: an 8 × 8 × 3.5 m room (the first box, seen from inside)
+    with furniture-sized boxes standing on its floor. Returns boxes (K, 6)."""
+    room = [-4.0, -4.0, 0.0, 4.0, 4.0, 3.5]
+    size = rng.uniform([0.3, 0.3, 0.4], [1.5, 1.2, 2.0], size=(n_boxes, 3))
+    corner = rng.uniform([-3.9, -3.9], [3.9, 3.9], size=(n_boxes, 2)) - size[:, :2] / 2
+    furniture = np.column_stack([corner, np.zeros(n_boxes), corner + size[:, :2], size[:, 2]])
+    return np.vstack([room, furniture])

@@ -38,6 +38,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_depth_points, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::benchmark_frame, m)?)?;
+    m.add_function(wrap_pyfunction!(synthetic::render_lidar_scan, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::depth_to_points_raw, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::crop_indices, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::statistical_outlier_indices, m)?)?;

@@ -1,7 +1,9 @@
 //! Synthetic depth frames (analytic scenes) for tests, benchmarks and demos.
 
 use earcore_core::na::Matrix4;
-use earcore_core::synthetic::{benchmark_scene, render_points, PinholeCamera, Shape};
+use earcore_core::synthetic::{
+    benchmark_scene, lidar_scan, render_points, Lidar, PinholeCamera, Shape,
+};
 use numpy::{PyArray1, PyArray2, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -12,10 +14,90 @@ fn pose_from(arr: PyReadonlyArray2<'_, f64>) -> PyResult<Matrix4<f64>> {
     let a = arr.as_array();
     if a.shape() != [4, 4] || !a.iter().all(|v| v.is_finite()) {
         return Err(PyValueError::new_err(
-            "base_from_camera must be a finite (4, 4) matrix",
+            "the pose must be a finite (4, 4) matrix",
         ));
     }
     Ok(Matrix4::from_fn(|r, c| a[[r, c]]))
+}
+
+/// Spheres (K, 4: centre, radius), axis-aligned boxes (K, 6: lo, hi) and an optional
+/// floor at z = `floor_z` as core shapes.
+fn shapes_from<'py>(
+    py: Python<'py>,
+    spheres: &Bound<'py, PyAny>,
+    boxes: &Bound<'py, PyAny>,
+    floor_z: Option<f64>,
+) -> PyResult<Vec<Shape>> {
+    let mut shapes: Vec<Shape> = floor_z.map(|z| Shape::Floor { z }).into_iter().collect();
+    let np = PyModule::import(py, "numpy")?;
+    let rows = |obj: &Bound<'py, PyAny>, n: usize, name: &str| -> PyResult<Vec<Vec<f64>>> {
+        let a = np
+            .call_method1("asarray", (obj, np.getattr("float64")?))?
+            .call_method1("reshape", (-1, n))?;
+        let a: PyReadonlyArray2<f64> = a
+            .extract()
+            .map_err(|_| PyValueError::new_err(format!("{name} must be (K, {n})")))?;
+        Ok(a.as_array()
+            .rows()
+            .into_iter()
+            .map(|r| r.to_vec())
+            .collect())
+    };
+    for s in rows(spheres, 4, "spheres")? {
+        shapes.push(Shape::Sphere {
+            center: [s[0], s[1], s[2]],
+            radius: s[3],
+        });
+    }
+    for b in rows(boxes, 6, "boxes")? {
+        shapes.push(Shape::Box {
+            lo: [b[0], b[1], b[2]],
+            hi: [b[3], b[4], b[5]],
+        });
+    }
+    Ok(shapes)
+}
+
+/// One turn of a multi-line lidar (VLP-16-like by default) at `base_from_sensor` in a
+/// scene of spheres, boxes (a box around the sensor is the room) and an optional
+/// floor: points (N, 3) in the sensor frame, ring by ring, with Gaussian range noise
+/// reproducible from `seed`.
+#[pyfunction]
+#[pyo3(signature = (base_from_sensor, spheres, boxes, floor_z=None, *, rings=16, azimuth_steps=940,
+                    vertical_fov_deg=30.0, max_range=100.0, noise_sigma=0.015, seed=0))]
+#[allow(clippy::too_many_arguments)]
+pub fn render_lidar_scan<'py>(
+    py: Python<'py>,
+    base_from_sensor: PyReadonlyArray2<'py, f64>,
+    spheres: &Bound<'py, PyAny>,
+    boxes: &Bound<'py, PyAny>,
+    floor_z: Option<f64>,
+    rings: usize,
+    azimuth_steps: usize,
+    vertical_fov_deg: f64,
+    max_range: f64,
+    noise_sigma: f64,
+    seed: u64,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let pose = pose_from(base_from_sensor)?;
+    if rings == 0
+        || azimuth_steps == 0
+        || !(max_range > 0.0 && noise_sigma >= 0.0 && vertical_fov_deg.is_finite())
+    {
+        return Err(PyValueError::new_err(
+            "lidar needs rings, azimuth steps and a range > 0 and noise_sigma >= 0",
+        ));
+    }
+    let lidar = Lidar {
+        rings,
+        azimuth_steps,
+        vertical_fov: vertical_fov_deg.to_radians(),
+        max_range,
+        noise_sigma,
+    };
+    let shapes = shapes_from(py, spheres, boxes, floor_z)?;
+    let pts = py.detach(|| lidar_scan(&lidar, &pose, &shapes, seed));
+    rows_to_array(py, pts)
 }
 
 /// Render the points a pinhole depth camera sees of spheres (K, 4: centre, radius),
@@ -52,33 +134,7 @@ pub fn render_depth_points<'py>(
             "camera needs a positive size, focal lengths and max_depth",
         ));
     }
-    let mut shapes: Vec<Shape> = floor_z.map(|z| Shape::Floor { z }).into_iter().collect();
-    let np = PyModule::import(py, "numpy")?;
-    let rows = |obj: &Bound<'py, PyAny>, n: usize, name: &str| -> PyResult<Vec<Vec<f64>>> {
-        let a = np
-            .call_method1("asarray", (obj, np.getattr("float64")?))?
-            .call_method1("reshape", (-1, n))?;
-        let a: PyReadonlyArray2<f64> = a
-            .extract()
-            .map_err(|_| PyValueError::new_err(format!("{name} must be (K, {n})")))?;
-        Ok(a.as_array()
-            .rows()
-            .into_iter()
-            .map(|r| r.to_vec())
-            .collect())
-    };
-    for s in rows(spheres, 4, "spheres")? {
-        shapes.push(Shape::Sphere {
-            center: [s[0], s[1], s[2]],
-            radius: s[3],
-        });
-    }
-    for b in rows(boxes, 6, "boxes")? {
-        shapes.push(Shape::Box {
-            lo: [b[0], b[1], b[2]],
-            hi: [b[3], b[4], b[5]],
-        });
-    }
+    let shapes = shapes_from(py, spheres, boxes, floor_z)?;
     let pts = py.detach(|| render_points(&camera, &pose, &shapes));
     rows_to_array(py, pts)
 }
