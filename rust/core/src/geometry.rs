@@ -29,6 +29,23 @@ pub fn check_rigid(m: &Matrix4<f64>, name: &str) -> Result<()> {
     Ok(())
 }
 
+/// Error naming the first point (of what `what` calls them) with a NaN or infinite coordinate.
+pub fn check_finite(points: &[[f64; 3]], what: &str) -> Result<()> {
+    match points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        Some(i) => Err(Error::InvalidArgument(format!(
+            "{what} {i} {:?} is not finite",
+            points[i]
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// Squared Euclidean distance.
+#[inline(always)]
+pub fn distance_squared(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+}
+
 /// Apply `m` to every point in place.
 pub fn transform_points(m: &Matrix4<f64>, points: &mut [[f64; 3]]) {
     let r = m.fixed_view::<3, 3>(0, 0).into_owned();

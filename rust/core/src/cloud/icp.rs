@@ -132,12 +132,7 @@ pub fn icp_point_to_plane(
             source.len()
         )));
     }
-    if let Some(i) = source.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err(Error::InvalidArgument(format!(
-            "source point {i} {:?} is not finite",
-            source[i]
-        )));
-    }
+    crate::geometry::check_finite(source, "source point")?;
     if !(params.max_correspondence_distance > 0.0 && params.max_iterations > 0) {
         return Err(Error::InvalidArgument(format!(
             "bad ICP parameters {params:?}"

@@ -2,6 +2,8 @@
 //! (median splits on the widest axis, leaves of up to 8 points), queried many times,
 //! from any number of threads.
 
+use crate::geometry::distance_squared;
+
 /// A leaf holds at most this many points.
 const LEAF_SIZE: usize = 8;
 
@@ -119,8 +121,7 @@ impl KdTree {
                 Node::Leaf { start, end } => {
                     let (start, end) = (start as usize, end as usize);
                     for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
-                        let d =
-                            (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+                        let d = distance_squared(p, &q);
                         if d < best.0 || (d == best.0 && i < best.1) {
                             best = (d, i);
                         }
@@ -174,7 +175,7 @@ impl KdTree {
                     if Some(i) == exclude {
                         continue;
                     }
-                    let d = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+                    let d = distance_squared(p, &q);
                     let full = best.len() == k;
                     if full && (d, i) >= best[k - 1] {
                         continue;

@@ -25,12 +25,7 @@ pub fn estimate_normals(
             points.len()
         )));
     }
-    if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err(Error::InvalidArgument(format!(
-            "point {i} {:?} is not finite",
-            points[i]
-        )));
-    }
+    crate::geometry::check_finite(points, "point")?;
     if !viewpoint.iter().all(|c| c.is_finite()) {
         return Err(Error::InvalidArgument(format!(
             "viewpoint {viewpoint:?} is not finite"

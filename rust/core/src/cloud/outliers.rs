@@ -40,12 +40,7 @@ pub fn statistical_outliers(
             points.len()
         )));
     }
-    if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err(Error::InvalidArgument(format!(
-            "point {i} {:?} is not finite",
-            points[i]
-        )));
-    }
+    crate::geometry::check_finite(points, "point")?;
     let mean_distance = mean_knn_distances(points, params.k);
     let n = mean_distance.len() as f64;
     let mean = mean_distance.iter().sum::<f64>() / n;
@@ -96,9 +91,12 @@ fn mean_knn_distances(points: &[[f64; 3]], k: usize) -> Vec<f64> {
             for &i in &grid.order[s as usize..e as usize] {
                 let q = points[i as usize];
                 candidates.clear();
-                candidates.extend(block.iter().filter(|&&(_, j)| j != i).map(|(p, _)| {
-                    (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)
-                }));
+                candidates.extend(
+                    block
+                        .iter()
+                        .filter(|&&(_, j)| j != i)
+                        .map(|(p, _)| crate::geometry::distance_squared(p, &q)),
+                );
                 let mut mean = None;
                 if candidates.len() >= k {
                     let (_, kth_d2, _) = candidates.select_nth_unstable_by(k - 1, f64::total_cmp);
