@@ -5,9 +5,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from earcore._earcore import benchmark_frame, render_depth_points, render_lidar_scan
+from earcore._earcore import benchmark_frame, render_depth_points, render_lidar_scan, robot_cell_voxels
 
-__all__ = ["benchmark_frame", "lidar_room", "look_at", "random_scene", "render_depth_points", "render_lidar_scan"]
+__all__ = [
+    "benchmark_frame",
+    "lidar_room",
+    "look_at",
+    "random_scene",
+    "render_depth_points",
+    "render_lidar_scan",
+    "robot_cell_voxels",
+]
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:

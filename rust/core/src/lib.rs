@@ -7,6 +7,7 @@ pub mod cloud;
 pub mod error;
 pub mod geometry;
 pub mod octree;
+pub mod robot;
 pub mod synthetic;
 pub mod threads;
 

@@ -232,7 +232,7 @@ pub fn lidar_scan(
 ) -> Vec<[f64; 3]> {
     let rot = base_from_sensor.fixed_view::<3, 3>(0, 0).into_owned();
     let o = Point3::from(base_from_sensor.fixed_view::<3, 1>(0, 3).into_owned());
-    let mut rng = Gaussian::new(seed);
+    let mut rng = Rng::new(seed);
     let mut out = Vec::with_capacity(lidar.rings * lidar.azimuth_steps);
     for ring in 0..lidar.rings {
         let elevation = if lidar.rings > 1 {
@@ -253,7 +253,7 @@ pub fn lidar_scan(
                 .filter_map(|s| s.intersect(&o, &d))
                 .fold(f64::INFINITY, f64::min);
             if t <= lidar.max_range {
-                let r = t + lidar.noise_sigma * rng.sample();
+                let r = t + lidar.noise_sigma * rng.normal();
                 out.push([local.x * r, local.y * r, local.z * r]);
             }
         }
@@ -261,32 +261,100 @@ pub fn lidar_scan(
     out
 }
 
-/// Standard normal samples (xorshift64* + Box-Muller): reproducible without a crate.
-struct Gaussian {
+/// Occupied cell centres of a robot work cell at `resolution` (for the collision
+/// benchmarks): the robot's base at the origin on a 3.6 m square floor just below
+/// z = 0, two walls, an overhead camera rig plate at 1.6 m, a shelf, random boxes and a
+/// person standing 0.7 m away with an arm reaching in. About 20k cells at 5 cm.
+pub fn robot_cell_voxels(resolution: f64, seed: u64) -> Vec<[f64; 3]> {
+    let mut rng = Rng::new(seed);
+    let mut cells = std::collections::BTreeSet::new();
+    let cell = |x: f64| (x / resolution).floor() as i64;
+    let mut fill = |lo: [f64; 3], hi: [f64; 3], keep: &dyn Fn([f64; 3]) -> bool| {
+        for i in cell(lo[0])..=cell(hi[0]) {
+            for j in cell(lo[1])..=cell(hi[1]) {
+                for k in cell(lo[2])..=cell(hi[2]) {
+                    let c = [i, j, k].map(|g| (g as f64 + 0.5) * resolution);
+                    if keep(c) {
+                        cells.insert((i, j, k));
+                    }
+                }
+            }
+        }
+    };
+    let all = |_: [f64; 3]| true;
+    let e = 0.5 * resolution;
+    fill([-1.8, -1.8, -e], [1.8, 1.8, -e], &all); // floor
+    fill([-1.8, -1.8, 0.0], [-1.8, 1.8, 1.6], &all); // back wall
+    fill([-1.8, 1.8, 0.0], [1.8, 1.8, 1.6], &all); // side wall
+    fill([-1.8, -1.8, 1.6], [1.8, 1.8, 1.6], &all); // camera rig plate
+    for z in [0.3, 0.7, 1.1] {
+        fill([0.9, -1.2, z], [1.3, -0.4, z], &all); // shelf boards
+    }
+    for _ in 0..8 {
+        let size = [
+            rng.uniform(0.15, 0.35),
+            rng.uniform(0.15, 0.35),
+            rng.uniform(0.15, 0.35),
+        ];
+        let angle = rng.uniform(0.0, std::f64::consts::TAU);
+        let dist = rng.uniform(0.6, 1.5);
+        let (cx, cy) = (dist * angle.cos(), dist * angle.sin());
+        fill(
+            [cx - size[0] / 2.0, cy - size[1] / 2.0, 0.0],
+            [cx + size[0] / 2.0, cy + size[1] / 2.0, size[2]],
+            &all,
+        );
+    }
+    // A person: torso and head upright at (0.7, 0.6), an arm reaching toward the robot.
+    let capsule = |a: [f64; 3], b: [f64; 3], r: f64| {
+        move |p: [f64; 3]| {
+            crate::robot::capsule::point_segment_distance_squared(&a, &b, &p) <= r * r
+        }
+    };
+    let torso = capsule([0.9, 0.9, 0.9], [0.9, 0.9, 1.4], 0.17);
+    fill([0.7, 0.7, 0.7], [1.1, 1.1, 1.6], &torso);
+    let arm = capsule([0.8, 0.75, 1.3], [0.45, 0.35, 1.05], 0.05);
+    fill([0.35, 0.25, 0.95], [0.9, 0.85, 1.4], &arm);
+    cells
+        .into_iter()
+        .map(|(i, j, k)| [i, j, k].map(|g| (g as f64 + 0.5) * resolution))
+        .collect()
+}
+
+/// Reproducible random numbers without a crate (xorshift64* + Box-Muller), for the
+/// synthetic scenes and the tests.
+pub struct Rng {
     state: u64,
     spare: Option<f64>,
 }
 
-impl Gaussian {
-    fn new(seed: u64) -> Self {
-        Gaussian {
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Rng {
             state: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
             spare: None,
         }
     }
 
-    fn uniform(&mut self) -> f64 {
+    /// Uniform in (0, 1).
+    pub fn unit(&mut self) -> f64 {
         self.state ^= self.state >> 12;
         self.state ^= self.state << 25;
         self.state ^= self.state >> 27;
         ((self.state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 + 0.5) / (1u64 << 53) as f64
     }
 
-    fn sample(&mut self) -> f64 {
+    /// Uniform in (lo, hi).
+    pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.unit()
+    }
+
+    /// Standard normal.
+    pub fn normal(&mut self) -> f64 {
         if let Some(s) = self.spare.take() {
             return s;
         }
-        let (u, v) = (self.uniform(), self.uniform());
+        let (u, v) = (self.unit(), self.unit());
         let r = (-2.0 * u.ln()).sqrt();
         let (s, c) = (std::f64::consts::TAU * v).sin_cos();
         self.spare = Some(r * s);
@@ -326,9 +394,9 @@ mod tests {
         lidar.noise_sigma = 0.02;
         let a = lidar_scan(&lidar, &pose, &[room], 7);
         assert_eq!(a, lidar_scan(&lidar, &pose, &[room], 7));
-        let mut g = Gaussian::new(3);
+        let mut g = Rng::new(3);
         let n = 20000;
-        let samples: Vec<f64> = (0..n).map(|_| g.sample()).collect();
+        let samples: Vec<f64> = (0..n).map(|_| g.normal()).collect();
         let mean = samples.iter().sum::<f64>() / n as f64;
         let var = samples.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n as f64;
         assert!(

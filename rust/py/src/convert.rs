@@ -128,3 +128,31 @@ pub fn numbers(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f64>> {
     let arr: PyReadonlyArray1<f64> = a.extract()?;
     Ok(arr.as_slice()?.to_vec())
 }
+
+/// Joint configurations: (dof,) or (K, dof) numbers → (row-major values, K, whether
+/// a single configuration was given).
+pub fn configurations(
+    obj: &Bound<'_, PyAny>,
+    dof: usize,
+    name: &str,
+) -> PyResult<(Vec<f64>, usize, bool)> {
+    let converted = as_contiguous_f64(obj).map_err(|e| {
+        pyo3::exceptions::PyTypeError::new_err(format!("{name} must be joint values: {e}"))
+    })?;
+    let arr = converted
+        .cast::<numpy::PyUntypedArray>()
+        .map_err(|_| PyValueError::new_err(format!("{name} must be an array of joint values")))?;
+    let shape = arr.shape().to_vec();
+    let (k, single) = match shape.as_slice() {
+        [n] if *n == dof => (1, true),
+        [k, n] if *n == dof => (*k, false),
+        _ => {
+            return Err(PyValueError::new_err(format!(
+                "{name} must have shape ({dof},) or (K, {dof}) for this robot, got {shape:?}"
+            )))
+        }
+    };
+    let flat = converted.call_method1("ravel", ())?;
+    let values: PyReadonlyArray1<f64> = flat.extract()?;
+    Ok((values.as_slice()?.to_vec(), k, single))
+}

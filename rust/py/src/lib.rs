@@ -5,6 +5,7 @@ mod convert;
 mod errors;
 mod icp;
 mod octree;
+mod robot;
 mod surface;
 mod synthetic;
 
@@ -29,6 +30,8 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<octree::PyInsertReport>()?;
     m.add_class::<octree::PyFrameReport>()?;
     m.add_class::<surface::PySurfaceMap>()?;
+    m.add_class::<robot::PyRobotModel>()?;
+    m.add_function(wrap_pyfunction!(robot::fit_body, m)?)?;
     m.add_class::<icp::PyPlaneTarget>()?;
     m.add_class::<icp::PyIcpResult>()?;
     m.add("EarcoreError", py.get_type::<errors::EarcoreError>())?;
@@ -38,6 +41,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_depth_points, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::benchmark_frame, m)?)?;
+    m.add_function(wrap_pyfunction!(synthetic::robot_cell_voxels, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_lidar_scan, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::depth_to_points_raw, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::crop_indices, m)?)?;

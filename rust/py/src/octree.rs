@@ -6,6 +6,7 @@
 //! it). All O(N) work runs detached from the GIL, so other Python threads keep going.
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use earcore_core::octree::{
     DangerParams, DecayMode, FrameReport, InsertReport, Leaf, OcTree, OcTreeKey, OccupancyParams,
@@ -39,7 +40,13 @@ type RayHits<'py> = (Bound<'py, PyArray1<bool>>, Bound<'py, PyArray2<f64>>);
 #[pyclass(name = "OcTree", module = "earcore", frozen)]
 pub struct PyOcTree {
     inner: RwLock<OcTree>,
+    /// Unique per tree object and bumped by every write, so derived indexes (the robot's
+    /// collision index) know when to rebuild.
+    uid: u64,
+    revision: AtomicU64,
 }
+
+static NEXT_TREE_UID: AtomicU64 = AtomicU64::new(1);
 
 #[pyclass(name = "InsertReport", module = "earcore", frozen, get_all)]
 #[derive(Clone)]
@@ -146,6 +153,8 @@ impl PyOcTree {
     fn wrap(tree: OcTree) -> Self {
         PyOcTree {
             inner: RwLock::new(tree),
+            uid: NEXT_TREE_UID.fetch_add(1, Ordering::Relaxed),
+            revision: AtomicU64::new(0),
         }
     }
 
@@ -169,7 +178,21 @@ impl PyOcTree {
 
     /// Same under the write lock.
     fn with_write<R: Send>(&self, py: Python<'_>, f: impl FnOnce(&mut OcTree) -> R + Send) -> R {
-        py.detach(|| f(&mut self.inner.write()))
+        py.detach(|| {
+            let mut tree = self.inner.write();
+            self.revision.fetch_add(1, Ordering::Relaxed);
+            f(&mut tree)
+        })
+    }
+
+    /// (tree id, revision): changes whenever the tree's contents may have changed.
+    pub(crate) fn version(&self) -> (u64, u64) {
+        (self.uid, self.revision.load(Ordering::Relaxed))
+    }
+
+    /// Read access for other binding modules (the caller is already detached).
+    pub(crate) fn read_detached(&self) -> parking_lot::RwLockReadGuard<'_, OcTree> {
+        self.inner.read()
     }
 
     fn centres_and_sizes(tree: &OcTree, leaves: &[(OcTreeKey, u32)]) -> (Vec<[f64; 3]>, Vec<f64>) {
@@ -356,6 +379,31 @@ impl PyOcTree {
         let p = vector3(point, "point")?;
         self.with_read(py, |tree| {
             tree.key_of("point", p).map(|key| tree.search(key, depth))
+        })
+        .py()
+    }
+
+    /// Batched `update_node` with a hit (`occupied=True`) or miss for every point, in
+    /// order (a cell listed twice is updated twice). All points are checked first, so a
+    /// point off the map changes nothing.
+    #[pyo3(signature = (points, occupied = true))]
+    fn update_nodes(
+        &self,
+        py: Python<'_>,
+        points: &Bound<'_, PyAny>,
+        occupied: bool,
+    ) -> PyResult<()> {
+        let pts = crate::convert::points(points, "points")?;
+        let pts = pts.as_slice()?;
+        self.with_write(py, |tree| {
+            let keys = pts
+                .iter()
+                .map(|&p| tree.key_of("point", p))
+                .collect::<earcore_core::Result<Vec<_>>>()?;
+            for key in keys {
+                tree.update_node(key, occupied);
+            }
+            Ok(())
         })
         .py()
     }

@@ -150,3 +150,21 @@ pub fn benchmark_frame(py: Python<'_>) -> PyResult<Scan<'_>> {
     let origin = vec![pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
     Ok((rows_to_array(py, pts)?, vec_to_array(py, origin)))
 }
+
+/// Occupied cell centres (N, 3) of the robot work cell the collision benchmarks share
+/// (about 20k cells at 5 cm); feed them to `OcTree.update_nodes`.
+#[pyfunction]
+#[pyo3(signature = (resolution = 0.05, seed = 0))]
+pub fn robot_cell_voxels(
+    py: Python<'_>,
+    resolution: f64,
+    seed: u64,
+) -> PyResult<Bound<'_, PyArray2<f64>>> {
+    if !(resolution.is_finite() && resolution >= 0.005) {
+        return Err(PyValueError::new_err(format!(
+            "resolution must be at least 0.005 m, got {resolution}"
+        )));
+    }
+    let cells = py.detach(|| earcore_core::synthetic::robot_cell_voxels(resolution, seed));
+    rows_to_array(py, cells)
+}

@@ -1,0 +1,268 @@
+"""Reading URDF robot descriptions and the meshes they point to (STL, OBJ).
+
+Only what the robot geometry needs: links, joints (revolute, continuous, prismatic,
+fixed), each link's collision (or visual) geometry as vertices in the link frame.
+Everything numeric downstream (fitting capsules, kinematics) happens in Rust.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from earcore._earcore import EarcoreError
+
+__all__ = ["UrdfError", "UrdfJoint", "UrdfRobot", "parse_urdf", "read_mesh_vertices"]
+
+
+class UrdfError(EarcoreError, ValueError):
+    """A URDF file or one of its meshes is malformed, unsupported or missing."""
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    name: str
+    kind: str  # revolute | continuous | prismatic | fixed
+    parent: str
+    child: str
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float]
+    axis: tuple[float, float, float]
+    lower: float
+    upper: float
+    mimic: str | None = None
+
+
+@dataclass
+class UrdfRobot:
+    name: str
+    path: Path
+    #: Link names, the root first.
+    links: list[str]
+    joints: list[UrdfJoint]
+    #: Per link: geometry vertices (N, 3) in the link frame, or None without geometry.
+    vertices: dict[str, np.ndarray | None] = field(default_factory=dict)
+
+
+def _floats(text: str | None, n: int, default: tuple[float, ...], what: str) -> tuple[float, ...]:
+    if text is None:
+        return default
+    try:
+        values = tuple(float(v) for v in text.split())
+    except ValueError:
+        raise UrdfError(f"{what}: expected {n} numbers, got {text!r}") from None
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise UrdfError(f"{what}: expected {n} finite numbers, got {text!r}")
+    return values
+
+
+def _origin(element: ET.Element | None, what: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    if element is None:
+        return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+    xyz = _floats(element.get("xyz"), 3, (0.0, 0.0, 0.0), f"{what} origin xyz")
+    rpy = _floats(element.get("rpy"), 3, (0.0, 0.0, 0.0), f"{what} origin rpy")
+    return xyz, rpy
+
+
+def _rpy_matrix(rpy: tuple[float, ...]) -> np.ndarray:
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def resolve_mesh_path(filename: str, urdf_path: Path) -> Path:
+    """Find a mesh named in a URDF: plain paths are relative to the URDF's folder;
+    ``package://pkg/rest`` is looked up in the URDF's folder and its ancestors (a
+    folder named ``pkg`` holding ``rest``, or any ancestor holding ``pkg/rest``)."""
+    base = urdf_path.parent
+    if filename.startswith("file://"):
+        filename = filename[len("file://") :]
+    if not filename.startswith("package://"):
+        p = Path(filename)
+        p = p if p.is_absolute() else base / p
+        if p.is_file():
+            return p
+        raise UrdfError(f"{urdf_path.name}: mesh {filename!r} not found (looked for {p})")
+    rel = filename[len("package://") :]
+    package, _, rest = rel.partition("/")
+    for folder in [base, *base.parents]:
+        if folder.name == package and (folder / rest).is_file():
+            return folder / rest
+        if (folder / rel).is_file():
+            return folder / rel
+    raise UrdfError(f"{urdf_path.name}: mesh {filename!r} not found in {base} or its parent folders")
+
+
+def read_mesh_vertices(path: Path) -> np.ndarray:
+    """Vertices (N, 3) of an STL (binary or ASCII) or OBJ mesh, in the file's units."""
+    suffix = path.suffix.lower()
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise UrdfError(f"cannot read mesh {path}: {exc}") from exc
+    if suffix == ".stl":
+        vertices = _stl_vertices(data, path)
+    elif suffix == ".obj":
+        vertices = _obj_vertices(data, path)
+    else:
+        raise UrdfError(f"mesh {path.name}: unsupported format {suffix!r} (STL and OBJ are read)")
+    if len(vertices) == 0:
+        raise UrdfError(f"mesh {path} has no vertices")
+    if not np.isfinite(vertices).all():
+        raise UrdfError(f"mesh {path} has non-finite vertices")
+    return vertices
+
+
+def _stl_vertices(data: bytes, path: Path) -> np.ndarray:
+    if len(data) >= 84:
+        (count,) = struct.unpack_from("<I", data, 80)
+        if len(data) == 84 + 50 * count:
+            record = np.dtype([("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+            triangles = np.frombuffer(data, dtype=record, count=count, offset=84)
+            return triangles["v"].reshape(-1, 3).astype(np.float64)
+    text = data.decode("ascii", errors="replace")
+    if not text.lstrip().startswith("solid"):
+        raise UrdfError(f"mesh {path} is neither binary nor ASCII STL")
+    rows = [line.split()[1:4] for line in text.splitlines() if line.strip().startswith("vertex")]
+    try:
+        return np.array(rows, dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        raise UrdfError(f"mesh {path}: malformed ASCII STL vertex") from None
+
+
+def _obj_vertices(data: bytes, path: Path) -> np.ndarray:
+    rows = []
+    for line in data.decode("utf-8", errors="replace").splitlines():
+        if line.startswith("v "):
+            parts = line.split()
+            if len(parts) < 4:
+                raise UrdfError(f"mesh {path}: malformed vertex line {line!r}")
+            rows.append(parts[1:4])
+    try:
+        return np.array(rows, dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        raise UrdfError(f"mesh {path}: malformed OBJ vertex") from None
+
+
+def _primitive_vertices(geometry: ET.Element, what: str) -> np.ndarray:
+    """Points whose enclosing capsule encloses the primitive."""
+    shape = next(iter(geometry), None)
+    if shape is None:
+        raise UrdfError(f"{what}: empty <geometry>")
+    ring = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    if shape.tag == "box":
+        sx, sy, sz = _floats(shape.get("size"), 3, (0, 0, 0), f"{what} box size")
+        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+        return corners * [sx / 2, sy / 2, sz / 2]
+    if shape.tag in ("cylinder", "capsule"):
+        (r,) = _floats(shape.get("radius"), 1, (0,), f"{what} radius")
+        (length,) = _floats(shape.get("length"), 1, (0,), f"{what} length")
+        # The polygon is circumscribed so the cylinder stays inside.
+        r_out = r / math.cos(math.pi / len(ring))
+        circle = np.stack([r_out * np.cos(ring), r_out * np.sin(ring)], axis=1)
+        ends = [length / 2 + (r if shape.tag == "capsule" else 0.0)]
+        return np.concatenate([np.column_stack([circle, np.full(len(ring), z)]) for z in (-ends[0], ends[0])])
+    if shape.tag == "sphere":
+        (r,) = _floats(shape.get("radius"), 1, (0,), f"{what} sphere radius")
+        # The six axis points: their smallest enclosing capsule is the sphere itself.
+        return r * np.vstack([np.eye(3), -np.eye(3)])
+    raise UrdfError(f"{what}: unsupported geometry <{shape.tag}>")
+
+
+def parse_urdf(path: str | Path, *, geometry: str = "collision") -> UrdfRobot:
+    """Parse a URDF file: links (root first), joints and each link's geometry vertices.
+
+    ``geometry`` picks the ``collision`` elements (default) or the ``visual`` ones; a
+    link without the chosen kind falls back to the other.
+    """
+    if geometry not in ("collision", "visual"):
+        raise ValueError(f"geometry must be 'collision' or 'visual', got {geometry!r}")
+    path = Path(path)
+    if not path.is_file():
+        raise UrdfError(f"URDF file {path} does not exist")
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise UrdfError(f"{path} is not valid XML: {exc}") from exc
+    if root.tag != "robot":
+        raise UrdfError(f"{path}: the root element is <{root.tag}>, expected <robot>")
+
+    link_elements = {}
+    for link in root.findall("link"):
+        name = link.get("name")
+        if not name:
+            raise UrdfError(f"{path}: a <link> has no name")
+        if name in link_elements:
+            raise UrdfError(f"{path}: link {name!r} is defined twice")
+        link_elements[name] = link
+    if not link_elements:
+        raise UrdfError(f"{path}: no <link> elements")
+
+    joints = []
+    for j in root.findall("joint"):
+        name = j.get("name") or "?"
+        kind = j.get("type")
+        what = f"{path.name}: joint {name!r}"
+        if kind not in ("revolute", "continuous", "prismatic", "fixed"):
+            raise UrdfError(f"{what} has unsupported type {kind!r}")
+        parent_el, child_el = j.find("parent"), j.find("child")
+        if parent_el is None or child_el is None:
+            raise UrdfError(f"{what} needs <parent> and <child>")
+        parent, child = parent_el.get("link"), child_el.get("link")
+        for role, link_name in (("parent", parent), ("child", child)):
+            if link_name not in link_elements:
+                raise UrdfError(f"{what}: {role} link {link_name!r} is not defined")
+        xyz, rpy = _origin(j.find("origin"), what)
+        axis_el = j.find("axis")
+        axis = _floats(axis_el.get("xyz") if axis_el is not None else None, 3, (1.0, 0.0, 0.0), f"{what} axis")
+        lower, upper = -math.inf, math.inf
+        if kind in ("revolute", "prismatic"):
+            limit = j.find("limit")
+            if limit is None or limit.get("lower") is None or limit.get("upper") is None:
+                raise UrdfError(f"{what} ({kind}) needs <limit lower=... upper=...>")
+            (lower,) = _floats(limit.get("lower"), 1, (0.0,), f"{what} lower limit")
+            (upper,) = _floats(limit.get("upper"), 1, (0.0,), f"{what} upper limit")
+            if lower > upper:
+                raise UrdfError(f"{what}: lower limit {lower} > upper limit {upper}")
+        mimic = j.find("mimic")
+        joints.append(
+            UrdfJoint(name, kind, parent, child, xyz, rpy, axis, lower, upper, mimic.get("joint") if mimic is not None else None)  # type: ignore[arg-type]
+        )
+
+    children = {j.child for j in joints}
+    roots = [name for name in link_elements if name not in children]
+    if len(roots) != 1:
+        raise UrdfError(f"{path}: expected one root link, found {roots or 'none (a cycle)'}")
+    links = roots + [name for name in link_elements if name != roots[0]]
+
+    robot = UrdfRobot(name=root.get("name") or path.stem, path=path, links=links, joints=joints)
+    other = "visual" if geometry == "collision" else "collision"
+    for name, element in link_elements.items():
+        parts = element.findall(geometry) or element.findall(other)
+        clouds = []
+        for part in parts:
+            what = f"{path.name}: link {name!r} {part.tag}"
+            geom = part.find("geometry")
+            if geom is None:
+                raise UrdfError(f"{what} has no <geometry>")
+            mesh = geom.find("mesh")
+            if mesh is not None:
+                filename = mesh.get("filename")
+                if not filename:
+                    raise UrdfError(f"{what}: <mesh> without filename")
+                vertices = read_mesh_vertices(resolve_mesh_path(filename, path))
+                vertices = vertices * np.array(_floats(mesh.get("scale"), 3, (1.0, 1.0, 1.0), f"{what} mesh scale"))
+            else:
+                vertices = _primitive_vertices(geom, what)
+            xyz, rpy = _origin(part.find("origin"), what)
+            clouds.append(vertices @ _rpy_matrix(rpy).T + np.array(xyz))
+        robot.vertices[name] = np.concatenate(clouds) if clouds else None
+    return robot

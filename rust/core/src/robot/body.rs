@@ -1,0 +1,355 @@
+//! A link body: a capsule or a flat-ended cylinder around the segment `a`–`b`.
+//!
+//! Capsules have closed-form distances (segment geometry); cylinders (Paper II's
+//! choice, tighter for stubby links such as a UR shoulder) use parry's GJK queries.
+//! Every cylinder lies inside the capsule with the same axis and radius, which the
+//! fast conservative tests exploit.
+
+use parry3d_f64::na::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use parry3d_f64::query;
+use parry3d_f64::shape::{Capsule as ParryCapsule, Cuboid, Cylinder};
+
+use crate::geometry::distance_squared;
+use crate::robot::capsule::{
+    lerp, point_segment_distance_squared, segment_box_closest, segment_segment_closest, Capsule,
+};
+use crate::robot::chain::Frame;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BodyShape {
+    Capsule,
+    Cylinder,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Body {
+    /// Axis and radius (for a cylinder: the axis between the flat end centres).
+    pub axis: Capsule,
+    pub shape: BodyShape,
+}
+
+/// Closest approach of a body and a box: signed distance (negative inside) and points.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BodyBoxContact {
+    pub distance: f64,
+    pub on_body: [f64; 3],
+    pub on_box: [f64; 3],
+}
+
+impl Body {
+    pub fn capsule(a: [f64; 3], b: [f64; 3], radius: f64) -> Self {
+        Body {
+            axis: Capsule::new(a, b, radius),
+            shape: BodyShape::Capsule,
+        }
+    }
+
+    pub fn cylinder(a: [f64; 3], b: [f64; 3], radius: f64) -> Self {
+        Body {
+            axis: Capsule::new(a, b, radius),
+            shape: BodyShape::Cylinder,
+        }
+    }
+
+    pub fn radius(&self) -> f64 {
+        self.axis.radius
+    }
+
+    #[inline]
+    pub fn placed(&self, frame: &Frame) -> Body {
+        Body {
+            axis: self.axis.placed(frame),
+            shape: self.shape,
+        }
+    }
+
+    /// The capsule with the same axis and radius (equal to a capsule body, a superset
+    /// of a cylinder body).
+    #[inline]
+    pub fn enclosing_capsule(&self) -> &Capsule {
+        &self.axis
+    }
+
+    pub fn volume(&self) -> f64 {
+        match self.shape {
+            BodyShape::Capsule => self.axis.volume(),
+            BodyShape::Cylinder => {
+                let r = self.axis.radius;
+                std::f64::consts::PI * r * r * self.axis.length()
+            }
+        }
+    }
+
+    /// Bounds (min, max): the enclosing capsule's, which hold the body.
+    #[inline]
+    pub fn aabb(&self) -> ([f64; 3], [f64; 3]) {
+        self.axis.aabb()
+    }
+
+    #[inline]
+    pub fn contains_point(&self, p: &[f64; 3]) -> bool {
+        let c = &self.axis;
+        match self.shape {
+            BodyShape::Capsule => c.contains_point(p),
+            BodyShape::Cylinder => {
+                let d = [c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]];
+                let len2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                let along =
+                    (p[0] - c.a[0]) * d[0] + (p[1] - c.a[1]) * d[1] + (p[2] - c.a[2]) * d[2];
+                if along < 0.0 || along > len2 {
+                    return false;
+                }
+                let t = if len2 > 0.0 { along / len2 } else { 0.0 };
+                distance_squared(&lerp(&c.a, &c.b, t), p) <= c.radius * c.radius
+            }
+        }
+    }
+
+    /// Radius of the largest ball centred at axis parameter `t` that lies in the body.
+    #[inline]
+    pub fn inner_radius_at(&self, t: f64) -> f64 {
+        match self.shape {
+            BodyShape::Capsule => self.axis.radius,
+            BodyShape::Cylinder => {
+                let len = self.axis.length();
+                self.axis.radius.min(t * len).min((1.0 - t) * len).max(0.0)
+            }
+        }
+    }
+
+    /// The body as a parry shape and its pose (cylinders are along Y in parry).
+    fn parry_pose(&self) -> Isometry3<f64> {
+        let a = Vector3::from(self.axis.a);
+        let b = Vector3::from(self.axis.b);
+        let d = b - a;
+        let rotation = if d.norm() > 0.0 {
+            UnitQuaternion::rotation_between(&Vector3::y(), &d).unwrap_or_else(|| {
+                UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+            })
+        } else {
+            UnitQuaternion::identity()
+        };
+        Isometry3::from_parts(Translation3::from((a + b) * 0.5), rotation)
+    }
+
+    fn cylinder_shape(&self) -> Cylinder {
+        Cylinder::new(0.5 * self.axis.length(), self.axis.radius.max(0.0))
+    }
+
+    /// Does the body meet the axis-aligned box (touching counts)? Exact for capsules;
+    /// for cylinders, cheap exact answers first (the enclosing capsule misses, the box
+    /// lies beyond an end plane, or a ball inside the cylinder reaches it) and parry's
+    /// GJK (tolerance ~1e-10 m) only for what remains.
+    pub fn overlaps_box(&self, center: &[f64; 3], half: &[f64; 3]) -> bool {
+        let c = &self.axis;
+        let r = c.radius;
+        // Cheap answers from the box's centre: farther than r plus the half diagonal
+        // from the axis cannot touch; a centre inside the body is an overlap.
+        let reach = r + (half[0] * half[0] + half[1] * half[1] + half[2] * half[2]).sqrt();
+        if point_segment_distance_squared(&c.a, &c.b, center) > reach * reach {
+            return false;
+        }
+        if self.contains_point(center) {
+            return true;
+        }
+        let (d2, t, _) = segment_box_closest(&c.a, &c.b, center, half);
+        if d2 > r * r {
+            return false;
+        }
+        if self.shape == BodyShape::Capsule {
+            return true;
+        }
+        let inner = self.inner_radius_at(t);
+        if d2 <= inner * inner {
+            return true;
+        }
+        // The box's extent along the axis against the end planes.
+        let d = [c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]];
+        let mid: f64 = (0..3).map(|i| (center[i] - c.a[i]) * d[i]).sum();
+        let spread: f64 = (0..3).map(|i| d[i].abs() * half[i]).sum();
+        let len2: f64 = d.iter().map(|x| x * x).sum();
+        if mid + spread < 0.0 || mid - spread > len2 {
+            return false;
+        }
+        let cuboid = Cuboid::new(Vector3::from(*half));
+        let box_pose = Isometry3::translation(center[0], center[1], center[2]);
+        query::intersection_test(
+            &self.parry_pose(),
+            &self.cylinder_shape(),
+            &box_pose,
+            &cuboid,
+        )
+        // Not expected for these shapes; claim a collision rather than miss one.
+        .unwrap_or(true)
+    }
+
+    /// Distance to the box and the closest points; negative when they overlap (then
+    /// the depth is the enclosing capsule's, an over-estimate for cylinders).
+    pub fn box_contact(&self, center: &[f64; 3], half: &[f64; 3]) -> BodyBoxContact {
+        let (d2, t, q) = segment_box_closest(&self.axis.a, &self.axis.b, center, half);
+        let on_axis = self.axis.axis_point(t);
+        let d = d2.sqrt();
+        let on_body = if d > 0.0 {
+            let k = self.axis.radius / d;
+            [0, 1, 2].map(|i| on_axis[i] + (q[i] - on_axis[i]) * k)
+        } else {
+            on_axis
+        };
+        let capsule = BodyBoxContact {
+            distance: d - self.axis.radius,
+            on_body,
+            on_box: q,
+        };
+        // The capsule's closest point lies on the side a cylinder shares when it is
+        // reached from inside the axis (the offset is then perpendicular to the axis).
+        let interior = t > 0.0 && t < 1.0;
+        if self.shape == BodyShape::Capsule || (interior && capsule.distance > 0.0) {
+            return capsule;
+        }
+        if capsule.distance <= 0.0 && self.overlaps_box(center, half) {
+            return capsule;
+        }
+        // A cylinder near its flat end: its own closest points (GJK, no penetration).
+        let cuboid = Cuboid::new(Vector3::from(*half));
+        let box_pose = Isometry3::translation(center[0], center[1], center[2]);
+        match query::closest_points(
+            &self.parry_pose(),
+            &self.cylinder_shape(),
+            &box_pose,
+            &cuboid,
+            f64::MAX,
+        ) {
+            Ok(query::ClosestPoints::WithinMargin(p1, p2)) => BodyBoxContact {
+                distance: (p2 - p1).norm(),
+                on_body: [p1.x, p1.y, p1.z],
+                on_box: [p2.x, p2.y, p2.z],
+            },
+            // Touching (or unsupported): the capsule's answer never overstates the gap.
+            _ => capsule,
+        }
+    }
+
+    /// Do two bodies touch?
+    pub fn intersects(&self, other: &Body) -> bool {
+        let (p, q) = (&self.axis, &other.axis);
+        if self.shape == BodyShape::Capsule && other.shape == BodyShape::Capsule {
+            let (d2, _, _) = segment_segment_closest(&p.a, &p.b, &q.a, &q.b);
+            let r = p.radius + q.radius;
+            return d2 <= r * r;
+        }
+        // Quick reject with the enclosing capsules.
+        let (d2, _, _) = segment_segment_closest(&p.a, &p.b, &q.a, &q.b);
+        let r = p.radius + q.radius;
+        if d2 > r * r {
+            return false;
+        }
+        let shape = |b: &Body| -> Box<dyn parry3d_f64::shape::Shape> {
+            match b.shape {
+                BodyShape::Capsule => Box::new(ParryCapsule::new(
+                    Point3::from(b.axis.a),
+                    Point3::from(b.axis.b),
+                    b.axis.radius.max(0.0),
+                )),
+                BodyShape::Cylinder => Box::new(b.cylinder_shape()),
+            }
+        };
+        let pose = |b: &Body| match b.shape {
+            BodyShape::Capsule => Isometry3::identity(),
+            BodyShape::Cylinder => b.parry_pose(),
+        };
+        query::intersection_test(
+            &pose(self),
+            shape(self).as_ref(),
+            &pose(other),
+            shape(other).as_ref(),
+        )
+        .unwrap_or(true)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::Rng;
+
+    /// Brute-force cylinder–box overlap: sample the cylinder densely (surface and
+    /// inside) and test the samples against the box grown by the sampling gap.
+    #[test]
+    fn cylinder_box_overlap_agrees_with_sampling() {
+        let mut rng = Rng::new(12);
+        let mut agree = 0;
+        for _ in 0..400 {
+            let mut v = || rng.uniform(-0.5, 0.5);
+            let body = Body::cylinder([v(), v(), v()], [v(), v(), v()], v().abs() * 0.3 + 0.01);
+            let center = [v() * 0.5, v() * 0.5, v() * 0.5];
+            let half = [0.05, 0.05, 0.05];
+            let exact = body.overlaps_box(&center, &half);
+            let contact = body.box_contact(&center, &half);
+            assert_eq!(exact, contact.distance <= 1e-9, "{contact:?}");
+            // Dense samples of the cylinder.
+            let c = &body.axis;
+            let d = Vector3::from(c.b) - Vector3::from(c.a);
+            let u = d
+                .cross(&if d.x.abs() < 0.9 * d.norm() {
+                    Vector3::x()
+                } else {
+                    Vector3::y()
+                })
+                .normalize();
+            let w = d.normalize().cross(&u);
+            let mut min_gap = f64::INFINITY;
+            for i in 0..=40 {
+                for j in 0..48 {
+                    for k in 0..=6 {
+                        let t = i as f64 / 40.0;
+                        let ang = j as f64 / 48.0 * std::f64::consts::TAU;
+                        let rad = c.radius * k as f64 / 6.0;
+                        let p = Vector3::from(c.a) + d * t + (u * ang.cos() + w * ang.sin()) * rad;
+                        let gap: f64 = (0..3)
+                            .map(|a| ((p[a] - center[a]).abs() - half[a]).max(0.0).powi(2))
+                            .sum::<f64>()
+                            .sqrt();
+                        min_gap = min_gap.min(gap);
+                    }
+                }
+            }
+            // The samples come within ~2 cm of every cylinder point here.
+            if exact {
+                assert!(
+                    min_gap < 0.03,
+                    "overlap claimed but samples are {min_gap} away"
+                );
+            } else {
+                assert!(
+                    min_gap > 0.0,
+                    "a sample lies in the box but no overlap was reported"
+                );
+                assert!((contact.distance - min_gap).abs() < 0.03);
+            }
+            agree += 1;
+        }
+        assert_eq!(agree, 400);
+    }
+
+    #[test]
+    fn containment_by_shape() {
+        let cyl = Body::cylinder([0.0; 3], [0.0, 0.0, 1.0], 0.1);
+        let cap = Body::capsule([0.0; 3], [0.0, 0.0, 1.0], 0.1);
+        let beyond_end = [0.0, 0.0, 1.05];
+        assert!(!cyl.contains_point(&beyond_end) && cap.contains_point(&beyond_end));
+        assert!(cyl.contains_point(&[0.09, 0.0, 0.5]));
+        assert!((cyl.inner_radius_at(0.02) - 0.02).abs() < 1e-12);
+    }
+
+    #[test]
+    fn body_pairs() {
+        let a = Body::cylinder([0.0; 3], [0.0, 0.0, 1.0], 0.1);
+        let b = Body::capsule([0.25, 0.0, 0.5], [1.0, 0.0, 0.5], 0.1);
+        assert!(!a.intersects(&b));
+        let c = Body::capsule([0.15, 0.0, 0.5], [1.0, 0.0, 0.5], 0.1);
+        assert!(a.intersects(&c));
+        // Beyond the cylinder's flat end but inside its enclosing capsule.
+        let d = Body::capsule([0.0, 0.0, 1.15], [0.0, 0.0, 2.0], 0.1);
+        assert!(!a.intersects(&d));
+    }
+}

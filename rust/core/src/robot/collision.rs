@@ -1,0 +1,294 @@
+//! Batched collision checks, clearance and the danger cost of a motion, for a robot
+//! against a `VoxelIndex` of the map.
+
+use crate::error::{Error, Result};
+use crate::octree::OcTree;
+use crate::robot::chain::Frame;
+use crate::robot::model::{PlacedBodies, RobotModel};
+use crate::robot::voxel_index::{Clearance, VoxelIndex};
+use crate::threads::map_parts;
+
+/// What a configuration hits first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Contact {
+    Free,
+    /// A body (by link index) overlaps an occupied voxel.
+    Obstacle(usize),
+    /// Two bodies (link indices) touch.
+    SelfCollision(usize, usize),
+}
+
+impl Contact {
+    pub fn is_free(&self) -> bool {
+        *self == Contact::Free
+    }
+
+    /// The first link involved, if any.
+    pub fn link(&self) -> Option<usize> {
+        match *self {
+            Contact::Free => None,
+            Contact::Obstacle(l) | Contact::SelfCollision(l, _) => Some(l),
+        }
+    }
+}
+
+/// Options of the checks.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CheckParams {
+    pub self_collision: bool,
+}
+
+impl Default for CheckParams {
+    fn default() -> Self {
+        CheckParams {
+            self_collision: true,
+        }
+    }
+}
+
+/// Configurations stored row-major, `dof` values each.
+fn rows(qs: &[f64], dof: usize) -> Result<usize> {
+    if dof == 0 || !qs.len().is_multiple_of(dof) {
+        return Err(Error::InvalidArgument(format!(
+            "configurations must have {dof} values each, got {} values in all",
+            qs.len()
+        )));
+    }
+    Ok(qs.len() / dof)
+}
+
+fn check_all(model: &RobotModel, qs: &[f64]) -> Result<usize> {
+    let dof = model.dof();
+    let k = rows(qs, dof)?;
+    for (i, q) in qs.chunks(dof).enumerate() {
+        model.chain().check_configuration(q, i)?;
+    }
+    Ok(k)
+}
+
+/// Per-thread scratch for placing bodies.
+struct Scratch {
+    frames: Vec<Frame>,
+    placed: PlacedBodies,
+}
+
+impl Scratch {
+    fn new(model: &RobotModel) -> Self {
+        Scratch {
+            frames: vec![Frame::identity(); model.chain().num_links()],
+            placed: PlacedBodies::default(),
+        }
+    }
+}
+
+fn contact_of(
+    model: &RobotModel,
+    index: &VoxelIndex,
+    params: CheckParams,
+    q: &[f64],
+    scratch: &mut Scratch,
+) -> Result<Contact> {
+    model.place_into(q, &mut scratch.frames, &mut scratch.placed);
+    let placed = &scratch.placed;
+    for ((link, body), _) in placed
+        .links
+        .iter()
+        .zip(&placed.bodies)
+        .zip(&placed.moving)
+        .filter(|(_, m)| **m)
+    {
+        if index.body_collides(body)? {
+            return Ok(Contact::Obstacle(*link));
+        }
+    }
+    if params.self_collision {
+        if let Some((a, b)) = model.self_collision(placed, model.self_collision_pairs()) {
+            return Ok(Contact::SelfCollision(a, b));
+        }
+    }
+    Ok(Contact::Free)
+}
+
+/// Split K configurations into parallel chunks.
+fn chunked<R: Send>(
+    qs: &[f64],
+    dof: usize,
+    f: impl Fn(&[f64]) -> Result<Vec<R>> + Sync + Send,
+) -> Result<Vec<R>> {
+    const PER_CHUNK: usize = 256;
+    let chunks: Vec<&[f64]> = qs.chunks(PER_CHUNK * dof).collect();
+    let mut out = Vec::with_capacity(qs.len() / dof.max(1));
+    for part in map_parts(&chunks, |c| f(c)) {
+        out.extend(part?);
+    }
+    Ok(out)
+}
+
+/// What each configuration of `qs` (K × dof, row-major) touches first.
+pub fn check_configurations(
+    model: &RobotModel,
+    index: &VoxelIndex,
+    qs: &[f64],
+    params: CheckParams,
+) -> Result<Vec<Contact>> {
+    check_all(model, qs)?;
+    let dof = model.dof();
+    chunked(qs, dof, |part| {
+        let mut scratch = Scratch::new(model);
+        part.chunks(dof)
+            .map(|q| contact_of(model, index, params, q, &mut scratch))
+            .collect()
+    })
+}
+
+/// Configurations on the straight joint-space segment q0 → q1 with no joint moving
+/// more than `resolution` between neighbours (both ends included).
+pub fn interpolate(q0: &[f64], q1: &[f64], resolution: f64) -> Result<Vec<Vec<f64>>> {
+    if !(resolution.is_finite() && resolution > 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "resolution must be finite and > 0, got {resolution}"
+        )));
+    }
+    if q0.len() != q1.len() {
+        return Err(Error::InvalidArgument(format!(
+            "q0 has {} values and q1 has {}",
+            q0.len(),
+            q1.len()
+        )));
+    }
+    let largest = q0
+        .iter()
+        .zip(q1)
+        .map(|(a, b)| (b - a).abs())
+        .fold(0.0, f64::max);
+    let steps = (largest / resolution).ceil().max(1.0) as usize;
+    Ok((0..=steps)
+        .map(|s| {
+            let t = s as f64 / steps as f64;
+            q0.iter().zip(q1).map(|(a, b)| a + t * (b - a)).collect()
+        })
+        .collect())
+}
+
+/// Is the straight motion q0 → q1 free at `resolution`? Returns the parameter t ∈ [0, 1]
+/// of the first colliding configuration along it, or None.
+pub fn check_motion(
+    model: &RobotModel,
+    index: &VoxelIndex,
+    q0: &[f64],
+    q1: &[f64],
+    resolution: f64,
+    params: CheckParams,
+) -> Result<Option<(f64, Contact)>> {
+    model.chain().check_configuration(q0, 0)?;
+    model.chain().check_configuration(q1, 1)?;
+    let path = interpolate(q0, q1, resolution)?;
+    let mut scratch = Scratch::new(model);
+    let last = (path.len() - 1) as f64;
+    for (s, q) in path.iter().enumerate() {
+        let contact = contact_of(model, index, params, q, &mut scratch)?;
+        if !contact.is_free() {
+            return Ok(Some((s as f64 / last, contact)));
+        }
+    }
+    Ok(None)
+}
+
+/// Robot-to-obstacle clearance per configuration: the closest body and the closest
+/// points (None where the index has no obstacle).
+pub fn clearances(
+    model: &RobotModel,
+    index: &VoxelIndex,
+    qs: &[f64],
+) -> Result<Vec<Option<(usize, Clearance)>>> {
+    check_all(model, qs)?;
+    let dof = model.dof();
+    chunked(qs, dof, |part| {
+        let mut scratch = Scratch::new(model);
+        part.chunks(dof)
+            .map(|q| {
+                model.place_into(q, &mut scratch.frames, &mut scratch.placed);
+                let placed = &scratch.placed;
+                let mut best: Option<(usize, Clearance)> = None;
+                let moving = placed.links.iter().zip(&placed.bodies).zip(&placed.moving);
+                for ((link, body), _) in moving.filter(|(_, m)| **m) {
+                    if let Some(c) = index.body_clearance(body)? {
+                        if best.is_none_or(|(_, b)| c.distance < b.distance) {
+                            best = Some((*link, c));
+                        }
+                    }
+                }
+                Ok(best)
+            })
+            .collect()
+    })
+}
+
+/// Paper II's Eq. 4 cost of the straight motion q0 → q1, per body point (bodies fixed
+/// to the root do not move and add nothing):
+///
+/// C = Σ_bodies (1/n_b) Σ_points Σ_steps d · (1 + C_voxel)
+///
+/// Each body carries n_b points along its axis (one per map voxel of length, ends
+/// included); the motion is cut into steps of at most `resolution` rad per joint; d is
+/// the distance a point travels in a step and C_voxel the danger of the voxel holding
+/// the step's midpoint (0 where none is recorded). With no danger anywhere C is the sum
+/// of the bodies' mean path lengths; danger adds up to that much again.
+pub fn motion_danger(
+    model: &RobotModel,
+    tree: &OcTree,
+    q0: &[f64],
+    q1: &[f64],
+    resolution: f64,
+) -> Result<f64> {
+    model.chain().check_configuration(q0, 0)?;
+    model.chain().check_configuration(q1, 1)?;
+    let path = interpolate(q0, q1, resolution)?;
+    let res = tree.resolution();
+    let danger = tree.danger_map();
+    let conv = tree.key_converter();
+    let mut scratch = Scratch::new(model);
+    // Sample parameters of each body's points.
+    let ts: Vec<Vec<f64>> = model
+        .bodies()
+        .iter()
+        .filter_map(|b| b.as_ref())
+        .map(|c| {
+            let n = (c.axis.length() / res).ceil().max(1.0) as usize;
+            (0..=n).map(|i| i as f64 / n as f64).collect()
+        })
+        .collect();
+    let mut previous: Vec<Vec<[f64; 3]>> = Vec::new();
+    let mut total = 0.0;
+    for q in &path {
+        model.place_into(q, &mut scratch.frames, &mut scratch.placed);
+        let points: Vec<Vec<[f64; 3]>> = scratch
+            .placed
+            .bodies
+            .iter()
+            .zip(&ts)
+            .map(|(c, t)| t.iter().map(|&t| c.axis.axis_point(t)).collect())
+            .collect();
+        if !previous.is_empty() {
+            for (before, after) in previous.iter().zip(&points) {
+                let mut body = 0.0;
+                for (p, r) in before.iter().zip(after) {
+                    let d = crate::geometry::distance_squared(p, r).sqrt();
+                    let mid = [
+                        0.5 * (p[0] + r[0]),
+                        0.5 * (p[1] + r[1]),
+                        0.5 * (p[2] + r[2]),
+                    ];
+                    let c = conv
+                        .coord_to_key_checked_f64(mid)
+                        .map(|k| danger.value(k.morton()) as f64)
+                        .unwrap_or(0.0);
+                    body += d * (1.0 + c);
+                }
+                total += body / before.len() as f64;
+            }
+        }
+        previous = points;
+    }
+    Ok(total)
+}

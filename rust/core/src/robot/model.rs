@@ -1,0 +1,242 @@
+//! A robot: its kinematic chain, one padded capsule per link (in the link's frame),
+//! where its base stands, and which link pairs to test for self-collision.
+
+use crate::error::{Error, Result};
+use crate::robot::body::Body;
+use crate::robot::chain::{Chain, Frame};
+use crate::synthetic::Rng;
+
+#[derive(Clone, Debug)]
+pub struct RobotModel {
+    chain: Chain,
+    /// Body of each link in the link frame (None: the link has no geometry).
+    bodies: Vec<Option<Body>>,
+    /// world_from_root.
+    base: Frame,
+    /// Link pairs tested for self-collision.
+    self_pairs: Vec<(usize, usize)>,
+    /// Links rigidly attached to the root (no movable joint on the way): they never
+    /// move, so whatever they touch is the robot's own stand and is not an obstacle.
+    fixed_to_root: Vec<bool>,
+}
+
+/// The robot's bodies placed for one configuration (world frame), with their links.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PlacedBodies {
+    pub links: Vec<usize>,
+    pub bodies: Vec<Body>,
+    /// False for bodies fixed to the root (skipped by obstacle checks and clearance).
+    pub moving: Vec<bool>,
+}
+
+impl PlacedBodies {
+    /// Bounds of all bodies (min, max); inverted (empty) when there are none.
+    pub fn aabb(&self) -> ([f64; 3], [f64; 3]) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for body in &self.bodies {
+            let (a, b) = body.aabb();
+            for i in 0..3 {
+                lo[i] = lo[i].min(a[i]);
+                hi[i] = hi[i].max(b[i]);
+            }
+        }
+        (lo, hi)
+    }
+}
+
+impl RobotModel {
+    /// `bodies` has one entry per link. Self-collision pairs default to
+    /// `default_self_collision_pairs()`.
+    pub fn new(chain: Chain, bodies: Vec<Option<Body>>) -> Result<Self> {
+        if bodies.len() != chain.num_links() {
+            return Err(Error::InvalidArgument(format!(
+                "{} bodies for {} links",
+                bodies.len(),
+                chain.num_links()
+            )));
+        }
+        for (l, b) in bodies.iter().enumerate() {
+            if let Some(body) = b {
+                let c = &body.axis;
+                let finite = c.a.iter().chain(&c.b).all(|v| v.is_finite());
+                if !(finite && c.radius.is_finite() && c.radius >= 0.0) {
+                    return Err(Error::InvalidArgument(format!(
+                        "the body of link '{}' is not valid: {body:?}",
+                        chain.link_names()[l]
+                    )));
+                }
+            }
+        }
+        let mut fixed_to_root = vec![false; chain.num_links()];
+        fixed_to_root[0] = true;
+        for joint in chain.joints() {
+            fixed_to_root[joint.child] = fixed_to_root[joint.parent] && !joint.is_movable();
+        }
+        let mut model = RobotModel {
+            chain,
+            bodies,
+            base: Frame::identity(),
+            self_pairs: Vec::new(),
+            fixed_to_root,
+        };
+        model.self_pairs = model.default_self_collision_pairs(1000, 1);
+        Ok(model)
+    }
+
+    pub fn chain(&self) -> &Chain {
+        &self.chain
+    }
+
+    pub fn dof(&self) -> usize {
+        self.chain.dof()
+    }
+
+    pub fn bodies(&self) -> &[Option<Body>] {
+        &self.bodies
+    }
+
+    pub fn base(&self) -> &Frame {
+        &self.base
+    }
+
+    pub fn set_base(&mut self, base: Frame) {
+        self.base = base;
+    }
+
+    /// Whether each link is rigidly attached to the root (never moves).
+    pub fn fixed_to_root(&self) -> &[bool] {
+        &self.fixed_to_root
+    }
+
+    pub fn self_collision_pairs(&self) -> &[(usize, usize)] {
+        &self.self_pairs
+    }
+
+    pub fn set_self_collision_pairs(&mut self, pairs: Vec<(usize, usize)>) -> Result<()> {
+        let n = self.chain.num_links();
+        if let Some(p) = pairs.iter().find(|(a, b)| *a >= n || *b >= n || a == b) {
+            return Err(Error::InvalidArgument(format!(
+                "self-collision pair {p:?} is not two different links of {n}"
+            )));
+        }
+        self.self_pairs = pairs;
+        Ok(())
+    }
+
+    /// Radius of the sphere around the base that holds every body in every
+    /// configuration (a bound from the joint offsets, not the exact reach).
+    pub fn reach_bound(&self) -> f64 {
+        let extent: Vec<f64> = self
+            .bodies
+            .iter()
+            .map(|b| match b {
+                Some(body) => {
+                    let c = &body.axis;
+                    let n = |p: &[f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                    n(&c.a).max(n(&c.b)) + c.radius
+                }
+                None => 0.0,
+            })
+            .collect();
+        self.chain.reach_bound(&extent)
+    }
+
+    /// Place every body for configuration `q` (checked by the caller); `frames` is
+    /// scratch space with one frame per link.
+    #[inline]
+    pub fn place_into(&self, q: &[f64], frames: &mut [Frame], out: &mut PlacedBodies) {
+        self.chain.forward_kinematics_into(&self.base, q, frames);
+        out.links.clear();
+        out.bodies.clear();
+        out.moving.clear();
+        for (l, body) in self.bodies.iter().enumerate() {
+            if let Some(c) = body {
+                out.links.push(l);
+                out.bodies.push(c.placed(&frames[l]));
+                out.moving.push(!self.fixed_to_root[l]);
+            }
+        }
+    }
+
+    /// Bodies placed for `q`, after checking `q`.
+    pub fn place(&self, q: &[f64]) -> Result<PlacedBodies> {
+        self.chain.check_configuration(q, 0)?;
+        let mut frames = vec![Frame::identity(); self.chain.num_links()];
+        let mut out = PlacedBodies::default();
+        self.place_into(q, &mut frames, &mut out);
+        Ok(out)
+    }
+
+    /// First self-colliding pair among `self_pairs` for placed bodies (capsules touch).
+    pub fn self_collision(
+        &self,
+        placed: &PlacedBodies,
+        pairs: &[(usize, usize)],
+    ) -> Option<(usize, usize)> {
+        let slot = |link: usize| placed.links.iter().position(|&l| l == link);
+        pairs.iter().copied().find(|&(a, b)| {
+            let (Some(i), Some(j)) = (slot(a), slot(b)) else {
+                return false;
+            };
+            placed.bodies[i].intersects(&placed.bodies[j])
+        })
+    }
+
+    /// Pairs worth testing, as a setup assistant would choose them: links with bodies,
+    /// not parent and child, not touching at the reference configuration (zero moved
+    /// into the limits), and not touching in every one of `samples` random configurations.
+    pub fn default_self_collision_pairs(&self, samples: usize, seed: u64) -> Vec<(usize, usize)> {
+        let parents = self.chain.parents();
+        // Links rigidly attached (fixed joints) count as one for adjacency.
+        let n = self.chain.num_links();
+        let mut candidates = Vec::new();
+        for a in 0..n {
+            for b in a + 1..n {
+                if self.bodies[a].is_none() || self.bodies[b].is_none() {
+                    continue;
+                }
+                if parents[a] == Some(b) || parents[b] == Some(a) {
+                    continue;
+                }
+                candidates.push((a, b));
+            }
+        }
+        let limits = self.chain.limits();
+        let finite =
+            |lo: f64, hi: f64| (lo.max(-std::f64::consts::PI), hi.min(std::f64::consts::PI));
+        let reference: Vec<f64> = limits
+            .iter()
+            .map(|&(lo, hi)| 0.0f64.clamp(lo, hi))
+            .collect();
+        let Ok(placed) = self.place(&reference) else {
+            return candidates;
+        };
+        candidates.retain(|&p| self.self_collision(&placed, &[p]).is_none());
+        let mut always = vec![true; candidates.len()];
+        let mut rng = Rng::new(seed);
+        let mut frames = vec![Frame::identity(); n];
+        let mut placed = PlacedBodies::default();
+        for _ in 0..samples {
+            let q: Vec<f64> = limits
+                .iter()
+                .map(|&(lo, hi)| {
+                    let (lo, hi) = finite(lo, hi);
+                    rng.uniform(lo, hi)
+                })
+                .collect();
+            self.place_into(&q, &mut frames, &mut placed);
+            for (k, &p) in candidates.iter().enumerate() {
+                if always[k] && self.self_collision(&placed, &[p]).is_none() {
+                    always[k] = false;
+                }
+            }
+        }
+        candidates
+            .into_iter()
+            .zip(always)
+            .filter(|&(_, a)| !a || samples == 0)
+            .map(|(p, _)| p)
+            .collect()
+    }
+}

@@ -1,0 +1,680 @@
+//! A dense index of a map's occupied voxels around the robot, with a Euclidean
+//! distance transform (distance from every cell centre to the nearest occupied cell
+//! centre, and which cell that is), for fast conservative capsule tests and clearance.
+//!
+//! Capsule tests walk sample points along the capsule's axis: a sample whose cell is
+//! far enough from every occupied cell proves its part of the capsule free, a sample
+//! whose nearest occupied box lies within the radius proves a collision, and anything
+//! in between falls back to exact segment–box tests over the capsule's cells. So the
+//! answer is exact; the distance field only makes it fast.
+
+use crate::error::{Error, Result};
+use crate::octree::{OcTree, OcTreeKey, TREE_DEPTH};
+use crate::robot::body::Body;
+use crate::robot::capsule::segment_box_closest;
+
+const NONE: u32 = u32::MAX;
+const SQRT3: f64 = 1.732_050_807_568_877_2;
+
+/// Which voxels of the map count as obstacles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VoxelSource {
+    /// Every occupied leaf of the occupancy map.
+    Occupied,
+    /// Only the cells hit in the last closed danger frame (what the cameras see now).
+    CurrentObstacles,
+}
+
+/// Result of a clearance query: distance from the capsule surface to the nearest
+/// occupied voxel box (negative when they overlap), and the closest points.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Clearance {
+    pub distance: f64,
+    pub on_body: [f64; 3],
+    pub on_obstacle: [f64; 3],
+}
+
+#[derive(Clone, Debug)]
+pub struct VoxelIndex {
+    resolution: f64,
+    /// Grid coordinate (floor(x / resolution)) of cell (0, 0, 0) per axis.
+    origin: [i64; 3],
+    dims: [usize; 3],
+    occupied: Vec<bool>,
+    num_occupied: usize,
+    /// Metres from each cell centre to the nearest occupied cell centre (∞ if none).
+    distance: Vec<f32>,
+    /// Linear index of that occupied cell (NONE if none).
+    nearest: Vec<u32>,
+    /// A lower bound on the distance from each cell centre to the nearest occupied
+    /// voxel *box*: exact up to `BOX_WINDOW` cells, clamped beyond.
+    box_distance: Vec<f32>,
+}
+
+impl VoxelIndex {
+    /// An empty index covering the cube `centre ± half_extent` at `resolution`
+    /// (cells aligned with the octree's: cell i spans [i·res, (i+1)·res)).
+    pub fn empty(resolution: f64, centre: [f64; 3], half_extent: f64) -> Result<Self> {
+        if !(resolution.is_finite() && resolution > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "resolution must be finite and > 0, got {resolution}"
+            )));
+        }
+        if !(half_extent.is_finite() && half_extent > 0.0 && centre.iter().all(|c| c.is_finite())) {
+            return Err(Error::InvalidArgument(format!(
+                "the index region {centre:?} ± {half_extent} is not finite"
+            )));
+        }
+        let mut origin = [0i64; 3];
+        let mut dims = [0usize; 3];
+        for a in 0..3 {
+            // One spare cell each side so boxes touching the region's edge are seen.
+            let lo = ((centre[a] - half_extent) / resolution).floor() as i64 - 1;
+            let hi = ((centre[a] + half_extent) / resolution).floor() as i64 + 1;
+            origin[a] = lo;
+            dims[a] = (hi - lo + 1) as usize;
+        }
+        let cells = dims[0] * dims[1] * dims[2];
+        if cells > 64_000_000 {
+            return Err(Error::InvalidArgument(format!(
+                "the collision index would need {cells} cells ({:?}); use a coarser map or a smaller region",
+                dims
+            )));
+        }
+        Ok(VoxelIndex {
+            resolution,
+            origin,
+            dims,
+            occupied: vec![false; cells],
+            num_occupied: 0,
+            distance: vec![f32::INFINITY; cells],
+            nearest: vec![NONE; cells],
+            box_distance: vec![f32::INFINITY; cells],
+        })
+    }
+
+    /// The index of `tree`'s obstacle voxels (per `source`) in the cube
+    /// `centre ± half_extent`, with its distance field computed.
+    pub fn from_tree(
+        tree: &OcTree,
+        source: VoxelSource,
+        centre: [f64; 3],
+        half_extent: f64,
+    ) -> Result<Self> {
+        let mut index = Self::empty(tree.resolution(), centre, half_extent)?;
+        let to_key = |g: i64| (g + 32768).clamp(0, 65535) as u16;
+        let min_key = OcTreeKey([
+            to_key(index.origin[0]),
+            to_key(index.origin[1]),
+            to_key(index.origin[2]),
+        ]);
+        let max_key = OcTreeKey([
+            to_key(index.origin[0] + index.dims[0] as i64 - 1),
+            to_key(index.origin[1] + index.dims[1] as i64 - 1),
+            to_key(index.origin[2] + index.dims[2] as i64 - 1),
+        ]);
+        match source {
+            VoxelSource::Occupied => {
+                let threshold = tree.occupancy_threshold_log_odds();
+                tree.for_each_leaf_in_keys(min_key, max_key, |leaf| {
+                    if leaf.log_odds > threshold {
+                        let span = 1i64 << (TREE_DEPTH - leaf.depth);
+                        let lo = leaf.key.0.map(|k| i64::from(k) - 32768);
+                        index.mark_box(lo, [lo[0] + span - 1, lo[1] + span - 1, lo[2] + span - 1]);
+                    }
+                });
+            }
+            VoxelSource::CurrentObstacles => {
+                for &m in tree.danger_map().current_obstacles() {
+                    let g = OcTreeKey::from_morton(m).0.map(|k| i64::from(k) - 32768);
+                    index.mark_box(g, g);
+                }
+            }
+        }
+        index.compute_distance_field();
+        Ok(index)
+    }
+
+    /// Mark the grid box [lo, hi] (inclusive grid coordinates) occupied, clipped to the index.
+    pub fn mark_box(&mut self, lo: [i64; 3], hi: [i64; 3]) {
+        let mut a = [0usize; 3];
+        let mut b = [0usize; 3];
+        for i in 0..3 {
+            let l = (lo[i] - self.origin[i]).max(0);
+            let h = (hi[i] - self.origin[i]).min(self.dims[i] as i64 - 1);
+            if l > h {
+                return;
+            }
+            a[i] = l as usize;
+            b[i] = h as usize;
+        }
+        for z in a[2]..=b[2] {
+            for y in a[1]..=b[1] {
+                for x in a[0]..=b[0] {
+                    let i = self.linear([x, y, z]);
+                    if !self.occupied[i] {
+                        self.occupied[i] = true;
+                        self.num_occupied += 1;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Mark the cell holding a metric point occupied (tests, hand-built scenes).
+    pub fn mark_point(&mut self, p: [f64; 3]) {
+        let g = p.map(|c| (c / self.resolution).floor() as i64);
+        self.mark_box(g, g);
+    }
+
+    pub fn resolution(&self) -> f64 {
+        self.resolution
+    }
+
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    pub fn num_occupied(&self) -> usize {
+        self.num_occupied
+    }
+
+    pub fn memory_usage(&self) -> usize {
+        self.occupied.len() * (1 + 4 + 4 + 4)
+    }
+
+    /// Centres of the occupied cells (for tests and pictures).
+    pub fn occupied_centers(&self) -> Vec<[f64; 3]> {
+        (0..self.occupied.len())
+            .filter(|&i| self.occupied[i])
+            .map(|i| self.center_of(i))
+            .collect()
+    }
+
+    #[inline]
+    fn linear(&self, c: [usize; 3]) -> usize {
+        (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
+    }
+
+    #[inline]
+    fn coords(&self, i: usize) -> [usize; 3] {
+        let x = i % self.dims[0];
+        let yz = i / self.dims[0];
+        [x, yz % self.dims[1], yz / self.dims[1]]
+    }
+
+    /// Cell holding a metric point, if inside the index.
+    #[inline]
+    fn cell_of(&self, p: &[f64; 3]) -> Option<(usize, [f64; 3])> {
+        let mut c = [0usize; 3];
+        let mut centre = [0.0; 3];
+        for a in 0..3 {
+            let g = (p[a] / self.resolution).floor();
+            let local = g as i64 - self.origin[a];
+            if !(g.is_finite() && local >= 0 && (local as usize) < self.dims[a]) {
+                return None;
+            }
+            c[a] = local as usize;
+            centre[a] = (g + 0.5) * self.resolution;
+        }
+        Some((self.linear(c), centre))
+    }
+
+    #[inline]
+    fn center_of(&self, i: usize) -> [f64; 3] {
+        let c = self.coords(i);
+        [0, 1, 2].map(|a| ((self.origin[a] + c[a] as i64) as f64 + 0.5) * self.resolution)
+    }
+
+    /// Distance transform (Felzenszwalb & Huttenlocher, separable, with the nearest
+    /// site carried along): exact Euclidean distances between cell centres.
+    pub fn compute_distance_field(&mut self) {
+        let n = self.occupied.len();
+        let mut sq: Vec<f64> = self
+            .occupied
+            .iter()
+            .map(|&o| if o { 0.0 } else { f64::INFINITY })
+            .collect();
+        let mut site: Vec<u32> = (0..n)
+            .map(|i| if self.occupied[i] { i as u32 } else { NONE })
+            .collect();
+        let [dx, dy, dz] = self.dims;
+        let strides = [1, dx, dx * dy];
+        let longest = dx.max(dy).max(dz);
+        let mut line_f = vec![0.0; longest];
+        let mut line_s = vec![NONE; longest];
+        let mut out_f = vec![0.0; longest];
+        let mut out_s = vec![NONE; longest];
+        let mut v = vec![0usize; longest];
+        let mut z = vec![0.0f64; longest + 1];
+        for axis in 0..3 {
+            let len = self.dims[axis];
+            let stride = strides[axis];
+            // Every line along `axis`: its first cell runs over the other two axes.
+            let others: Vec<usize> = (0..3).filter(|&a| a != axis).collect();
+            for j in 0..self.dims[others[1]] {
+                for i in 0..self.dims[others[0]] {
+                    let start = i * strides[others[0]] + j * strides[others[1]];
+                    for q in 0..len {
+                        line_f[q] = sq[start + q * stride];
+                        line_s[q] = site[start + q * stride];
+                    }
+                    distance_transform_1d(
+                        &line_f[..len],
+                        &line_s[..len],
+                        &mut out_f[..len],
+                        &mut out_s[..len],
+                        &mut v,
+                        &mut z,
+                    );
+                    for q in 0..len {
+                        sq[start + q * stride] = out_f[q];
+                        site[start + q * stride] = out_s[q];
+                    }
+                }
+            }
+        }
+        let res = self.resolution;
+        self.distance = sq.iter().map(|&d| (d.sqrt() * res) as f32).collect();
+        self.nearest = site;
+        self.compute_box_distance();
+    }
+
+    /// Distance from cell centres to the nearest occupied box within a window of
+    /// `w` cells per axis: three passes of a 1D min-convolution with the per-axis
+    /// box gap (|n| − ½)₊², then clamped to (w + ½)·res, below which no box outside
+    /// the window can come.
+    fn compute_box_distance(&mut self) {
+        let res = self.resolution;
+        let w = ((0.25 / res).ceil() as usize).clamp(2, 8);
+        let gap: Vec<f64> = (0..=w)
+            .map(|n| {
+                let e = (n as f64 - 0.5).max(0.0);
+                e * e
+            })
+            .collect();
+        let mut f: Vec<f64> = self
+            .occupied
+            .iter()
+            .map(|&o| if o { 0.0 } else { f64::INFINITY })
+            .collect();
+        let [dx, dy, dz] = self.dims;
+        let strides = [1, dx, dx * dy];
+        let mut line = vec![0.0f64; dx.max(dy).max(dz)];
+        for axis in 0..3 {
+            let len = self.dims[axis];
+            let stride = strides[axis];
+            let others: Vec<usize> = (0..3).filter(|&a| a != axis).collect();
+            for j in 0..self.dims[others[1]] {
+                for i in 0..self.dims[others[0]] {
+                    let start = i * strides[others[0]] + j * strides[others[1]];
+                    for q in 0..len {
+                        line[q] = f[start + q * stride];
+                    }
+                    if line[..len].iter().all(|v| v.is_infinite()) {
+                        continue;
+                    }
+                    for q in 0..len {
+                        let lo = q.saturating_sub(w);
+                        let hi = (q + w).min(len - 1);
+                        let mut best = f64::INFINITY;
+                        for (k, v) in line[lo..=hi].iter().enumerate() {
+                            let n = (lo + k).abs_diff(q);
+                            best = best.min(v + gap[n]);
+                        }
+                        f[start + q * stride] = best;
+                    }
+                }
+            }
+        }
+        let cap = (w as f64 + 0.5) * res;
+        self.box_distance = f
+            .iter()
+            .map(|&v| (v.sqrt() * res).min(cap) as f32)
+            .collect();
+    }
+
+    #[inline]
+    fn half(&self) -> [f64; 3] {
+        [0.5 * self.resolution; 3]
+    }
+
+    /// Does `body` overlap any occupied voxel box (touching counts)? Exact (see the
+    /// module doc). Errors when the body leaves the indexed region.
+    pub fn body_collides(&self, body: &Body) -> Result<bool> {
+        let res = self.resolution;
+        let capsule = body.enclosing_capsule();
+        let r = capsule.radius;
+        let len = capsule.length();
+        let steps = (len / res).ceil().max(1.0) as usize;
+        let spacing = len / steps as f64;
+        let half = self.half();
+        // Runs of consecutive samples the distance field could not decide.
+        let mut runs: [(usize, usize); 8] = [(0, 0); 8];
+        let mut n_runs = 0usize;
+        let mut overflow = false;
+        for s in 0..=steps {
+            let t = s as f64 / steps as f64;
+            let p = capsule.axis_point(t);
+            let Some((cell, centre)) = self.cell_of(&p) else {
+                return Err(self.outside_error(&p));
+            };
+            if self.nearest[cell] == NONE {
+                continue;
+            }
+            let offset = crate::geometry::distance_squared(&p, &centre).sqrt();
+            // Every box is ≥ box_distance − offset from p (the centre's bound moved
+            // by at most the offset), and the ball of radius r + spacing/2 around p
+            // covers the enclosing capsule near this sample.
+            if self.box_distance[cell] as f64 - offset > r + 0.5 * spacing + 1e-6 {
+                continue;
+            }
+            // A ball inside the body that reaches the nearest box proves a collision.
+            let near = self.center_of(self.nearest[cell] as usize);
+            let inner = body.inner_radius_at(t);
+            if point_box_distance_squared(&p, &near, &half) <= inner * inner {
+                return Ok(true);
+            }
+            if n_runs > 0 && runs[n_runs - 1].1 + 1 == s {
+                runs[n_runs - 1].1 = s;
+            } else if n_runs < runs.len() {
+                runs[n_runs] = (s, s);
+                n_runs += 1;
+            } else {
+                overflow = true;
+            }
+        }
+        if overflow {
+            return Ok(self.body_collides_exact(body));
+        }
+        // Only boxes near undecided samples can touch the body: scan the bounds of
+        // each run's stretch of the enclosing capsule.
+        for &(j0, j1) in &runs[..n_runs] {
+            let t0 = ((j0 as f64 - 0.5) / steps as f64).max(0.0);
+            let t1 = ((j1 as f64 + 0.5) / steps as f64).min(1.0);
+            let piece = crate::robot::capsule::Capsule::new(
+                capsule.axis_point(t0),
+                capsule.axis_point(t1),
+                r,
+            );
+            let (lo, hi) = piece.aabb();
+            if self.for_each_occupied_in(lo, hi, |i| body.overlaps_box(&self.center_of(i), &half)) {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// Exact test against every occupied cell in the body's bounding box.
+    pub fn body_collides_exact(&self, body: &Body) -> bool {
+        let (lo, hi) = body.aabb();
+        let half = self.half();
+        self.for_each_occupied_in(lo, hi, |i| body.overlaps_box(&self.center_of(i), &half))
+    }
+
+    /// Calls `hit(cell)` on occupied cells meeting [lo, hi] until it returns true.
+    fn for_each_occupied_in(
+        &self,
+        lo: [f64; 3],
+        hi: [f64; 3],
+        mut hit: impl FnMut(usize) -> bool,
+    ) -> bool {
+        let mut a = [0usize; 3];
+        let mut b = [0usize; 3];
+        for i in 0..3 {
+            let l = ((lo[i] / self.resolution).floor() as i64 - self.origin[i]).max(0);
+            let h = ((hi[i] / self.resolution).floor() as i64 - self.origin[i])
+                .min(self.dims[i] as i64 - 1);
+            if l > h {
+                return false;
+            }
+            a[i] = l as usize;
+            b[i] = h as usize;
+        }
+        for z in a[2]..=b[2] {
+            for y in a[1]..=b[1] {
+                let row = self.linear([0, y, z]);
+                for x in a[0]..=b[0] {
+                    if self.occupied[row + x] && hit(row + x) {
+                        return true;
+                    }
+                }
+            }
+        }
+        false
+    }
+
+    /// Distance from the body's surface to the nearest occupied box found through the
+    /// distance field's nearest-cell links at samples every half voxel along the axis
+    /// (exact to those boxes; see `clearance_error_bound`). None when the index holds
+    /// no occupied cell.
+    pub fn body_clearance(&self, body: &Body) -> Result<Option<Clearance>> {
+        if self.num_occupied == 0 {
+            return Ok(None);
+        }
+        let res = self.resolution;
+        let capsule = body.enclosing_capsule();
+        let len = capsule.length();
+        let steps = (2.0 * len / res).ceil().max(1.0) as usize;
+        let half = self.half();
+        let mut best: Option<Clearance> = None;
+        let mut last = NONE;
+        for s in 0..=steps {
+            let p = capsule.axis_point(s as f64 / steps as f64);
+            let Some((cell, _)) = self.cell_of(&p) else {
+                return Err(self.outside_error(&p));
+            };
+            let near = self.nearest[cell];
+            if near == NONE || near == last {
+                continue;
+            }
+            last = near;
+            let centre = self.center_of(near as usize);
+            if let Some(b) = best {
+                // The enclosing capsule is never farther than the body: skip boxes it
+                // already places beyond the best so far.
+                let (d2, _, _) = segment_box_closest(&capsule.a, &capsule.b, &centre, &half);
+                if d2.sqrt() - capsule.radius >= b.distance {
+                    continue;
+                }
+            }
+            let contact = body.box_contact(&centre, &half);
+            if best.is_none_or(|b| contact.distance < b.distance) {
+                best = Some(Clearance {
+                    distance: contact.distance,
+                    on_body: contact.on_body,
+                    on_obstacle: contact.on_box,
+                });
+            }
+        }
+        Ok(best)
+    }
+
+    /// How much `body_clearance` may exceed the true clearance: samples every
+    /// res/2 (≤ res/4 from any axis point) and nearest-centre links (each cell centre
+    /// within res·√3/2 of its points, box corners within res·√3/2 of their centres).
+    pub fn clearance_error_bound(&self) -> f64 {
+        self.resolution * (0.25 + 1.5 * SQRT3)
+    }
+
+    fn outside_error(&self, p: &[f64; 3]) -> Error {
+        let lo: Vec<f64> = (0..3)
+            .map(|a| self.origin[a] as f64 * self.resolution)
+            .collect();
+        let hi: Vec<f64> = (0..3)
+            .map(|a| (self.origin[a] + self.dims[a] as i64) as f64 * self.resolution)
+            .collect();
+        Error::InvalidArgument(format!(
+            "a robot body at {p:?} lies outside the collision index region {lo:?}..{hi:?}"
+        ))
+    }
+}
+
+/// Squared distance from a point to an axis-aligned box.
+#[inline]
+fn point_box_distance_squared(p: &[f64; 3], center: &[f64; 3], half: &[f64; 3]) -> f64 {
+    (0..3)
+        .map(|i| {
+            let e = ((p[i] - center[i]).abs() - half[i]).max(0.0);
+            e * e
+        })
+        .sum()
+}
+
+/// Lower envelope of parabolas (q − v)² + f(v) over the sites with finite f; writes
+/// the squared distance and the nearest site's label for every q.
+fn distance_transform_1d(
+    f: &[f64],
+    label: &[u32],
+    d: &mut [f64],
+    out_label: &mut [u32],
+    v: &mut [usize],
+    z: &mut [f64],
+) {
+    let n = f.len();
+    let Some(first) = f.iter().position(|x| x.is_finite()) else {
+        d.fill(f64::INFINITY);
+        out_label.fill(NONE);
+        return;
+    };
+    let mut k = 0usize;
+    v[0] = first;
+    z[0] = f64::NEG_INFINITY;
+    z[1] = f64::INFINITY;
+    for q in first + 1..n {
+        if !f[q].is_finite() {
+            continue;
+        }
+        let fq = f[q] + (q * q) as f64;
+        loop {
+            let p = v[k];
+            let s = (fq - (f[p] + (p * p) as f64)) / (2.0 * (q as f64 - p as f64));
+            if s <= z[k] {
+                // k > 0 here: z[0] = -∞ is never ≥ s.
+                k -= 1;
+                continue;
+            }
+            k += 1;
+            v[k] = q;
+            z[k] = s;
+            z[k + 1] = f64::INFINITY;
+            break;
+        }
+    }
+    k = 0;
+    for q in 0..n {
+        while z[k + 1] < q as f64 {
+            k += 1;
+        }
+        let p = v[k];
+        let dq = q as f64 - p as f64;
+        d[q] = dq * dq + f[p];
+        out_label[q] = label[p];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::Rng;
+
+    fn random_index(rng: &mut Rng, res: f64, count: usize) -> VoxelIndex {
+        let mut index = VoxelIndex::empty(res, [0.0; 3], 0.6).unwrap();
+        for _ in 0..count {
+            index.mark_point([
+                rng.uniform(-0.6, 0.6),
+                rng.uniform(-0.6, 0.6),
+                rng.uniform(-0.6, 0.6),
+            ]);
+        }
+        index.compute_distance_field();
+        index
+    }
+
+    #[test]
+    fn distance_field_matches_brute_force() {
+        let mut rng = Rng::new(5);
+        let index = random_index(&mut rng, 0.1, 12);
+        let occupied = index.occupied_centers();
+        for i in 0..index.occupied.len() {
+            let c = index.center_of(i);
+            let brute = occupied
+                .iter()
+                .map(|o| crate::geometry::distance_squared(o, &c).sqrt())
+                .fold(f64::INFINITY, f64::min);
+            assert!((index.distance[i] as f64 - brute).abs() < 1e-5);
+            let near = index.center_of(index.nearest[i] as usize);
+            assert!((crate::geometry::distance_squared(&near, &c).sqrt() - brute).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn box_distance_is_a_tight_lower_bound() {
+        let mut rng = Rng::new(6);
+        let index = random_index(&mut rng, 0.05, 30);
+        let occupied = index.occupied_centers();
+        let half = index.half();
+        for i in 0..index.occupied.len() {
+            let c = index.center_of(i);
+            let brute = occupied
+                .iter()
+                .map(|o| point_box_distance_squared(&c, o, &half).sqrt())
+                .fold(f64::INFINITY, f64::min);
+            let got = index.box_distance[i] as f64;
+            assert!(got <= brute + 1e-6, "{got} > {brute}");
+            if brute < 0.25 {
+                assert!((got - brute).abs() < 1e-6, "{got} vs {brute}");
+            }
+        }
+    }
+
+    #[test]
+    fn body_tests_equal_exact_tests() {
+        let mut rng = Rng::new(9);
+        let mut hits = 0;
+        for round in 0..20 {
+            let index = random_index(&mut rng, 0.05, 5 + round * 10);
+            for i in 0..500 {
+                let mut v = || rng.uniform(-0.4, 0.4);
+                let (a, b) = ([v(), v(), v()], [v(), v(), v()]);
+                let r = rng.uniform(0.0, 0.1);
+                let body = if i % 2 == 0 {
+                    Body::capsule(a, b, r)
+                } else {
+                    Body::cylinder(a, b, r)
+                };
+                let fast = index.body_collides(&body).unwrap();
+                assert_eq!(fast, index.body_collides_exact(&body));
+                hits += usize::from(fast);
+            }
+        }
+        assert!(hits > 1000 && hits < 9000, "{hits}");
+    }
+
+    #[test]
+    fn clearance_is_close_to_brute_force() {
+        let mut rng = Rng::new(4);
+        let index = random_index(&mut rng, 0.05, 40);
+        let half = index.half();
+        let occupied = index.occupied_centers();
+        for _ in 0..500 {
+            let mut v = || rng.uniform(-0.4, 0.4);
+            let c = Body::capsule([v(), v(), v()], [v(), v(), v()], 0.03);
+            let got = index.body_clearance(&c).unwrap().unwrap();
+            let brute = occupied
+                .iter()
+                .map(|o| segment_box_closest(&c.axis.a, &c.axis.b, o, &half).0.sqrt())
+                .fold(f64::INFINITY, f64::min)
+                - c.radius();
+            assert!(got.distance >= brute - 1e-9, "{} < {brute}", got.distance);
+            assert!(got.distance - brute <= index.clearance_error_bound());
+        }
+    }
+
+    #[test]
+    fn outside_the_region_is_an_error() {
+        let index = VoxelIndex::empty(0.1, [0.0; 3], 1.0).unwrap();
+        let c = Body::capsule([0.0; 3], [5.0, 0.0, 0.0], 0.1);
+        assert!(index.body_collides(&c).is_err());
+    }
+}
