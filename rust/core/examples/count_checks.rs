@@ -72,7 +72,9 @@ fn configurations(model: &RobotModel, n: usize, seed: u64) -> Vec<f64> {
         .flat_map(|_| {
             limits
                 .iter()
-                .map(|&(lo, hi)| rng.uniform(lo.max(-3.14159), hi.min(3.14159)))
+                .map(|&(lo, hi)| {
+                    rng.uniform(lo.max(-std::f64::consts::PI), hi.min(std::f64::consts::PI))
+                })
                 .collect::<Vec<_>>()
         })
         .collect()
