@@ -17,6 +17,7 @@ try:
         OutOfMapError,
         SurfaceMap,
         __version__,
+        fit_body,
         get_num_threads,
         set_num_threads,
     )
@@ -26,7 +27,8 @@ except ImportError as exc:  # pragma: no cover - exercised by `earcore --version
         f"{exc}. Reinstall the wheel (`pip install --force-reinstall earcore`) or rebuild with `make develop`."
     ) from exc
 
-from earcore import synthetic  # noqa: E402  (light: numpy and the extension only)
+from earcore import robots, synthetic  # noqa: E402  (light: numpy and the extension only)
+from earcore.robots import RobotModel  # noqa: E402
 from earcore.registration import (  # noqa: E402
     DegenerateAlignmentWarning,
     IcpResult,
@@ -59,7 +61,10 @@ __all__ = [
     "MapFormatError",
     "OcTree",
     "OutOfMapError",
+    "RobotModel",
     "SurfaceMap",
+    "fit_body",
+    "robots",
     "__version__",
     "get_num_threads",
     "set_num_threads",

@@ -1,4 +1,4 @@
-"""Reading URDF robot descriptions and the meshes they point to (STL, OBJ).
+"""Reading URDF robot descriptions and the meshes they point to (STL, OBJ, COLLADA).
 
 Only what the robot geometry needs: links, joints (revolute, continuous, prismatic,
 fixed), each link's collision (or visual) geometry as vertices in the link frame.
@@ -102,7 +102,8 @@ def resolve_mesh_path(filename: str, urdf_path: Path) -> Path:
 
 
 def read_mesh_vertices(path: Path) -> np.ndarray:
-    """Vertices (N, 3) of an STL (binary or ASCII) or OBJ mesh, in the file's units."""
+    """Vertices (N, 3) of an STL (binary or ASCII), OBJ or COLLADA (.dae) mesh, in
+    metres for COLLADA (its <unit>) and in the file's units otherwise."""
     suffix = path.suffix.lower()
     try:
         data = path.read_bytes()
@@ -112,8 +113,10 @@ def read_mesh_vertices(path: Path) -> np.ndarray:
         vertices = _stl_vertices(data, path)
     elif suffix == ".obj":
         vertices = _obj_vertices(data, path)
+    elif suffix == ".dae":
+        vertices = _collada_vertices(data, path)
     else:
-        raise UrdfError(f"mesh {path.name}: unsupported format {suffix!r} (STL and OBJ are read)")
+        raise UrdfError(f"mesh {path.name}: unsupported format {suffix!r} (STL, OBJ and COLLADA are read)")
     if len(vertices) == 0:
         raise UrdfError(f"mesh {path} has no vertices")
     if not np.isfinite(vertices).all():
@@ -150,6 +153,75 @@ def _obj_vertices(data: bytes, path: Path) -> np.ndarray:
         return np.array(rows, dtype=np.float64).reshape(-1, 3)
     except ValueError:
         raise UrdfError(f"mesh {path}: malformed OBJ vertex") from None
+
+
+def _collada_vertices(data: bytes, path: Path) -> np.ndarray:
+    """Positions of every geometry instanced in the visual scene, placed by the node
+    transforms (matrix / translate / rotate / scale) and scaled to metres."""
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError as exc:
+        raise UrdfError(f"mesh {path} is not valid COLLADA XML: {exc}") from exc
+    for element in root.iter():  # drop the namespace: tags become plain names
+        if "}" in element.tag:
+            element.tag = element.tag.split("}", 1)[1]
+    unit = root.find("asset/unit")
+    meter = float(unit.get("meter", "1")) if unit is not None else 1.0
+    by_id = {e.get("id"): e for e in root.iter() if e.get("id")}
+
+    def positions(geometry: ET.Element) -> np.ndarray:
+        clouds = []
+        for vertices in geometry.iter("vertices"):
+            for inp in vertices.findall("input"):
+                if inp.get("semantic") != "POSITION":
+                    continue
+                source = by_id.get((inp.get("source") or "").lstrip("#"))
+                array = source.find("float_array") if source is not None else None
+                if array is None or not (array.text or "").strip():
+                    raise UrdfError(f"mesh {path}: a POSITION source has no float_array")
+                clouds.append(np.array(array.text.split(), dtype=np.float64).reshape(-1, 3))
+        return np.concatenate(clouds) if clouds else np.empty((0, 3))
+
+    def local(node: ET.Element) -> np.ndarray:
+        m = np.eye(4)
+        for child in node:
+            values = np.array((child.text or "").split(), dtype=np.float64)
+            t = np.eye(4)
+            if child.tag == "matrix" and values.size == 16:
+                t = values.reshape(4, 4)
+            elif child.tag == "translate" and values.size == 3:
+                t[:3, 3] = values
+            elif child.tag == "scale" and values.size == 3:
+                t[:3, :3] = np.diag(values)
+            elif child.tag == "rotate" and values.size == 4:
+                axis, angle = values[:3] / np.linalg.norm(values[:3]), np.radians(values[3])
+                k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+                t[:3, :3] = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+            m = m @ t
+        return m
+
+    out = []
+
+    def walk(node: ET.Element, parent: np.ndarray) -> None:
+        m = parent @ local(node)
+        for inst in node.findall("instance_geometry"):
+            geometry = by_id.get((inst.get("url") or "").lstrip("#"))
+            if geometry is not None:
+                v = positions(geometry)
+                out.append(v @ m[:3, :3].T + m[:3, 3])
+        for child in node.findall("node"):
+            walk(child, m)
+
+    scenes = list(root.iter("visual_scene"))
+    for scene in scenes:
+        for node in scene.findall("node"):
+            walk(node, np.eye(4))
+    if not scenes:  # no scene: take every geometry as is
+        out = [positions(g) for g in root.iter("geometry")]
+    try:
+        return np.concatenate(out) * meter if out else np.empty((0, 3))
+    except ValueError:
+        raise UrdfError(f"mesh {path}: malformed COLLADA positions") from None
 
 
 def _primitive_vertices(geometry: ET.Element, what: str) -> np.ndarray:

@@ -21,7 +21,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::convert::{configurations, points, pose, rows_to_array, vec_to_array};
+use crate::convert::{configurations, points as point_rows, pose, rows_to_array, vec_to_array};
 use crate::errors::IntoPyResult;
 use crate::octree::PyOcTree;
 
@@ -174,12 +174,12 @@ impl PyRobotModel {
     /// lower, upper) and one body per link, None or (a, b, radius, shape) in the link
     /// frame with shape "capsule" or "cylinder".
     #[new]
-    #[pyo3(signature = (link_names, joints, bodies, *, name = "robot".to_string(), padding = 0.0))]
+    #[pyo3(signature = (link_names, joints, bodies, *, name = None, padding = 0.0))]
     fn new(
         link_names: Vec<String>,
         joints: Vec<JointSpec>,
         bodies: Vec<Option<BodySpec>>,
-        name: String,
+        name: Option<String>,
         padding: f64,
     ) -> PyResult<Self> {
         let joints = joints
@@ -208,7 +208,7 @@ impl PyRobotModel {
         let model = RobotModel::new(chain, bodies).py()?;
         Ok(PyRobotModel {
             model: RwLock::new(model),
-            name,
+            name: name.unwrap_or_else(|| "robot".to_string()),
             padding,
             margin: Mutex::new(0.5),
             index_cache: Mutex::new(None),
@@ -297,6 +297,13 @@ impl PyRobotModel {
     #[getter]
     fn reach_bound(&self) -> f64 {
         self.read().reach_bound()
+    }
+
+    /// Per link: rigidly attached to the root (never moves; skipped by obstacle
+    /// checks and clearance, since what it touches is the robot's own stand).
+    #[getter]
+    fn fixed_to_root(&self) -> Vec<bool> {
+        self.read().fixed_to_root().to_vec()
     }
 
     /// Link pairs tested for self-collision (indices into `link_names`).
@@ -396,10 +403,10 @@ impl PyRobotModel {
     fn self_filter<'py>(
         &self,
         py: Python<'py>,
-        points_in: &Bound<'py, PyAny>,
+        points: &Bound<'py, PyAny>,
         q: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray1<bool>>> {
-        let pts = points(points_in, "points")?;
+        let pts = point_rows(points, "points")?;
         let pts = pts.as_slice()?;
         earcore_core::geometry::check_finite(pts, "point").py()?;
         let (qs, _, single) = configurations(q, self.dof(), "q")?;
@@ -666,7 +673,7 @@ pub fn fit_body(vertices: &Bound<'_, PyAny>, padding: f64, shape: &str) -> PyRes
             )))
         }
     };
-    let v = points(vertices, "vertices")?;
+    let v = point_rows(vertices, "vertices")?;
     let v = v.as_slice()?;
     let body = vertices
         .py()
