@@ -171,16 +171,7 @@ impl Body {
         if mid + spread < 0.0 || mid - spread > len2 {
             return false;
         }
-        let cuboid = Cuboid::new(Vector3::from(*half));
-        let box_pose = Isometry3::translation(center[0], center[1], center[2]);
-        query::intersection_test(
-            &self.parry_pose(),
-            &self.cylinder_shape(),
-            &box_pose,
-            &cuboid,
-        )
-        // Not expected for these shapes; claim a collision rather than miss one.
-        .unwrap_or(true)
+        cylinder_meets_box(&c.a, &c.b, r, center, half)
     }
 
     /// Distance to the box and the closest points; negative when they overlap (then
@@ -267,6 +258,128 @@ impl Body {
     }
 }
 
+/// Exact cylinder–box overlap without iteration: the cylinder is the slab between its
+/// end planes intersected with the infinite cylinder around its axis, so they meet
+/// exactly when the part of the box inside the slab (a convex polytope), projected
+/// along the axis, comes within the radius of the axis's projected point.
+fn cylinder_meets_box(
+    a: &[f64; 3],
+    b: &[f64; 3],
+    r: f64,
+    center: &[f64; 3],
+    half: &[f64; 3],
+) -> bool {
+    let d = Vector3::new(b[0] - a[0], b[1] - a[1], b[2] - a[2]);
+    let len = d.norm();
+    if len == 0.0 {
+        return false;
+    }
+    let u = d / len;
+    let origin = Vector3::from(*a);
+    // Box corners and their heights along the axis.
+    let mut corners = [Vector3::zeros(); 8];
+    let mut heights = [0.0; 8];
+    for (i, corner) in corners.iter_mut().enumerate() {
+        let sign = |bit: usize| if i & bit != 0 { 1.0 } else { -1.0 };
+        *corner = Vector3::new(
+            center[0] + sign(1) * half[0],
+            center[1] + sign(2) * half[1],
+            center[2] + sign(4) * half[2],
+        );
+        heights[i] = u.dot(&(*corner - origin));
+    }
+    // Vertices of box ∩ slab: corners inside, and edge crossings of the two planes.
+    let mut polygon: [Vector3<f64>; 20] = [Vector3::zeros(); 20];
+    let mut n = 0;
+    for i in 0..8 {
+        if heights[i] >= 0.0 && heights[i] <= len {
+            polygon[n] = corners[i];
+            n += 1;
+        }
+    }
+    for i in 0..8 {
+        for bit in [1, 2, 4] {
+            let j = i | bit;
+            if j == i {
+                continue;
+            }
+            for level in [0.0, len] {
+                let (hi, hj) = (heights[i] - level, heights[j] - level);
+                if (hi < 0.0 && hj > 0.0) || (hi > 0.0 && hj < 0.0) {
+                    polygon[n] = corners[i] + (corners[j] - corners[i]) * (hi / (hi - hj));
+                    n += 1;
+                }
+            }
+        }
+    }
+    if n == 0 {
+        return false;
+    }
+    // Project across the axis (2D coordinates relative to the axis point).
+    let helper = if u.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let e1 = u.cross(&helper).normalize();
+    let e2 = u.cross(&e1);
+    let mut flat = [(0.0f64, 0.0f64); 20];
+    for k in 0..n {
+        let v = polygon[k] - origin;
+        flat[k] = (e1.dot(&v), e2.dot(&v));
+    }
+    point_to_hull_distance_squared(&mut flat[..n]) <= r * r
+}
+
+/// Squared distance from the origin to the convex hull of 2D points (0 inside).
+fn point_to_hull_distance_squared(points: &mut [(f64, f64)]) -> f64 {
+    points.sort_unstable_by(|p, q| p.0.total_cmp(&q.0).then(p.1.total_cmp(&q.1)));
+    // Andrew's monotone chain.
+    let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
+        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+    };
+    let mut hull: [(f64, f64); 41] = [(0.0, 0.0); 41];
+    let mut k = 0;
+    for &p in points.iter() {
+        while k >= 2 && cross(hull[k - 2], hull[k - 1], p) <= 0.0 {
+            k -= 1;
+        }
+        hull[k] = p;
+        k += 1;
+    }
+    let lower = k + 1;
+    for &p in points.iter().rev().skip(1) {
+        while k >= lower && cross(hull[k - 2], hull[k - 1], p) <= 0.0 {
+            k -= 1;
+        }
+        hull[k] = p;
+        k += 1;
+    }
+    let hull = &hull[..k.saturating_sub(1).max(1)];
+    let segment = |p: (f64, f64), q: (f64, f64)| {
+        let (dx, dy) = (q.0 - p.0, q.1 - p.1);
+        let len2 = dx * dx + dy * dy;
+        let t = if len2 > 0.0 {
+            (-(p.0 * dx + p.1 * dy) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let (x, y) = (p.0 + t * dx, p.1 + t * dy);
+        x * x + y * y
+    };
+    if hull.len() >= 3 {
+        // Counter-clockwise hull: the origin is inside when left of every edge.
+        let inside =
+            (0..hull.len()).all(|i| cross(hull[i], hull[(i + 1) % hull.len()], (0.0, 0.0)) >= 0.0);
+        if inside {
+            return 0.0;
+        }
+    }
+    (0..hull.len())
+        .map(|i| segment(hull[i], hull[(i + 1) % hull.len()]))
+        .fold(f64::INFINITY, f64::min)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -329,6 +442,33 @@ mod tests {
             agree += 1;
         }
         assert_eq!(agree, 400);
+    }
+
+    #[test]
+    fn projected_test_equals_gjk() {
+        let mut rng = Rng::new(21);
+        let mut disagreements = 0;
+        let mut hits = 0;
+        for _ in 0..20_000 {
+            let mut v = || rng.uniform(-0.3, 0.3);
+            let (a, b) = ([v(), v(), v()], [v(), v(), v()]);
+            let r = v().abs() * 0.3 + 0.005;
+            let center = [v(), v(), v()];
+            let half = [0.025 + v().abs() * 0.1, 0.025, 0.025 + v().abs() * 0.05];
+            let ours = cylinder_meets_box(&a, &b, r, &center, &half);
+            let body = Body::cylinder(a, b, r);
+            let cuboid = Cuboid::new(Vector3::from(half));
+            let pose = Isometry3::translation(center[0], center[1], center[2]);
+            let gap = query::distance(&body.parry_pose(), &body.cylinder_shape(), &pose, &cuboid)
+                .unwrap();
+            hits += usize::from(ours);
+            // GJK's tolerance: only near-touching pairs may differ.
+            if ours != (gap <= 0.0) {
+                assert!(gap.abs() < 1e-6, "gap {gap} but ours says {ours}");
+                disagreements += 1;
+            }
+        }
+        assert!(hits > 500 && disagreements < 20, "{hits} {disagreements}");
     }
 
     #[test]

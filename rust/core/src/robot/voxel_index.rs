@@ -14,6 +14,9 @@ use crate::robot::body::Body;
 use crate::robot::capsule::segment_box_closest;
 
 const NONE: u32 = u32::MAX;
+/// Axis samples per voxel length in collision tests: denser samples narrow the band
+/// the distance field cannot decide (r + spacing/2), at the cost of more lookups.
+const SAMPLES_PER_VOXEL: f64 = 1.0;
 const SQRT3: f64 = 1.732_050_807_568_877_2;
 
 /// Which voxels of the map count as obstacles.
@@ -46,9 +49,11 @@ pub struct VoxelIndex {
     distance: Vec<f32>,
     /// Linear index of that occupied cell (NONE if none).
     nearest: Vec<u32>,
-    /// A lower bound on the distance from each cell centre to the nearest occupied
-    /// voxel *box*: exact up to `BOX_WINDOW` cells, clamped beyond.
+    /// Lower bounds on the distance to the nearest occupied voxel box, exact within a
+    /// window of cells and clamped beyond: from each cell's centre, and from anywhere
+    /// in the cell (the gap between the two cells as boxes).
     box_distance: Vec<f32>,
+    cell_distance: Vec<f32>,
 }
 
 impl VoxelIndex {
@@ -90,6 +95,7 @@ impl VoxelIndex {
             distance: vec![f32::INFINITY; cells],
             nearest: vec![NONE; cells],
             box_distance: vec![f32::INFINITY; cells],
+            cell_distance: vec![f32::INFINITY; cells],
         })
     }
 
@@ -180,7 +186,7 @@ impl VoxelIndex {
     }
 
     pub fn memory_usage(&self) -> usize {
-        self.occupied.len() * (1 + 4 + 4 + 4)
+        self.occupied.len() * (1 + 4 + 4 + 4 + 4)
     }
 
     /// Centres of the occupied cells (for tests and pictures).
@@ -277,19 +283,20 @@ impl VoxelIndex {
         let res = self.resolution;
         self.distance = sq.iter().map(|&d| (d.sqrt() * res) as f32).collect();
         self.nearest = site;
-        self.compute_box_distance();
+        self.box_distance = self.windowed_box_distance(0.5);
+        self.cell_distance = self.windowed_box_distance(1.0);
     }
 
-    /// Distance from cell centres to the nearest occupied box within a window of
-    /// `w` cells per axis: three passes of a 1D min-convolution with the per-axis
-    /// box gap (|n| − ½)₊², then clamped to (w + ½)·res, below which no box outside
-    /// the window can come.
-    fn compute_box_distance(&mut self) {
+    /// Distance to the nearest occupied box within a window of `w` cells per axis:
+    /// three passes of a 1D min-convolution with the per-axis gap (|n| − shift)₊²
+    /// (shift ½: from the cell centre; shift 1: from the nearest point of the cell),
+    /// then clamped to (w + 1 − shift)·res, below which no box outside the window comes.
+    fn windowed_box_distance(&self, shift: f64) -> Vec<f32> {
         let res = self.resolution;
         let w = ((0.25 / res).ceil() as usize).clamp(2, 8);
         let gap: Vec<f64> = (0..=w)
             .map(|n| {
-                let e = (n as f64 - 0.5).max(0.0);
+                let e = (n as f64 - shift).max(0.0);
                 e * e
             })
             .collect();
@@ -327,11 +334,10 @@ impl VoxelIndex {
                 }
             }
         }
-        let cap = (w as f64 + 0.5) * res;
-        self.box_distance = f
-            .iter()
+        let cap = (w as f64 + 1.0 - shift) * res;
+        f.iter()
             .map(|&v| (v.sqrt() * res).min(cap) as f32)
-            .collect();
+            .collect()
     }
 
     #[inline]
@@ -346,7 +352,7 @@ impl VoxelIndex {
         let capsule = body.enclosing_capsule();
         let r = capsule.radius;
         let len = capsule.length();
-        let steps = (len / res).ceil().max(1.0) as usize;
+        let steps = (SAMPLES_PER_VOXEL * len / res).ceil().max(1.0) as usize;
         let spacing = len / steps as f64;
         let half = self.half();
         // Runs of consecutive samples the distance field could not decide.
@@ -364,9 +370,11 @@ impl VoxelIndex {
             }
             let offset = crate::geometry::distance_squared(&p, &centre).sqrt();
             // Every box is ≥ box_distance − offset from p (the centre's bound moved
-            // by at most the offset), and the ball of radius r + spacing/2 around p
-            // covers the enclosing capsule near this sample.
-            if self.box_distance[cell] as f64 - offset > r + 0.5 * spacing + 1e-6 {
+            // by at most the offset) and ≥ cell_distance (p is in the cell); the ball
+            // of radius r + spacing/2 around p covers the enclosing capsule near here.
+            let bound =
+                (self.box_distance[cell] as f64 - offset).max(self.cell_distance[cell] as f64);
+            if bound > r + 0.5 * spacing + 1e-6 {
                 continue;
             }
             // A ball inside the body that reaches the nearest box proves a collision.
