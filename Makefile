@@ -48,12 +48,14 @@ test-python: wheel ## install the wheel into a fresh venv and run pytest against
 
 test: lint test-rust test-python ## every test: rustfmt + clippy, cargo test (core), pytest (installed wheel)
 
-bench: develop ## criterion benches, then earcore vs pyoctomap side by side
-	cargo bench --bench octree
-	$(PY) benches/bench_vs_octomap.py
+bench: develop ## criterion benches, then the side-by-side comparisons with OctoMap and FCL
+	cargo bench
+	$(MAKE) bench-python
 
-bench-python: develop ## only the side-by-side comparison with pyoctomap
+bench-python: develop ## only the side-by-side comparisons (earcore vs pyoctomap, vs python-fcl)
+	$(PY) -m pip install $(PIP_FLAGS) "pybullet>=3.2" "example-robot-data>=6" "python-fcl>=0.7"
 	$(PY) benches/bench_vs_octomap.py
+	$(PY) benches/bench_robot_vs_fcl.py
 
 lint: ## rustfmt, clippy
 	cargo fmt --all --check

@@ -72,16 +72,20 @@ fn cell_tree() -> OcTree {
     tree
 }
 
-/// Random configurations within ±π per joint (row-major).
+/// Random configurations (row-major) within ±π per joint, with the upper arm above
+/// the table (shoulder lift in [-π, 0]) as in `benches/bench_robot_vs_fcl.py`.
 fn configurations(model: &RobotModel, n: usize, seed: u64) -> Vec<f64> {
     let mut rng = Rng::new(seed);
     let limits = model.chain().limits();
+    let pi = std::f64::consts::PI;
     (0..n)
         .flat_map(|_| {
             limits
                 .iter()
-                .map(|&(lo, hi)| {
-                    rng.uniform(lo.max(-std::f64::consts::PI), hi.min(std::f64::consts::PI))
+                .enumerate()
+                .map(|(j, &(lo, hi))| match j {
+                    1 => rng.uniform(-pi, 0.0),
+                    _ => rng.uniform(lo.max(-pi), hi.min(pi)),
                 })
                 .collect::<Vec<_>>()
         })
@@ -112,8 +116,18 @@ fn collision(c: &mut Criterion) {
             check_configurations(&model, &index, &qs, CheckParams::default()).expect("checks")
         })
     });
-    group.bench_function("clearance/1 thread", |b| {
-        b.iter(|| clearances(&model, &index, &qs).expect("clearances"))
+    // Clearance is asked of configurations the robot can be in: the free ones.
+    let contacts =
+        check_configurations(&model, &index, &qs, CheckParams::default()).expect("checks");
+    let free: Vec<f64> = qs
+        .chunks(model.dof())
+        .zip(&contacts)
+        .filter(|(_, c)| c.is_free())
+        .flat_map(|(q, _)| q.to_vec())
+        .collect();
+    group.throughput(Throughput::Elements((free.len() / model.dof()) as u64));
+    group.bench_function("clearance (free configurations)/1 thread", |b| {
+        b.iter(|| clearances(&model, &index, &free).expect("clearances"))
     });
     group.finish();
     let mut group = c.benchmark_group("collision_index");

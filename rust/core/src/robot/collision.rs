@@ -3,6 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::octree::OcTree;
+use crate::robot::body::Body;
 use crate::robot::chain::Frame;
 use crate::robot::model::{PlacedBodies, RobotModel};
 use crate::robot::voxel_index::{Clearance, VoxelIndex};
@@ -205,20 +206,22 @@ pub fn clearances(
     let dof = model.dof();
     chunked(qs, dof, |part| {
         let mut scratch = Scratch::new(model);
+        let mut candidates = Vec::new();
         part.chunks(dof)
             .map(|q| {
                 model.place_into(q, &mut scratch.frames, &mut scratch.placed);
                 let placed = &scratch.placed;
-                let mut best: Option<(usize, Clearance)> = None;
-                let moving = placed.links.iter().zip(&placed.bodies).zip(&placed.moving);
-                for ((link, body), _) in moving.filter(|(_, m)| **m) {
-                    if let Some(c) = index.body_clearance(body)? {
-                        if best.is_none_or(|(_, b)| c.distance < b.distance) {
-                            best = Some((*link, c));
-                        }
-                    }
-                }
-                Ok(best)
+                let (links, bodies): (Vec<usize>, Vec<&Body>) = placed
+                    .links
+                    .iter()
+                    .zip(&placed.bodies)
+                    .zip(&placed.moving)
+                    .filter(|(_, m)| **m)
+                    .map(|((l, b), _)| (*l, b))
+                    .unzip();
+                Ok(index
+                    .bodies_clearance(&bodies, &mut candidates)?
+                    .map(|(tag, c)| (links[tag], c)))
             })
             .collect()
     })

@@ -452,20 +452,20 @@ impl VoxelIndex {
         false
     }
 
-    /// Distance from the body's surface to the nearest occupied box found through the
-    /// distance field's nearest-cell links at samples every half voxel along the axis
-    /// (exact to those boxes; see `clearance_error_bound`). None when the index holds
-    /// no occupied cell.
-    pub fn body_clearance(&self, body: &Body) -> Result<Option<Clearance>> {
-        if self.num_occupied == 0 {
-            return Ok(None);
-        }
+    /// Candidate nearest boxes of a body: the distance field's nearest-cell links at
+    /// samples every half voxel along the axis, each with the enclosing capsule's
+    /// distance to it (a lower bound on the body's), appended to `out` with `tag`.
+    pub fn clearance_candidates(
+        &self,
+        body: &Body,
+        tag: usize,
+        out: &mut Vec<(f64, usize, u32)>,
+    ) -> Result<()> {
         let res = self.resolution;
         let capsule = body.enclosing_capsule();
         let len = capsule.length();
         let steps = (2.0 * len / res).ceil().max(1.0) as usize;
         let half = self.half();
-        let mut best: Option<Clearance> = None;
         let mut last = NONE;
         for s in 0..=steps {
             let p = capsule.axis_point(s as f64 / steps as f64);
@@ -478,24 +478,55 @@ impl VoxelIndex {
             }
             last = near;
             let centre = self.center_of(near as usize);
-            if let Some(b) = best {
-                // The enclosing capsule is never farther than the body: skip boxes it
-                // already places beyond the best so far.
-                let (d2, _, _) = segment_box_closest(&capsule.a, &capsule.b, &centre, &half);
-                if d2.sqrt() - capsule.radius >= b.distance {
-                    continue;
-                }
+            let (d2, _, _) = segment_box_closest(&capsule.a, &capsule.b, &centre, &half);
+            out.push((d2.sqrt() - capsule.radius, tag, near));
+        }
+        Ok(())
+    }
+
+    /// The closest of `bodies` to the candidates' boxes: candidates are taken in
+    /// order of their lower bound and the exact distance is computed until the bound
+    /// passes the best found (usually one or two exact queries). Returns the index
+    /// into `bodies` and the clearance; None when the index holds no occupied cell.
+    pub fn bodies_clearance(
+        &self,
+        bodies: &[&Body],
+        scratch: &mut Vec<(f64, usize, u32)>,
+    ) -> Result<Option<(usize, Clearance)>> {
+        if self.num_occupied == 0 {
+            return Ok(None);
+        }
+        scratch.clear();
+        for (tag, body) in bodies.iter().enumerate() {
+            self.clearance_candidates(body, tag, scratch)?;
+        }
+        scratch.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let half = self.half();
+        let mut best: Option<(usize, Clearance)> = None;
+        for &(bound, tag, cell) in scratch.iter() {
+            if best.is_some_and(|(_, b)| bound >= b.distance) {
+                break;
             }
-            let contact = body.box_contact(&centre, &half);
-            if best.is_none_or(|b| contact.distance < b.distance) {
-                best = Some(Clearance {
-                    distance: contact.distance,
-                    on_body: contact.on_body,
-                    on_obstacle: contact.on_box,
-                });
+            let contact = bodies[tag].box_contact(&self.center_of(cell as usize), &half);
+            if best.is_none_or(|(_, b)| contact.distance < b.distance) {
+                best = Some((
+                    tag,
+                    Clearance {
+                        distance: contact.distance,
+                        on_body: contact.on_body,
+                        on_obstacle: contact.on_box,
+                    },
+                ));
             }
         }
         Ok(best)
+    }
+
+    /// Clearance of one body (see `bodies_clearance`).
+    pub fn body_clearance(&self, body: &Body) -> Result<Option<Clearance>> {
+        Ok(self
+            .bodies_clearance(&[body], &mut Vec::new())?
+            .map(|(_, c)| c))
     }
 
     /// How much `body_clearance` may exceed the true clearance: samples every
