@@ -6,7 +6,7 @@ use crate::octree::OcTree;
 use crate::robot::body::Body;
 use crate::robot::chain::Frame;
 use crate::robot::model::{PlacedBodies, RobotModel};
-use crate::robot::voxel_index::{Clearance, VoxelIndex};
+use crate::robot::voxel_index::{Clearance, SampleVerdict, UndecidedRuns, VoxelIndex};
 use crate::threads::map_parts;
 
 /// What a configuration hits first.
@@ -71,6 +71,7 @@ fn check_all(model: &RobotModel, qs: &[f64]) -> Result<usize> {
 struct Scratch {
     frames: Vec<Frame>,
     placed: PlacedBodies,
+    undecided: Vec<(usize, Body, UndecidedRuns)>,
 }
 
 impl Scratch {
@@ -78,6 +79,7 @@ impl Scratch {
         Scratch {
             frames: vec![Frame::identity(); model.chain().num_links()],
             placed: PlacedBodies::default(),
+            undecided: Vec::new(),
         }
     }
 }
@@ -91,14 +93,19 @@ fn contact_of(
 ) -> Result<Contact> {
     model.place_into(q, &mut scratch.frames, &mut scratch.placed);
     let placed = &scratch.placed;
-    for ((link, body), _) in placed
-        .links
-        .iter()
-        .zip(&placed.bodies)
-        .zip(&placed.moving)
-        .filter(|(_, m)| **m)
-    {
-        if index.body_collides(body)? {
+    // First the cheap distance-field pass over every body (a certain collision ends
+    // it), then exact scans where it left doubt, in link order.
+    scratch.undecided.clear();
+    let moving = placed.links.iter().zip(&placed.bodies).zip(&placed.moving);
+    for ((link, body), _) in moving.filter(|(_, m)| **m) {
+        match index.body_samples(body)? {
+            SampleVerdict::Collides => return Ok(Contact::Obstacle(*link)),
+            SampleVerdict::Free => {}
+            SampleVerdict::Undecided(runs) => scratch.undecided.push((*link, *body, runs)),
+        }
+    }
+    for (link, body, runs) in &scratch.undecided {
+        if index.body_scan(body, runs) {
             return Ok(Contact::Obstacle(*link));
         }
     }

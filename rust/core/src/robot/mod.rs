@@ -20,4 +20,4 @@ pub use collision::{
 pub use fit::{fit_body, fit_capsule, fit_cylinder, FitShape};
 pub use model::{PlacedBodies, RobotModel};
 pub use self_filter::self_filter;
-pub use voxel_index::{Clearance, VoxelIndex, VoxelSource};
+pub use voxel_index::{Clearance, SampleVerdict, UndecidedRuns, VoxelIndex, VoxelSource};

@@ -37,6 +37,37 @@ pub struct Clearance {
     pub on_obstacle: [f64; 3],
 }
 
+/// Outcome of the distance-field pass over a body's axis samples.
+#[derive(Clone, Copy, Debug)]
+pub enum SampleVerdict {
+    Collides,
+    Free,
+    Undecided(UndecidedRuns),
+}
+
+/// Runs of consecutive axis samples the distance fields could not decide.
+#[derive(Clone, Copy, Debug)]
+pub struct UndecidedRuns {
+    steps: usize,
+    runs: [(usize, usize); 8],
+    len: usize,
+    /// More runs than fit: the scan covers the whole body.
+    overflow: bool,
+}
+
+impl UndecidedRuns {
+    fn push(&mut self, s: usize) {
+        if self.len > 0 && self.runs[self.len - 1].1 + 1 == s {
+            self.runs[self.len - 1].1 = s;
+        } else if self.len < self.runs.len() {
+            self.runs[self.len] = (s, s);
+            self.len += 1;
+        } else {
+            self.overflow = true;
+        }
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct VoxelIndex {
     resolution: f64,
@@ -348,6 +379,16 @@ impl VoxelIndex {
     /// Does `body` overlap any occupied voxel box (touching counts)? Exact (see the
     /// module doc). Errors when the body leaves the indexed region.
     pub fn body_collides(&self, body: &Body) -> Result<bool> {
+        Ok(match self.body_samples(body)? {
+            SampleVerdict::Collides => true,
+            SampleVerdict::Free => false,
+            SampleVerdict::Undecided(runs) => self.body_scan(body, &runs),
+        })
+    }
+
+    /// The distance-field pass alone: walk the axis samples, proving stretches free or
+    /// the body colliding; what stays undecided is returned for `body_scan`.
+    pub fn body_samples(&self, body: &Body) -> Result<SampleVerdict> {
         let res = self.resolution;
         let capsule = body.enclosing_capsule();
         let r = capsule.radius;
@@ -355,10 +396,12 @@ impl VoxelIndex {
         let steps = (SAMPLES_PER_VOXEL * len / res).ceil().max(1.0) as usize;
         let spacing = len / steps as f64;
         let half = self.half();
-        // Runs of consecutive samples the distance field could not decide.
-        let mut runs: [(usize, usize); 8] = [(0, 0); 8];
-        let mut n_runs = 0usize;
-        let mut overflow = false;
+        let mut runs = UndecidedRuns {
+            steps,
+            runs: [(0, 0); 8],
+            len: 0,
+            overflow: false,
+        };
         for s in 0..=steps {
             let t = s as f64 / steps as f64;
             let p = capsule.axis_point(t);
@@ -381,36 +424,38 @@ impl VoxelIndex {
             let near = self.center_of(self.nearest[cell] as usize);
             let inner = body.inner_radius_at(t);
             if point_box_distance_squared(&p, &near, &half) <= inner * inner {
-                return Ok(true);
+                return Ok(SampleVerdict::Collides);
             }
-            if n_runs > 0 && runs[n_runs - 1].1 + 1 == s {
-                runs[n_runs - 1].1 = s;
-            } else if n_runs < runs.len() {
-                runs[n_runs] = (s, s);
-                n_runs += 1;
-            } else {
-                overflow = true;
-            }
+            runs.push(s);
         }
-        if overflow {
-            return Ok(self.body_collides_exact(body));
+        Ok(if runs.len == 0 && !runs.overflow {
+            SampleVerdict::Free
+        } else {
+            SampleVerdict::Undecided(runs)
+        })
+    }
+
+    /// Exact tests for what `body_samples` left undecided: only boxes near undecided
+    /// samples can touch the body, so scan the bounds of each run's stretch of the
+    /// enclosing capsule.
+    pub fn body_scan(&self, body: &Body, runs: &UndecidedRuns) -> bool {
+        if runs.overflow {
+            return self.body_collides_exact(body);
         }
-        // Only boxes near undecided samples can touch the body: scan the bounds of
-        // each run's stretch of the enclosing capsule.
-        for &(j0, j1) in &runs[..n_runs] {
-            let t0 = ((j0 as f64 - 0.5) / steps as f64).max(0.0);
-            let t1 = ((j1 as f64 + 0.5) / steps as f64).min(1.0);
+        let capsule = body.enclosing_capsule();
+        let half = self.half();
+        let steps = runs.steps as f64;
+        runs.runs[..runs.len].iter().any(|&(j0, j1)| {
+            let t0 = ((j0 as f64 - 0.5) / steps).max(0.0);
+            let t1 = ((j1 as f64 + 0.5) / steps).min(1.0);
             let piece = crate::robot::capsule::Capsule::new(
                 capsule.axis_point(t0),
                 capsule.axis_point(t1),
-                r,
+                capsule.radius,
             );
             let (lo, hi) = piece.aabb();
-            if self.for_each_occupied_in(lo, hi, |i| body.overlaps_box(&self.center_of(i), &half)) {
-                return Ok(true);
-            }
-        }
-        Ok(false)
+            self.for_each_occupied_in(lo, hi, |i| body.overlaps_box(&self.center_of(i), &half))
+        })
     }
 
     /// Exact test against every occupied cell in the body's bounding box.
