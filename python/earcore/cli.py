@@ -22,9 +22,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--version", action="store_true", help="print the version (proves the extension loads)")
     sub = parser.add_subparsers(dest="command")
     sub.add_parser("demo", help="map demo: cameras, an obstacle passing, danger decaying (PNG + summary)", add_help=False)
+    sub.add_parser("run", help="the simulated cell end to end: robot, cameras, a person, the map (PNGs + JSON)", add_help=False)
+    sub.add_parser("config", help="`earcore config dump`: every option of `earcore run` as TOML", add_help=False)
     args, rest = parser.parse_known_args(argv)
     if args.version:
         return _version()
+    if args.command == "run":
+        from earcore.run import main as run_main
+
+        return run_main(rest)
+    if args.command == "config":
+        from earcore.run import config_main
+
+        return config_main(rest)
     if args.command == "demo":
         from earcore.demo import main as demo_main
 

@@ -36,6 +36,8 @@ class UrdfJoint:
     lower: float
     upper: float
     mimic: str | None = None
+    #: Velocity limit (rad/s or m/s; inf when the URDF gives none).
+    velocity: float = math.inf
 
 
 @dataclass
@@ -296,6 +298,10 @@ def parse_urdf(path: str | Path, *, geometry: str = "collision") -> UrdfRobot:
         axis_el = j.find("axis")
         axis = _floats(axis_el.get("xyz") if axis_el is not None else None, 3, (1.0, 0.0, 0.0), f"{what} axis")
         lower, upper = -math.inf, math.inf
+        limit_el = j.find("limit")
+        velocity = math.inf
+        if limit_el is not None and limit_el.get("velocity") is not None:
+            (velocity,) = _floats(limit_el.get("velocity"), 1, (math.inf,), f"{what} velocity limit")
         if kind in ("revolute", "prismatic"):
             limit = j.find("limit")
             if limit is None or limit.get("lower") is None or limit.get("upper") is None:
@@ -306,7 +312,8 @@ def parse_urdf(path: str | Path, *, geometry: str = "collision") -> UrdfRobot:
                 raise UrdfError(f"{what}: lower limit {lower} > upper limit {upper}")
         mimic = j.find("mimic")
         joints.append(
-            UrdfJoint(name, kind, parent, child, xyz, rpy, axis, lower, upper, mimic.get("joint") if mimic is not None else None)  # type: ignore[arg-type]
+            UrdfJoint(name, kind, parent, child, xyz, rpy, axis, lower, upper,  # type: ignore[arg-type]
+                      mimic.get("joint") if mimic is not None else None, velocity)
         )
 
     children = {j.child for j in joints}

@@ -10,7 +10,8 @@ quantisation); the numbers are documented on each preset and checked by the test
 * Kinect V1 (structured light, 320×240 here, 57°×43°, 0.4-4.5 m): axial σ(z, θ) =
   1.2 + 1.9 (z − 0.4)² mm for θ < 60°, plus 0.1 θ²/(√z (π/2 − θ)²) mm beyond (Nguyen,
   Izadi and Lovell 2012, "Modeling Kinect sensor noise"); depth quantised in disparity
-  steps of 1/8 pixel with a 7.5 cm baseline, so steps grow as z².
+  steps of 1/8 pixel of its native 640-pixel disparity image (f ≈ 580 px) with a 7.5 cm
+  baseline: steps of z²/348 m (1.1 cm at 2 m), as Khoshelham and Elberink (2012) report.
 * RealSense F200 (coded light, 640×480, 73°×59°, 0.2-1.2 m): axial σ(z) = 0.5 + 2.5 z² mm
   (an assumption matching its datasheet's ~1 mm at 0.5 m), whole-mm depth.
 
@@ -43,8 +44,10 @@ class SensorModel:
     #: Axial noise model: "tof" (Kinect V2), "structured" (Kinect V1) or "coded" (F200).
     noise: str
     #: Projector-camera baseline (m) of a structured-light sensor: depth is quantised in
-    #: disparity steps of 1/8 pixel (fx · baseline / z pixels). 0: no disparity steps.
+    #: disparity steps of 1/8 pixel of the native disparity image (focal length
+    #: `disparity_focal` px): steps of z² / (8 f b). 0: no disparity steps.
     baseline: float = 0.0
+    disparity_focal: float = 0.0
     #: Depth delivered in steps of this many metres (0: continuous).
     depth_step: float = 0.001
     edge_jump: float = 0.05
@@ -94,7 +97,7 @@ class SensorModel:
     def quantise(self, z: np.ndarray) -> np.ndarray:
         """What the sensor reports for true depth z: disparity steps and/or depth steps."""
         if self.baseline > 0:
-            fb = self.fx * self.baseline
+            fb = (self.disparity_focal or self.fx) * self.baseline
             disparity = np.round(fb / np.maximum(z, 1e-6) * 8) / 8
             z = np.where(disparity > 0, fb / np.maximum(disparity, 1e-9), 0.0)
         if self.depth_step > 0:
@@ -149,7 +152,7 @@ def incidence_angles(depth: np.ndarray, fx: float, fy: float) -> np.ndarray:
 SENSORS: dict[str, SensorModel] = {
     "kinect_v2": SensorModel("kinect_v2", 512, 424, 70.6, 60.0, 0.5, 4.5, 30.0, "tof"),
     "kinect_v1": SensorModel(
-        "kinect_v1", 320, 240, 57.0, 43.0, 0.4, 4.5, 30.0, "structured", baseline=0.075, depth_step=0.001
+        "kinect_v1", 320, 240, 57.0, 43.0, 0.4, 4.5, 30.0, "structured", baseline=0.075, disparity_focal=580.0, depth_step=0.001
     ),
     "f200": SensorModel("f200", 640, 480, 73.0, 59.0, 0.2, 1.2, 30.0, "coded"),
 }

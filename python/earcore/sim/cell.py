@@ -1,0 +1,210 @@
+"""The simulated work cell: a pybullet world (DIRECT, no window) with a table, a robot
+on it, static boxes, RGB-D cameras and a person's arm, stepped deterministically.
+
+World frame = the robot's base frame (table top at z = 0). Simulation time is the
+cell's own clock (`time_step` per step), independent of how long rendering takes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from earcore.robots import RobotModel, load, urdf_path
+from earcore.sim.camera import Frame, SimulatedCamera
+from earcore.sim.config import CellConfig
+from earcore.sim.controller import JointTrajectoryController
+from earcore.sim.person import HumanArm, Reach
+from earcore.sim.sensors import SENSORS
+from earcore.synthetic import look_at
+from earcore.urdf import parse_urdf
+
+__all__ = ["SimulatedCell", "default_waypoints"]
+
+#: A-B-A joint targets per built-in robot (arm up in front, then swung to the side).
+_WAYPOINTS = {
+    "ur5": [[0.0, -1.9, 1.6, -1.3, -1.57, 0.0], [1.3, -1.3, 1.2, -1.5, -1.57, 0.0]],
+    "ur3": [[0.0, -1.9, 1.6, -1.3, -1.57, 0.0], [1.3, -1.3, 1.2, -1.5, -1.57, 0.0]],
+    "ur10": [[0.0, -1.9, 1.6, -1.3, -1.57, 0.0], [1.3, -1.3, 1.2, -1.5, -1.57, 0.0]],
+    "iiwa": [[0.0, 0.6, 0.0, -1.2, 0.0, 0.8, 0.0], [1.2, 0.4, 0.0, -1.4, 0.0, 0.8, 0.0]],
+    "panda": [[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8, 0.02, 0.02], [1.2, -0.1, 0.0, -2.0, 0.0, 2.0, 0.8, 0.02, 0.02]],
+}
+
+
+def default_waypoints(robot: str) -> list[np.ndarray]:
+    return [np.array(w, dtype=np.float64) for w in _WAYPOINTS[robot.lower()]]
+
+
+class _quiet_stdout:
+    """Silence C-level writes to stdout (file descriptor 1) for a moment."""
+
+    def __enter__(self):
+        import os
+        import sys
+
+        sys.stdout.flush()
+        self._saved = os.dup(1)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, 1)
+        os.close(devnull)
+
+    def __exit__(self, *exc):
+        import os
+
+        os.dup2(self._saved, 1)
+        os.close(self._saved)
+
+
+def _pybullet():
+    try:
+        import pybullet
+        from pybullet_utils.bullet_client import BulletClient
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise ImportError("the simulated cell needs pybullet: pip install 'earcore[robots]'") from exc
+    return pybullet, BulletClient
+
+
+class SimulatedCell:
+    def __init__(self, config: CellConfig = CellConfig()) -> None:
+        pybullet, BulletClient = _pybullet()
+        self.config = config
+        self.rng = np.random.default_rng(config.seed)
+        with _quiet_stdout():  # pybullet prints "argv[0]=" on connect
+            self.p = p = BulletClient(pybullet.DIRECT)
+        self.time = 0.0
+        self._static_bodies = self._build_static(config)
+        # The robot, in pybullet and as earcore's model (same URDF, same root frame).
+        path = urdf_path(config.robot)
+        self.robot_id = p.loadURDF(str(path), useFixedBase=True)
+        self.model: RobotModel = load(config.robot, padding=config.padding)
+        self.model.base = self._root_frame()
+        joints = [p.getJointInfo(self.robot_id, j) for j in range(p.getNumJoints(self.robot_id))]
+        index = {j[1].decode(): j[0] for j in joints}
+        self.joint_ids = [index[name] for name in self.model.joint_names]
+        self.link_ids = {j[12].decode(): j[0] for j in joints}
+        urdf = {j.name: j for j in parse_urdf(path).joints}
+        velocity = np.array([urdf[n].velocity for n in self.model.joint_names])
+        velocity = np.where(np.isfinite(velocity), velocity, 1.0)
+        self.controller = JointTrajectoryController(
+            config.speed_fraction * velocity,
+            np.full(self.model.dof, config.acceleration_fraction * config.max_acceleration),
+        )
+        self.q = default_waypoints(config.robot)[0].copy()
+        self._apply_joints()
+        self.cameras = [self._make_camera(c) for c in config.cameras]
+        self._next_capture = {c.name: 0.0 for c in self.cameras}
+        self.person = self._make_person(config) if config.person.enabled else None
+
+    # --- building -------------------------------------------------------------
+
+    def _build_static(self, config: CellConfig) -> list[int]:
+        p = self.p
+        bodies = []
+
+        def box(lo, hi, colour):
+            lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+            half = (hi - lo) / 2
+            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half.tolist())
+            visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half.tolist(), rgbaColor=colour)
+            bodies.append(p.createMultiBody(0, shape, visual, ((lo + hi) / 2).tolist()))
+
+        sx, sy = config.table_size
+        h = config.table_height
+        box([-0.35, -sy / 2, -0.04], [-0.35 + sx, sy / 2, 0.0], (0.55, 0.45, 0.35, 1))  # table top
+        for x in (-0.3, -0.4 + sx):
+            for y in (-sy / 2 + 0.05, sy / 2 - 0.05):
+                box([x, y - 0.03, -h], [x + 0.06, y + 0.03, -0.04], (0.4, 0.4, 0.4, 1))  # legs
+        box([-2.5, -2.5, -h - 0.02], [2.5, 2.5, -h], (0.75, 0.75, 0.72, 1))  # floor
+        for b in config.boxes:
+            box(b[:3], b[3:], (0.2, 0.45, 0.7, 1))
+        return bodies
+
+    def _root_frame(self) -> np.ndarray:
+        """world_from_root of the loaded robot (pybullet reports the inertial frame)."""
+        p = self.p
+        pos, orn = p.getBasePositionAndOrientation(self.robot_id)
+        info = p.getDynamicsInfo(self.robot_id, -1)
+        pos, orn = p.multiplyTransforms(pos, orn, *p.invertTransform(info[3], info[4]))
+        m = np.eye(4)
+        m[:3, :3] = np.reshape(p.getMatrixFromQuaternion(orn), (3, 3))
+        m[:3, 3] = pos
+        return m
+
+    def _tool_link(self) -> int:
+        names = self.model.link_names
+        for candidate in ("tool0", "panda_grasptarget", "panda_hand", "lbr_iiwa_link_7"):
+            if candidate in self.link_ids:
+                return self.link_ids[candidate]
+        return self.link_ids[names[-1]]
+
+    def _make_camera(self, c) -> SimulatedCamera:
+        if c.sensor not in SENSORS:
+            raise ValueError(f"camera {c.name!r}: unknown sensor {c.sensor!r}; known: {sorted(SENSORS)}")
+        sensor = SENSORS[c.sensor]
+        if self.config.camera_scale != 1.0:
+            sensor = sensor.scaled(self.config.camera_scale)
+        rng = np.random.default_rng([self.config.seed, len(c.name), sum(map(ord, c.name))])
+        if c.mount == "world":
+            return SimulatedCamera(self.p, c.name, sensor, look_at(c.position, c.target), rng=rng)
+        if c.mount == "end_effector":
+            link_from_camera = np.eye(4)
+            link_from_camera[:3, 3] = c.position
+            return SimulatedCamera(
+                self.p, c.name, sensor, np.eye(4), rng=rng, mount=(self.robot_id, self._tool_link(), link_from_camera)
+            )
+        raise ValueError(f"camera {c.name!r}: mount must be 'world' or 'end_effector', got {c.mount!r}")
+
+    def _make_person(self, config: CellConfig) -> HumanArm:
+        pc = config.person
+        if pc.reach_starts:
+            if len(pc.reach_starts) != len(pc.reach_targets):
+                raise ValueError("person.reach_starts and person.reach_targets must have the same length")
+            reaches = [Reach(s, tuple(t), pc.hold_s) for s, t in zip(pc.reach_starts, pc.reach_targets)]
+        else:
+            starts = np.cumsum(self.rng.uniform(3.0, 8.0, 8))
+            targets = self.rng.uniform([0.3, -0.2, 0.1], [0.6, 0.4, 0.45], (8, 3))
+            reaches = [Reach(float(s), tuple(t), pc.hold_s) for s, t in zip(starts, targets)]
+        return HumanArm(self.p, pc.shoulder, pc.rest_hand, reaches, peak_speed=pc.peak_speed)
+
+    # --- running --------------------------------------------------------------
+
+    def _apply_joints(self) -> None:
+        for j, v in zip(self.joint_ids, self.q):
+            self.p.resetJointState(self.robot_id, j, float(v))
+
+    def step(self) -> None:
+        """Advance one time step: the controller moves the robot, the person moves."""
+        dt = self.config.time_step
+        qd = self.controller.step(self.q, dt)
+        limits = self.model.joint_limits
+        self.q = np.clip(self.q + qd * dt, limits[:, 0], limits[:, 1])
+        self._apply_joints()
+        self.time += dt
+        if self.person is not None:
+            self.person.set_time(self.time)
+
+    def capture(self) -> list[Frame]:
+        """Frames of the cameras due at the current time (each at its own rate)."""
+        frames = []
+        for cam, conf in zip(self.cameras, self.config.cameras):
+            if self.time + 1e-9 >= self._next_capture[cam.name]:
+                frames.append(cam.capture(self.time))
+                self._next_capture[cam.name] += 1.0 / conf.rate_hz
+        return frames
+
+    # --- ground truth ---------------------------------------------------------
+
+    def person_segments(self) -> list[tuple[np.ndarray, np.ndarray, float]]:
+        return [] if self.person is None else self.person.segments(self.time)
+
+    def robot_person_distance(self) -> float:
+        """Closest distance between the robot's links and the person's arm (m)."""
+        if self.person is None:
+            return float("inf")
+        best = float("inf")
+        for body in self.person.bodies:
+            for c in self.p.getClosestPoints(self.robot_id, body, 5.0):
+                best = min(best, c[8])
+        return best
+
+    def close(self) -> None:
+        self.p.disconnect()

@@ -1,0 +1,184 @@
+"""The cell's configuration: one typed structure, loaded from and dumped to TOML.
+
+Field names are the TOML keys. Every default is the paper's setup (Paper II, Table I):
+a UR5 on a table, two Kinect V2-like cameras at ±45° in front, a Kinect V1-like camera
+overhead, an F200-like camera on the end-effector, a person reaching in.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = ["CameraConfig", "CellConfig", "PerceptionConfig", "PersonConfig", "RunConfig", "dump_toml", "load_config"]
+
+
+@dataclass
+class CameraConfig:
+    name: str
+    #: A key of `earcore.sim.sensors.SENSORS`: kinect_v2, kinect_v1, f200.
+    sensor: str
+    #: Camera position and the point it looks at, in the robot base frame (m); for a
+    #: camera on the end-effector, the offset along the tool's z axis instead.
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    target: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: "world" for a fixed camera, "end_effector" for one carried by the robot.
+    mount: str = "world"
+    #: Frames per second (the paper: 15 for the Kinects, 30 for the F200).
+    rate_hz: float = 15.0
+
+
+def default_cameras() -> list[CameraConfig]:
+    return [
+        CameraConfig("kinect_v2_left", "kinect_v2", (1.45, 1.45, 0.9), (0.25, 0.0, 0.15)),
+        CameraConfig("kinect_v2_right", "kinect_v2", (1.45, -1.45, 0.9), (0.25, 0.0, 0.15)),
+        CameraConfig("kinect_v1_overhead", "kinect_v1", (0.35, 0.0, 2.1), (0.3, 0.0, 0.0)),
+        CameraConfig("f200_wrist", "f200", (0.0, 0.0, 0.05), mount="end_effector", rate_hz=30.0),
+    ]
+
+
+@dataclass
+class PersonConfig:
+    enabled: bool = True
+    #: Where the person's shoulder is, and the hand's rest position (base frame, m).
+    shoulder: tuple[float, float, float] = (0.95, 0.45, 0.45)
+    rest_hand: tuple[float, float, float] = (0.85, 0.5, 0.05)
+    #: Peak hand speed (m/s); ISO/TS 15066 assumes up to 1.6.
+    peak_speed: float = 1.2
+    #: Reaches: start times (s) and hand targets; empty = random ones from the seed.
+    reach_starts: list[float] = field(default_factory=lambda: [2.0])
+    reach_targets: list[tuple[float, float, float]] = field(default_factory=lambda: [(0.45, 0.25, 0.2)])
+    hold_s: float = 1.5
+
+
+@dataclass
+class CellConfig:
+    seed: int = 0
+    #: A built-in robot (ur3, ur5, ur10, iiwa, panda).
+    robot: str = "ur5"
+    #: Link body padding (m), Paper II: 5 mm.
+    padding: float = 0.005
+    #: Table top at z = 0 (the robot's base), size (m) and height above the floor.
+    table_size: tuple[float, float] = (1.6, 1.4)
+    table_height: float = 0.75
+    #: Static boxes on the table: (x_min, y_min, z_min, x_max, y_max, z_max) each.
+    boxes: list[tuple[float, float, float, float, float, float]] = field(
+        default_factory=lambda: [(-0.45, 0.35, 0.0, -0.25, 0.6, 0.25)]
+    )
+    cameras: list[CameraConfig] = field(default_factory=default_cameras)
+    #: Resolution factor for every camera (1 = the sensor's own; 0.5 renders 4× fewer pixels).
+    camera_scale: float = 1.0
+    person: PersonConfig = field(default_factory=PersonConfig)
+    #: Joint speed and acceleration limits as fractions of the maximum (Table I).
+    speed_fraction: float = 0.5
+    acceleration_fraction: float = 0.6
+    #: Maximum joint acceleration (rad/s²) when the URDF gives none.
+    max_acceleration: float = 3.0
+    #: Simulation step (s); cameras capture at their own rates on this clock.
+    time_step: float = 1.0 / 30.0
+
+
+@dataclass
+class PerceptionConfig:
+    resolution: float = 0.05
+    crop_radius: float = 1.5
+    outlier_k: int = 20
+    outlier_std_ratio: float = 2.0
+    #: Voxel-grid size before insertion (m); 0 disables it.
+    voxel_size: float = 0.02
+    max_range: float = 4.5
+    danger_alpha: float = 0.3
+    decay_mode: str = "observed"
+    #: Refine the camera poses once with ICP against each other (Paper II).
+    refine_poses: bool = False
+    #: Perturb the ground-truth camera poses by this much (m, rad) before use, to
+    #: exercise the refinement; 0 = ground truth.
+    pose_error: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass
+class RunConfig:
+    duration: float = 20.0
+    #: Snapshot times (s) of the danger map (PNG).
+    snapshots: list[float] = field(default_factory=lambda: [3.0, 6.0, 12.0, 19.9])
+    #: Joint targets the robot shuttles between (A-B-A); empty = the robot's defaults.
+    waypoints: list[list[float]] = field(default_factory=list)
+    cell: CellConfig = field(default_factory=CellConfig)
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+
+
+def _build(cls, data: dict[str, Any], where: str):
+    known = {f.name: f for f in fields(cls)}
+    unknown = set(data) - set(known)
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {sorted(unknown)}; known: {sorted(known)}")
+    kwargs = {}
+    for name, value in data.items():
+        kind = known[name].type
+        if name == "cell":
+            value = _build(CellConfig, value, f"{where}.cell")
+        elif name == "perception":
+            value = _build(PerceptionConfig, value, f"{where}.perception")
+        elif name == "person":
+            value = _build(PersonConfig, value, f"{where}.person")
+        elif name == "cameras":
+            value = [_build(CameraConfig, c, f"{where}.cameras[{i}]") for i, c in enumerate(value)]
+        elif str(kind).startswith("tuple"):
+            value = tuple(value)
+        elif str(kind).startswith("list[tuple"):
+            value = [tuple(v) for v in value]
+        kwargs[name] = value
+    return cls(**kwargs)
+
+
+def load_config(path: str | Path) -> RunConfig:
+    """Read a TOML file (missing keys keep their defaults; unknown keys are errors)."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path} is not valid TOML: {exc}") from exc
+    return _build(RunConfig, data, path.name)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def dump_toml(config: RunConfig) -> str:
+    """The configuration as TOML (round-trips through `load_config`)."""
+    lines: list[str] = []
+
+    def table(obj, prefix: str) -> None:
+        data = asdict(obj)
+        nested = []
+        for f in fields(obj):
+            value = getattr(obj, f.name)
+            if is_dataclass(value):
+                nested.append((f.name, value))
+            elif f.name == "cameras":
+                nested.append((f.name, value))
+            else:
+                lines.append(f"{f.name} = {_toml_value(data[f.name])}")
+        for name, value in nested:
+            if name == "cameras":
+                for cam in value:
+                    lines.append(f"\n[[{prefix}{name}]]")
+                    for cf in fields(cam):
+                        lines.append(f"{cf.name} = {_toml_value(getattr(cam, cf.name))}")
+            else:
+                lines.append(f"\n[{prefix}{name}]")
+                table(value, f"{prefix}{name}.")
+
+    table(config, "")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,84 @@
+"""Joint control: the robot interface a real driver could implement too, and a
+velocity-based trajectory follower with speed and acceleration limits (Paper II,
+Table I: 50 % of the maximum joint speed, 60 % of the maximum acceleration).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["JointTrajectoryController", "RobotInterface"]
+
+
+@runtime_checkable
+class RobotInterface(Protocol):
+    """What the perception and planning loops need from a robot, real or simulated."""
+
+    @property
+    def joint_positions(self) -> np.ndarray: ...
+
+    @property
+    def joint_velocities(self) -> np.ndarray: ...
+
+    def command_velocities(self, qd: np.ndarray) -> None: ...
+
+
+class JointTrajectoryController:
+    """Follows a joint-space path (waypoints) by commanding velocities.
+
+    Each step moves along the straight segment to the next waypoint at the largest
+    speed the limits allow: every joint within `max_velocity`, speed changes within
+    `max_acceleration`, slowing down in time to stop at the last waypoint (and at
+    every waypoint when `stop_at_waypoints`). Deterministic: no clock, `step(dt)` only.
+    """
+
+    def __init__(self, max_velocity: np.ndarray, max_acceleration: np.ndarray, *, tolerance: float = 1e-4) -> None:
+        self.max_velocity = np.asarray(max_velocity, dtype=np.float64)
+        self.max_acceleration = np.asarray(max_acceleration, dtype=np.float64)
+        if np.any(self.max_velocity <= 0) or np.any(self.max_acceleration <= 0):
+            raise ValueError("velocity and acceleration limits must be > 0")
+        self.tolerance = tolerance
+        self.waypoints: list[np.ndarray] = []
+        self.speed = 0.0  # along the path, in "path units" = largest joint displacement
+
+    @property
+    def done(self) -> bool:
+        return not self.waypoints
+
+    def follow(self, waypoints) -> None:
+        """Replace the path (the robot keeps its current velocity; the next steps
+        re-plan the speed)."""
+        self.waypoints = [np.asarray(w, dtype=np.float64) for w in waypoints]
+
+    def stop(self) -> None:
+        self.waypoints = []
+
+    def step(self, q: np.ndarray, dt: float) -> np.ndarray:
+        """Joint velocities for the next `dt` seconds, from the current positions."""
+        q = np.asarray(q, dtype=np.float64)
+        while self.waypoints and np.abs(self.waypoints[0] - q).max() <= self.tolerance:
+            self.waypoints.pop(0)
+        if not self.waypoints:
+            self.speed = max(0.0, self.speed - self._path_accel(np.ones_like(q)) * dt)
+            return np.zeros_like(q)
+        delta = self.waypoints[0] - q
+        span = np.abs(delta).max()
+        direction = delta / span  # largest component ±1
+        v_cap = np.min(self.max_velocity / np.maximum(np.abs(direction), 1e-12))
+        a_cap = self._path_accel(direction)
+        remaining = span + sum(
+            np.abs(b - a).max() for a, b in zip(self.waypoints[:-1], self.waypoints[1:])
+        )
+        # Largest speed from which we can still stop within the remaining path.
+        v_stop = np.sqrt(2 * a_cap * remaining)
+        target = min(v_cap, v_stop, span / dt)
+        if target > self.speed:
+            self.speed = min(target, self.speed + a_cap * dt)
+        else:
+            self.speed = max(target, self.speed - a_cap * dt)
+        return direction * self.speed
+
+    def _path_accel(self, direction: np.ndarray) -> float:
+        return float(np.min(self.max_acceleration / np.maximum(np.abs(direction), 1e-12)))

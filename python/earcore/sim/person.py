@@ -1,0 +1,138 @@
+"""A person's arm reaching into the cell: upper arm, forearm and hand as capsules,
+moved kinematically along reaches with a minimum-jerk profile whose peak hand speed
+stays within a limit (1.6 m/s by default, the human speed ISO/TS 15066 assumes)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ArmGeometry", "HumanArm", "Reach", "minimum_jerk"]
+
+
+@dataclass(frozen=True)
+class ArmGeometry:
+    upper_arm: float = 0.30
+    forearm: float = 0.27
+    hand: float = 0.15
+    upper_arm_radius: float = 0.05
+    forearm_radius: float = 0.04
+    hand_radius: float = 0.035
+
+
+@dataclass(frozen=True)
+class Reach:
+    """Move the hand from rest to `target` starting at `start` (s), hold for `hold`
+    seconds, and return. Durations follow from the peak speed."""
+
+    start: float
+    target: tuple[float, float, float]
+    hold: float = 1.0
+
+
+def minimum_jerk(s: np.ndarray | float) -> np.ndarray | float:
+    """Position fraction along a minimum-jerk move at time fraction s ∈ [0, 1]."""
+    s = np.clip(s, 0.0, 1.0)
+    return 10 * s**3 - 15 * s**4 + 6 * s**5
+
+
+#: Peak speed of a minimum-jerk move = 1.875 × distance / duration.
+MINIMUM_JERK_PEAK = 1.875
+
+
+class HumanArm:
+    """The arm of a person standing at the cell with the shoulder at `shoulder`."""
+
+    def __init__(
+        self,
+        client,
+        shoulder,
+        rest_hand,
+        reaches: list[Reach],
+        *,
+        peak_speed: float = 1.6,
+        geometry: ArmGeometry = ArmGeometry(),
+        colour=(0.85, 0.6, 0.45, 1.0),
+    ) -> None:
+        if not 0 < peak_speed <= 3.0:
+            raise ValueError(f"peak_speed must be in (0, 3] m/s, got {peak_speed}")
+        self.client = client
+        self.shoulder = np.asarray(shoulder, dtype=np.float64)
+        self.rest = np.asarray(rest_hand, dtype=np.float64)
+        self.reaches = sorted(reaches, key=lambda r: r.start)
+        self.peak_speed = peak_speed
+        self.geometry = geometry
+        g = geometry
+        p = client
+        self.bodies = []
+        for length, radius in ((g.upper_arm, g.upper_arm_radius), (g.forearm, g.forearm_radius), (g.hand, g.hand_radius)):
+            shape = p.createCollisionShape(p.GEOM_CAPSULE, radius=radius, height=length)
+            visual = p.createVisualShape(p.GEOM_CAPSULE, radius=radius, length=length, rgbaColor=colour)
+            self.bodies.append(p.createMultiBody(0, shape, visual, [0, 0, -10]))
+        self.set_time(0.0)
+
+    def duration(self, target) -> float:
+        """Seconds one way from rest to `target` at the peak speed."""
+        return MINIMUM_JERK_PEAK * float(np.linalg.norm(np.asarray(target) - self.rest)) / self.peak_speed
+
+    def hand_position(self, t: float) -> np.ndarray:
+        for reach in self.reaches:
+            target = np.asarray(reach.target, dtype=np.float64)
+            go = self.duration(target)
+            end = reach.start + 2 * go + reach.hold
+            if reach.start <= t < end:
+                if t < reach.start + go:
+                    f = minimum_jerk((t - reach.start) / go)
+                elif t < reach.start + go + reach.hold:
+                    f = 1.0
+                else:
+                    f = 1.0 - minimum_jerk((t - reach.start - go - reach.hold) / go)
+                return self.rest + f * (target - self.rest)
+        return self.rest.copy()
+
+    def joints(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Shoulder, elbow, wrist and fingertip positions at time t (elbow pointing down)."""
+        g = self.geometry
+        hand_tip = self.hand_position(t)
+        to_hand = hand_tip - self.shoulder
+        dist = np.linalg.norm(to_hand)
+        direction = to_hand / dist
+        # The wrist sits `hand` back from the fingertip along the reach direction.
+        wrist = hand_tip - direction * g.hand
+        to_wrist = wrist - self.shoulder
+        d = min(np.linalg.norm(to_wrist), g.upper_arm + g.forearm - 1e-6)
+        u = to_wrist / np.linalg.norm(to_wrist)
+        # Two-link IK in the vertical plane through the reach: elbow below the line.
+        a = (g.upper_arm**2 - g.forearm**2 + d**2) / (2 * d)
+        h = np.sqrt(max(g.upper_arm**2 - a**2, 0.0))
+        down = np.array([0.0, 0.0, -1.0])
+        perp = down - u * (down @ u)
+        perp = perp / np.linalg.norm(perp) if np.linalg.norm(perp) > 1e-9 else np.array([1.0, 0, 0])
+        elbow = self.shoulder + u * a + perp * h
+        wrist = self.shoulder + u * d
+        return self.shoulder.copy(), elbow, wrist, wrist + direction * g.hand
+
+    def segments(self, t: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+        """(start, end, radius) of the three capsules at time t (ground truth)."""
+        s, e, w, f = self.joints(t)
+        g = self.geometry
+        return [(s, e, g.upper_arm_radius), (e, w, g.forearm_radius), (w, f, g.hand_radius)]
+
+    def set_time(self, t: float) -> None:
+        p = self.client
+        for body, (a, b, _) in zip(self.bodies, self.segments(t)):
+            axis = b - a
+            z = np.array([0.0, 0.0, 1.0])
+            v = np.cross(z, axis)
+            c = float(z @ axis) / np.linalg.norm(axis)
+            if np.linalg.norm(v) < 1e-12:
+                quat = [0, 0, 0, 1] if c > 0 else [1, 0, 0, 0]
+            else:
+                angle = np.arccos(np.clip(c, -1, 1))
+                quat = p.getQuaternionFromAxisAngle(v / np.linalg.norm(v), angle)
+            p.resetBasePositionAndOrientation(body, ((a + b) / 2).tolist(), quat)
+
+    def speed(self, t: float, dt: float = 1e-3) -> float:
+        """Hand speed (m/s) at time t."""
+        return float(np.linalg.norm(self.hand_position(t + dt) - self.hand_position(t - dt)) / (2 * dt))
