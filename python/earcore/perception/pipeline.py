@@ -151,7 +151,7 @@ class PerceptionPipeline:
                 label = label[idx] if tracking else None
             t4 = time.perf_counter()
             if len(pts):
-                keep = self.robot.self_filter(pts, q)
+                keep = self.robot.self_filter(pts, q, c.self_filter_margin)
                 report.removed_as_robot += int((~keep).sum())
                 if tracking:
                     tracked = label > 0.5

@@ -82,7 +82,7 @@ pub struct PyRobotModel {
     padding: f64,
     margin: Mutex<f64>,
     index_cache: Mutex<Option<CachedIndex>>,
-    filter_cache: Mutex<Option<(Vec<f64>, PlacedBodies)>>,
+    filter_cache: Mutex<Option<(Vec<f64>, f64, PlacedBodies)>>,
 }
 
 fn joint_kind(kind: &str, name: &str) -> PyResult<JointKind> {
@@ -399,13 +399,21 @@ impl PyRobotModel {
     }
 
     /// Boolean mask of the points to keep: False where a point lies inside a padded
-    /// body at configuration q. The placed bodies are reused while q is unchanged.
+    /// body at configuration q, the bodies grown by a further `margin` (m) for sensor
+    /// noise. The placed bodies are reused while q and the margin are unchanged.
+    #[pyo3(signature = (points, q, margin = 0.0))]
     fn self_filter<'py>(
         &self,
         py: Python<'py>,
         points: &Bound<'py, PyAny>,
         q: &Bound<'py, PyAny>,
+        margin: f64,
     ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        if !(margin.is_finite() && margin >= 0.0) {
+            return Err(PyValueError::new_err(format!(
+                "margin must be finite and >= 0, got {margin}"
+            )));
+        }
         let pts = point_rows(points, "points")?;
         let pts = pts.as_slice()?;
         earcore_core::geometry::check_finite(pts, "point").py()?;
@@ -418,10 +426,17 @@ impl PyRobotModel {
         let keep = py.detach(|| -> earcore_core::Result<Vec<bool>> {
             let mut cache = self.filter_cache.lock();
             let placed = match cache.as_ref() {
-                Some((cached_q, placed)) if *cached_q == qs => placed.clone(),
+                Some((cached_q, cached_margin, placed))
+                    if *cached_q == qs && *cached_margin == margin =>
+                {
+                    placed.clone()
+                }
                 _ => {
-                    let placed = self.read().place(&qs)?;
-                    *cache = Some((qs.clone(), placed.clone()));
+                    let mut placed = self.read().place(&qs)?;
+                    for body in &mut placed.bodies {
+                        *body = body.grown(margin);
+                    }
+                    *cache = Some((qs.clone(), margin, placed.clone()));
                     placed
                 }
             };

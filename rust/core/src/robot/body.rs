@@ -55,6 +55,23 @@ impl Body {
         self.axis.radius
     }
 
+    /// The body grown by `margin` in every direction (a cylinder also at its ends).
+    pub fn grown(&self, margin: f64) -> Body {
+        let mut out = *self;
+        out.axis.radius += margin;
+        if self.shape == BodyShape::Cylinder && margin != 0.0 {
+            let c = &self.axis;
+            let d = [c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            if len > 0.0 {
+                let k = margin / len;
+                out.axis.a = [0, 1, 2].map(|i| c.a[i] - d[i] * k);
+                out.axis.b = [0, 1, 2].map(|i| c.b[i] + d[i] * k);
+            }
+        }
+        out
+    }
+
     #[inline]
     pub fn placed(&self, frame: &Frame) -> Body {
         Body {
