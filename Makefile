@@ -11,7 +11,7 @@ PY := $(VENV)/bin/python
 PIP_FLAGS := --disable-pip-version-check -q
 export PIP_CACHE_DIR ?= $(HOME)/.cache/pip
 
-.PHONY: help demo test test-rust test-python develop wheel bench bench-python lint fuzz clean system-deps
+.PHONY: help demo map-demo test test-rust test-python develop wheel bench bench-python lint fuzz clean system-deps
 
 help: ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-14s %s\n", $$1, $$2}'
@@ -24,13 +24,17 @@ system-deps: ## Debian packages the build needs (only installed when missing)
 $(VENV)/.ready: pyproject.toml | system-deps
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install $(PIP_FLAGS) --upgrade pip
-	$(PY) -m pip install $(PIP_FLAGS) "maturin>=1.8,<2" numpy "matplotlib>=3.7" "pyoctomap>=1.2"
+	$(PY) -m pip install $(PIP_FLAGS) "maturin>=1.8,<2" numpy
+	$(PY) -m pip install $(PIP_FLAGS) "matplotlib>=3.7" "pyoctomap>=1.2" "pybullet>=3.2" "example-robot-data>=6"
 	touch $@
 
 develop: $(VENV)/.ready ## build the extension (release) into .venv, editable
 	$(VENV)/bin/maturin develop --release -q
 
-demo: develop ## the main job: the map demo (synthetic cell, 3 cameras, danger decay) -> out/map_danger.png
+demo: develop ## the main job: the simulated cell (UR5, 4 cameras, a person reaching in) -> out/ PNGs + summary.json
+	$(VENV)/bin/earcore run --out out
+
+map-demo: develop ## the quick map demo (synthetic scene, 3 cameras, danger decay) -> out/map_danger.png
 	$(VENV)/bin/earcore demo --out out
 
 wheel: $(VENV)/.ready ## build the release wheel into dist/

@@ -151,7 +151,7 @@ def draw_snapshot(png: Path, pipeline, cell) -> Path:
             near &= centres[:, 2] > 0.03
         ax.scatter(centres[near, i], centres[near, j], s=5, c="0.55", marker="s", linewidths=0, label="occupied now")
         order = np.argsort(dvalues)
-        sc = ax.scatter(dcentres[order, i], dcentres[order, j], s=7, c=dvalues[order], cmap="inferno_r", vmin=0, vmax=1, marker="s", linewidths=0)
+        sc = ax.scatter(dcentres[order, i], dcentres[order, j], s=7, c=dvalues[order], cmap="YlOrRd", vmin=0, vmax=1, marker="s", linewidths=0)
         for a, b, r in zip(bodies["a"], bodies["b"], bodies["radius"]):
             ax.plot([a[i], b[i]], [a[j], b[j]], color="tab:blue", lw=max(1.0, r * 60), alpha=0.6, solid_capstyle="round")
         for a, b, r in cell.person_segments():

@@ -30,8 +30,9 @@ class JointTrajectoryController:
 
     Each step moves along the straight segment to the next waypoint at the largest
     speed the limits allow: every joint within `max_velocity`, speed changes within
-    `max_acceleration`, slowing down in time to stop at the last waypoint (and at
-    every waypoint when `stop_at_waypoints`). Deterministic: no clock, `step(dt)` only.
+    `max_acceleration`, braking in time to stop at each waypoint (a corner taken at
+    speed would need an infinite acceleration; smoothing paths into curves is the
+    planner's job). Deterministic: no clock, `step(dt)` only.
     """
 
     def __init__(self, max_velocity: np.ndarray, max_acceleration: np.ndarray, *, tolerance: float = 1e-4) -> None:
@@ -58,26 +59,31 @@ class JointTrajectoryController:
     def step(self, q: np.ndarray, dt: float) -> np.ndarray:
         """Joint velocities for the next `dt` seconds, from the current positions."""
         q = np.asarray(q, dtype=np.float64)
-        while self.waypoints and np.abs(self.waypoints[0] - q).max() <= self.tolerance:
+        if self.waypoints and np.abs(self.waypoints[0] - q).max() <= self.tolerance:
+            # Arrived (at a speed of at most one step's braking): rest for this step so
+            # the turn onto the next segment starts from zero velocity.
             self.waypoints.pop(0)
+            self.speed = 0.0
+            return np.zeros_like(q)
         if not self.waypoints:
-            self.speed = max(0.0, self.speed - self._path_accel(np.ones_like(q)) * dt)
+            self.speed = 0.0
             return np.zeros_like(q)
         delta = self.waypoints[0] - q
         span = np.abs(delta).max()
         direction = delta / span  # largest component ±1
         v_cap = np.min(self.max_velocity / np.maximum(np.abs(direction), 1e-12))
         a_cap = self._path_accel(direction)
-        remaining = span + sum(
-            np.abs(b - a).max() for a, b in zip(self.waypoints[:-1], self.waypoints[1:])
-        )
-        # Largest speed from which we can still stop within the remaining path.
-        v_stop = np.sqrt(2 * a_cap * remaining)
-        target = min(v_cap, v_stop, span / dt)
+        # Largest speed from which braking at a_cap per step stops on the waypoint
+        # (discrete: v²/2a + v·dt/2 = span).
+        half = 0.5 * a_cap * dt
+        v_stop = -half + np.sqrt(half * half + 2 * a_cap * span)
+        target = min(v_cap, v_stop)
         if target > self.speed:
             self.speed = min(target, self.speed + a_cap * dt)
         else:
             self.speed = max(target, self.speed - a_cap * dt)
+        # Land on the waypoint rather than step past it.
+        self.speed = min(self.speed, span / dt)
         return direction * self.speed
 
     def _path_accel(self, direction: np.ndarray) -> float:

@@ -1,0 +1,217 @@
+"""The simulated cell: cameras against analytic planes and their documented noise,
+the controller's limits, the person's speed, configuration files, determinism, and
+the perception loop end to end (self-filter, the arm in the map, danger)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pybullet = pytest.importorskip("pybullet")
+
+import earcore  # noqa: E402
+from earcore.sim.camera import SimulatedCamera  # noqa: E402
+from earcore.sim.config import CameraConfig, RunConfig, dump_toml, load_config  # noqa: E402
+from earcore.sim.controller import JointTrajectoryController  # noqa: E402
+from earcore.sim.person import MINIMUM_JERK_PEAK, HumanArm, Reach  # noqa: E402
+from earcore.sim.sensors import SENSORS  # noqa: E402
+from earcore.synthetic import look_at  # noqa: E402
+
+
+@pytest.fixture
+def client():
+    from pybullet_utils.bullet_client import BulletClient
+
+    p = BulletClient(pybullet.DIRECT)
+    yield p
+    p.disconnect()
+
+
+def plane_scene(client, normal_angles=(0.35, 0.2)):
+    """A large thin box whose top face is a plane through (0, 0, 0.3)."""
+    q = pybullet.getQuaternionFromEuler([*normal_angles, 0])
+    visual = client.createVisualShape(pybullet.GEOM_BOX, halfExtents=[4, 4, 0.001])
+    client.createMultiBody(0, -1, visual, [0, 0, 0.3], q)
+    normal = np.reshape(pybullet.getMatrixFromQuaternion(q), (3, 3))[:, 2]
+    return normal, np.array([0, 0, 0.3]) + 0.001 * normal
+
+
+@pytest.mark.parametrize("name", sorted(SENSORS))
+def test_depth_of_a_plane_back_projects_onto_it(client, name):
+    sensor = SENSORS[name]
+    normal, point = plane_scene(client)
+    distance = 0.8 if name == "f200" else 2.0
+    pose = look_at(point + distance * normal + [0.25, -0.1, 0.0], point)
+    camera = SimulatedCamera(client, name, sensor, pose, rng=np.random.default_rng(1))
+    _, true_depth, _ = camera.render_true()
+    K = sensor.intrinsics
+    exact = earcore.depth_to_points(true_depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], base_from_camera=pose)
+    assert len(exact) > 0.9 * sensor.width * sensor.height
+    assert np.abs((exact - point) @ normal).max() < 1e-4  # the projection is the pinhole K
+    frame = camera.capture(0.0)
+    noisy = earcore.depth_to_points(frame.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], base_from_camera=pose)
+    offsets = (noisy - point) @ normal
+    # Within the noise model: 4 σ at the farthest valid depth plus the quantisation step.
+    z = frame.depth[frame.depth > 0]
+    step = z.max() ** 2 / (8 * 580.0 * 0.075) if sensor.baseline else sensor.depth_step
+    bound = 4 * sensor.sigma(z.max(), np.radians(sensor.max_incidence_deg)) + step
+    assert np.abs(offsets).max() < bound
+
+
+@pytest.mark.parametrize("name", ["kinect_v2", "f200"])
+def test_noise_statistics_match_the_documented_model(client, name):
+    """Fronto-parallel plane at several distances: bias ≈ 0 and the spread equals
+    √(σ(z)² + step²/12) (noise plus rounding to whole millimetres) within 10 %."""
+    sensor = SENSORS[name].scaled(0.5)
+    visual = client.createVisualShape(pybullet.GEOM_BOX, halfExtents=[5, 5, 0.001])
+    client.createMultiBody(0, -1, visual, [0, 0, -0.001])
+    distances = [0.4, 0.8, 1.1] if name == "f200" else [0.8, 1.5, 2.5, 3.5]
+    for z in distances:
+        camera = SimulatedCamera(client, name, sensor, look_at([0, 0, z], [0, 0, 0], up=(0, 1, 0)), rng=np.random.default_rng(2))
+        _, true_depth, _ = camera.render_true()
+        measured = sensor.corrupt(true_depth, np.random.default_rng(3))
+        valid = (measured > 0) & (true_depth > 0)
+        err = measured[valid] - true_depth[valid]
+        expected = np.sqrt(sensor.sigma(z) ** 2 + sensor.depth_step**2 / 12)
+        assert abs(err.mean()) < 0.1 * expected + 1e-4
+        assert err.std() == pytest.approx(expected, rel=0.1)
+
+
+def test_structured_light_quantisation_grows_with_distance():
+    sensor = SENSORS["kinect_v1"]
+    z = np.linspace(0.8, 3.5, 2000)
+    steps = np.diff(np.unique(sensor.quantise(z)))
+    assert steps.max() == pytest.approx(3.5**2 / (8 * 580 * 0.075), rel=0.05)
+    assert steps.min() == pytest.approx(0.8**2 / (8 * 580 * 0.075), abs=1.5e-3)
+
+
+def test_sigma_follows_the_published_models():
+    v2, v1 = SENSORS["kinect_v2"], SENSORS["kinect_v1"]
+    assert v2.sigma(1.0) == pytest.approx(1.3e-3)  # 1.5 - 0.5 + 0.3 mm
+    assert v1.sigma(2.0) == pytest.approx((1.2 + 1.9 * 1.6**2) * 1e-3)
+    assert v2.sigma(2.0, np.radians(70)) > 3 * v2.sigma(2.0)
+
+
+def test_controller_respects_limits_and_arrives():
+    vmax = np.array([1.0, 0.5, 2.0])
+    amax = np.array([2.0, 1.0, 4.0])
+    ctrl = JointTrajectoryController(vmax, amax)
+    q = np.zeros(3)
+    goal = np.array([1.0, -0.8, 0.3])
+    ctrl.follow([np.array([0.5, 0.2, 0.0]), goal])
+    dt, qd_prev, speeds = 0.01, np.zeros(3), []
+    for _ in range(2000):
+        qd = ctrl.step(q, dt)
+        assert np.all(np.abs(qd) <= vmax + 1e-9)
+        assert np.all(np.abs(qd - qd_prev) <= amax * dt * 1.0001 + 1e-9) or ctrl.done
+        speeds.append(np.abs(qd).max())
+        q = q + qd * dt
+        qd_prev = qd
+        if ctrl.done:
+            break
+    assert ctrl.done and np.abs(q - goal).max() < 1e-3
+
+
+def test_person_hand_speed_stays_within_the_limit(client):
+    arm = HumanArm(client, (0.9, 0.4, 0.45), (0.8, 0.5, 0.05), [Reach(0.5, (0.4, 0.2, 0.2), 1.0)], peak_speed=1.6)
+    go = arm.duration((0.4, 0.2, 0.2))
+    times = np.arange(0, 0.5 + 2 * go + 1.5, 0.005)
+    speeds = np.array([arm.speed(t) for t in times])
+    assert speeds.max() == pytest.approx(1.6, rel=0.02)
+    assert np.allclose(arm.hand_position(0.5 + go + 0.5), (0.4, 0.2, 0.2))
+    # The arm's segments keep their lengths whatever the hand does.
+    for t in times[::20]:
+        lengths = [np.linalg.norm(b - a) for a, b, _ in arm.segments(t)]
+        assert lengths == pytest.approx([0.30, 0.27, 0.15], abs=1e-6)
+    assert MINIMUM_JERK_PEAK == pytest.approx(1.875)
+
+
+def test_config_round_trip_and_errors(tmp_path):
+    config = RunConfig()
+    config.cell.cameras.append(CameraConfig("extra", "kinect_v2", (1.0, 0.0, 1.0), (0.0, 0.0, 0.0)))
+    path = tmp_path / "cell.toml"
+    path.write_text(dump_toml(config))
+    assert load_config(path) == config
+    path.write_text("[cell]\nrobbot = 'ur5'\n")
+    with pytest.raises(ValueError, match="unknown keys"):
+        load_config(path)
+    path.write_text("[cell\n")
+    with pytest.raises(ValueError, match="not valid TOML"):
+        load_config(path)
+
+
+def small_run_config(duration: float, seed: int = 0) -> RunConfig:
+    config = RunConfig(duration=duration, snapshots=[duration * 0.99])
+    config.cell.seed = seed
+    config.cell.camera_scale = 0.3
+    config.cell.cameras = [c for c in config.cell.cameras if c.mount == "world"]
+    config.cell.person.reach_starts = [0.3]
+    config.cell.person.peak_speed = 1.6
+    config.cell.person.hold_s = 1.0
+    return config
+
+
+def test_the_run_is_deterministic(tmp_path):
+    from earcore.run import run
+
+    summaries = [run(small_run_config(1.5, seed=4), tmp_path / str(i), progress=False) for i in range(2)]
+    for s in summaries:
+        for key in ("wall_s", "render_s", "perception_ms_per_frame", "perception_ms_total_mean", "snapshots"):
+            s.pop(key)
+    assert summaries[0] == summaries[1]
+    assert json.loads((tmp_path / "0" / "summary.json").read_text())["frames"] == summaries[0]["frames"]
+
+
+def test_the_loop_filters_the_robot_and_keeps_the_arm(tmp_path):
+    """A few seconds with the robot moving and the arm reaching in: the robot's own
+    points stay out of the map, the arm is in it whenever a camera sees it, and the
+    voxels it occupied keep danger 0.999 while there, then start to fade."""
+    from earcore.perception import PerceptionPipeline
+    from earcore.sim.cell import SimulatedCell, default_waypoints
+
+    config = small_run_config(4.0)
+    cell = SimulatedCell(config.cell)
+    pipeline = PerceptionPipeline(config.perception, cell.model)
+    pipeline.track_body = cell.robot_id
+    path = default_waypoints("ur5")[1:] + default_waypoints("ur5")[:1]
+    cell.controller.follow(path)
+    moved = 0.0
+    tracked = inserted = seen = in_map = 0
+    held: list[np.ndarray] = []
+    q0 = cell.q.copy()
+    while cell.time < config.duration:
+        cell.step()
+        frames = cell.capture()
+        if not frames:
+            continue
+        report = pipeline.process(frames, cell.q, cell.time)
+        tracked += report.tracked_points
+        inserted += report.tracked_inserted
+        if any(np.isin(f.segmentation, cell.person.bodies).sum() > 30 for f in frames):
+            seen += 1
+            forearm = cell.person.segments(cell.time)[1]
+            samples = np.array([forearm[0] + t * (forearm[1] - forearm[0]) for t in np.linspace(0, 1, 5)])
+            in_map += bool((pipeline.tree.is_occupied(samples) == 1).any() or (pipeline.tree.danger(samples) > 0.99).any())
+            held.append(samples)
+        moved = max(moved, np.abs(cell.q - q0).max())
+    cell.close()
+    assert moved > 0.5 and tracked > 500
+    assert inserted / tracked < 0.005
+    assert seen > 10 and in_map == seen
+    # Where the hand was held, danger decays once it left (observed by the cameras).
+    hand_voxels = np.vstack(held)
+    danger = pipeline.tree.danger(hand_voxels)
+    assert (danger > 0).any()
+
+
+def test_cli_run_help_and_config_dump(tmp_path):
+    import subprocess
+    import sys
+
+    help_text = subprocess.run([sys.executable, "-m", "earcore", "run", "--help"], capture_output=True, text=True, check=True).stdout
+    assert "--duration" in help_text and "--camera-scale" in help_text
+    dump = subprocess.run([sys.executable, "-m", "earcore", "config", "dump"], capture_output=True, text=True, check=True).stdout
+    (tmp_path / "c.toml").write_text(dump)
+    assert load_config(tmp_path / "c.toml") == RunConfig()
