@@ -156,7 +156,7 @@ def small_run_config(duration: float, seed: int = 0) -> RunConfig:
 def test_the_run_is_deterministic(tmp_path):
     from earcore.run import run
 
-    summaries = [run(small_run_config(1.5, seed=4), tmp_path / str(i), progress=False) for i in range(2)]
+    summaries = [run(small_run_config(1.5, seed=4), tmp_path / str(i), progress=False, record=False) for i in range(2)]
     for s in summaries:
         for key in ("wall_s", "render_s", "perception_ms_per_frame", "perception_ms_total_mean", "snapshots"):
             s.pop(key)
@@ -215,3 +215,22 @@ def test_cli_run_help_and_config_dump(tmp_path):
     dump = subprocess.run([sys.executable, "-m", "earcore", "config", "dump"], capture_output=True, text=True, check=True).stdout
     (tmp_path / "c.toml").write_text(dump)
     assert load_config(tmp_path / "c.toml") == RunConfig()
+
+
+def test_the_recording_holds_the_cell(tmp_path):
+    """The main job's rerun recording: readable by rerun's own tool, with the cameras,
+    the robot, the person, the map and the timings."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("rerun")
+    from earcore.run import run
+
+    summary = run(small_run_config(1.0), tmp_path, progress=False, record=True)
+    path = tmp_path / "cell.rrd"
+    assert summary["recording"] == str(path) and path.stat().st_size > 10_000
+    out = subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "print", "-v", str(path)], capture_output=True, text=True, timeout=120
+    ).stdout
+    for entity in ("world/robot", "world/person_truth", "world/map/danger", "world/cameras/kinect_v2_left/depth", "timings/insert_ms"):
+        assert entity in out, entity

@@ -1,7 +1,8 @@
 """The main job: the simulated cell end to end. A UR5 shuttles between two poses
 (A-B-A) while a person reaches into the workspace; every frame the cameras are
 rendered, processed into the map (robot removed, danger decaying), and the result is
-written as PNG snapshots of the danger map and a JSON summary.
+written as a rerun recording (out/cell.rrd: cameras, clouds, robot, map coloured by
+danger, current obstacles), PNG snapshots of the danger map and a JSON summary.
 
     earcore run [--config cell.toml] [--duration 20] [--out out] [--camera-scale 1.0]
     earcore config dump > cell.toml        # every option with its default
@@ -38,7 +39,7 @@ def _progress(done: float, total: float, extra: str = "", *, final: bool = False
     sys.stderr.flush()
 
 
-def run(config: RunConfig, out: Path, *, progress: bool = True) -> dict:
+def run(config: RunConfig, out: Path, *, progress: bool = True, record: bool = True) -> dict:
     from earcore.perception import PerceptionPipeline
     from earcore.sim.cell import SimulatedCell, default_waypoints
 
@@ -55,6 +56,11 @@ def run(config: RunConfig, out: Path, *, progress: bool = True) -> dict:
     snapshots = sorted(config.snapshots)
     written = []
     min_distance = float("inf")
+    recorder = None
+    if record:
+        from earcore.recording import Recorder
+
+        recorder = Recorder(out / "cell.rrd")
     started = time.perf_counter()
     render_s = 0.0
     steps = int(round(config.duration / config.cell.time_step))
@@ -69,6 +75,8 @@ def run(config: RunConfig, out: Path, *, progress: bool = True) -> dict:
             continue
         report = pipeline.process(frames, cell.q, cell.time)
         reports.append(report)
+        if recorder is not None:
+            recorder.log_frame(cell.time, cell, pipeline, frames, report)
         leaked, robot_total = leaked + report.tracked_inserted, robot_total + report.tracked_points
         # Is the person's arm in the map when a camera sees it?
         if cell.person is not None:
@@ -113,6 +121,9 @@ def run(config: RunConfig, out: Path, *, progress: bool = True) -> dict:
         "min_robot_person_distance_m": min_distance,
         "snapshots": written,
     }
+    if recorder is not None:
+        recorder.close()
+        summary["recording"] = str(recorder.path)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
     cell.close()
     return summary
@@ -175,6 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, help="random seed of the cell (noise, random reaches)")
     parser.add_argument("--camera-scale", type=float, help="render every camera at this fraction of its resolution")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--no-recording", action="store_true", help="skip the rerun recording (out/cell.rrd)")
     args = parser.parse_args(argv)
     config = load_config(args.config) if args.config else RunConfig()
     if args.duration is not None:
@@ -184,7 +196,14 @@ def main(argv: list[str] | None = None) -> int:
         config.cell.seed = args.seed
     if args.camera_scale is not None:
         config.cell.camera_scale = args.camera_scale
-    summary = run(config, args.out, progress=not args.quiet)
+    record = not args.no_recording
+    if record:
+        try:
+            import rerun  # noqa: F401
+        except ImportError:
+            print("earcore run: rerun-sdk is not installed, skipping the recording (pip install 'earcore[viz]')", file=sys.stderr)
+            record = False
+    summary = run(config, args.out, progress=not args.quiet, record=record)
     print(
         f"{summary['frames']} frames, {summary['simulated_s']:.1f} s simulated in {summary['wall_s']:.0f} s; "
         f"perception {summary['perception_ms_total_mean']:.1f} ms/frame; "
