@@ -56,10 +56,13 @@ bench: develop ## criterion benches, then the side-by-side comparisons with Octo
 	cargo bench
 	$(MAKE) bench-python
 
-bench-python: develop ## only the side-by-side comparisons (earcore vs pyoctomap, vs python-fcl)
-	$(PY) -m pip install $(PIP_FLAGS) "pybullet>=3.2" "example-robot-data>=6" "python-fcl>=0.7"
+bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python-fcl, open3d-cpu + pyoctomap)
+	@ldconfig -p | grep -q libusb-1.0 || { echo "installing libusb-1.0-0 (open3d needs it)"; \
+	  (apt-get update -qq && apt-get install -y -qq libusb-1.0-0) >/dev/null; }
+	$(PY) -m pip install $(PIP_FLAGS) "python-fcl>=0.7" "open3d-cpu>=0.19"
 	$(PY) benches/bench_vs_octomap.py
 	$(PY) benches/bench_robot_vs_fcl.py
+	$(PY) benches/bench_perception.py
 
 lint: ## rustfmt, clippy
 	cargo fmt --all --check

@@ -1,7 +1,8 @@
 """Paper II's pipeline (Fig. 1), per frame: every camera's depth → points in the base
-frame (calibrated poses, refined once by ICP if asked) → crop around the robot →
-voxel grid → statistical outlier removal → self-filter at the current joint state →
-octree insertion (each camera from its own origin) → end of frame (danger decay).
+frame (calibrated poses, refined once by ICP if asked) → crop around the robot → the
+cameras' clouds merged → voxel grid → statistical outlier removal → self-filter at the
+current joint state → octree insertion (each point's ray from the camera that saw it)
+→ end of frame (danger decay).
 
 Voxel grid before outlier removal (the paper does the reverse): the neighbour search
 then runs on ~10× fewer points; the result differs only in which isolated points go.
@@ -125,46 +126,84 @@ class PerceptionPipeline:
             self.refine(frames)
             self._refined = True
         origin = self.robot.base[:3, 3]
+        # Per camera: points in the base frame, cropped (Paper II merges the cameras'
+        # clouds, then pre-processes the merged cloud once).
+        clouds, origins, columns = [], [], []
+        tracking = self.track_body is not None
+        t0 = time.perf_counter()
         for frame in frames:
-            t0 = time.perf_counter()
             pose = self._pose_of(frame)
             K = frame.K
             pts, pixels = earcore.depth_to_points(
                 frame.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
                 max_depth=c.max_range, base_from_camera=pose, return_pixels=True,
             )
-            tracking = self.track_body is not None and frame.segmentation is not None
-            label = (frame.segmentation.reshape(-1)[pixels] == self.track_body).astype(np.float64) if tracking else None
-            t1 = time.perf_counter()
             report.points_in += len(pts)
+            t1 = time.perf_counter()
             pts, idx = earcore.crop(pts, center=origin, radius=c.crop_radius, return_index=True)
-            label = label[idx] if tracking else None
+            robot = np.zeros(len(pts))
+            if tracking and frame.segmentation is not None:
+                robot = (frame.segmentation.reshape(-1)[pixels[idx]] == self.track_body).astype(np.float64)
             t2 = time.perf_counter()
+            # A first voxel grid per camera shrinks the merge (and keeps labels cheap).
             if c.voxel_size > 0 and len(pts):
                 if tracking:
-                    pts, label = earcore.voxel_downsample(pts, c.voxel_size, label)
+                    pts, robot = earcore.voxel_downsample(pts, c.voxel_size, robot)
                 else:
                     pts = earcore.voxel_downsample(pts, c.voxel_size)
+                    robot = np.zeros(len(pts))
             t3 = time.perf_counter()
-            if len(pts) > c.outlier_k:
-                pts, idx = earcore.remove_statistical_outliers(pts, c.outlier_k, c.outlier_std_ratio, return_index=True)
-                label = label[idx] if tracking else None
-            t4 = time.perf_counter()
-            if len(pts):
-                keep = self.robot.self_filter(pts, q, c.self_filter_margin)
-                report.removed_as_robot += int((~keep).sum())
-                if tracking:
-                    tracked = label > 0.5
-                    report.tracked_points += int(tracked.sum())
-                    report.tracked_inserted += int((tracked & keep).sum())
-                pts = pts[keep]
-            t5 = time.perf_counter()
-            if len(pts):
-                self.tree.insert_point_cloud(pts, pose[:3, 3], max_range=c.max_range)
-                report.points_inserted += len(pts)
-            t6 = time.perf_counter()
-            for stage, dt in zip(STAGES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t6 - t5)):
-                report.timings[stage] += dt
+            report.timings["points"] += t1 - t0
+            report.timings["crop"] += t2 - t1
+            report.timings["voxel_grid"] += t3 - t2
+            t0 = t3
+            clouds.append(pts)
+            origins.append(pose[:3, 3])
+            columns.append(robot)
+        if not clouds or not sum(len(p) for p in clouds):
+            return self._close_frame(report, time_s)
+        # One voxel grid over the merged cloud; each centroid remembers which camera
+        # contributed most of its points (its ray is cast from there) and, in
+        # simulation, the fraction of its points that were the tracked body's.
+        n_cam = len(clouds)
+        merged = np.vstack(clouds)
+        values = np.zeros((len(merged), n_cam + 1))
+        start = 0
+        for i, (pts, robot) in enumerate(zip(clouds, columns)):
+            values[start : start + len(pts), i] = 1.0
+            values[start : start + len(pts), n_cam] = robot
+            start += len(pts)
+        t2 = time.perf_counter()
+        if c.voxel_size > 0:
+            pts, means = earcore.voxel_downsample(merged, c.voxel_size, values)
+        else:
+            pts, means = merged, values
+        camera = np.argmax(means[:, :n_cam], axis=1)
+        label = means[:, n_cam]
+        t3 = time.perf_counter()
+        if len(pts) > c.outlier_k:
+            pts, idx = earcore.remove_statistical_outliers(pts, c.outlier_k, c.outlier_std_ratio, return_index=True)
+            camera, label = camera[idx], label[idx]
+        t4 = time.perf_counter()
+        keep = self.robot.self_filter(pts, q, c.self_filter_margin)
+        report.removed_as_robot += int((~keep).sum())
+        if tracking:
+            tracked = label > 0.5
+            report.tracked_points += int(tracked.sum())
+            report.tracked_inserted += int((tracked & keep).sum())
+        pts, camera = pts[keep], camera[keep]
+        t5 = time.perf_counter()
+        for i, sensor_origin in enumerate(origins):
+            mine = pts[camera == i]
+            if len(mine):
+                self.tree.insert_point_cloud(mine, sensor_origin, max_range=c.max_range)
+                report.points_inserted += len(mine)
+        t6 = time.perf_counter()
+        for stage, dt in zip(STAGES[2:], (t3 - t2, t4 - t3, t5 - t4, t6 - t5)):
+            report.timings[stage] += dt
+        return self._close_frame(report, time_s)
+
+    def _close_frame(self, report: FrameReport, time_s: float) -> FrameReport:
         t7 = time.perf_counter()
         dt_frame = 1.0 / 15.0 if self._last_time is None else max(time_s - self._last_time, 1e-6)
         frame_report = self.tree.end_frame(dt_frame)
