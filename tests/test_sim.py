@@ -234,3 +234,39 @@ def test_the_recording_holds_the_cell(tmp_path):
     ).stdout
     for entity in ("world/robot", "world/person_truth", "world/map/danger", "world/cameras/kinect_v2_left/depth", "timings/insert_ms"):
         assert entity in out, entity
+
+
+def test_danger_where_the_hand_was_fades_in_about_twenty_seconds():
+    """Acceptance 4: voxels the arm occupied are at 0.999 while it is there and fade
+    over ~21 s after it leaves (α = 0.3, explicit Euler at 15 Hz: 21.4 s)."""
+    from earcore.perception import PerceptionPipeline
+    from earcore.sim.cell import SimulatedCell
+
+    config = small_run_config(28.0)
+    config.cell.cameras = [c for c in config.cell.cameras if c.name == "kinect_v2_left"]
+    config.cell.camera_scale = 0.35
+    config.cell.person.reach_starts = [0.5]
+    config.cell.person.hold_s = 1.0
+    cell = SimulatedCell(config.cell)
+    pipeline = PerceptionPipeline(config.perception, cell.model)
+    target = np.array(config.cell.person.reach_targets[0])
+    go = cell.person.duration(target)
+    leave = 0.5 + 2 * go + 1.0  # the hand is back at rest
+    wrist_at_target = cell.person.segments(0.5 + go + 0.5)[1][1]
+    history = []
+    while cell.time < config.duration:
+        cell.step()
+        frames = cell.capture()
+        if frames:
+            pipeline.process(frames, cell.q, cell.time)
+            history.append((cell.time, pipeline.tree.danger(wrist_at_target[None])[0]))
+    cell.close()
+    t, c = np.array(history).T
+    assert c[(t > 0.5 + go) & (t < 0.5 + go + 1.0)].max() >= np.float32(0.999)
+    # Fading after it left: still high at first, gone about 21 s later.
+    after = t > leave + 0.5
+    assert np.all(np.diff(c[after]) <= 1e-7)  # never re-hit, only decays
+    assert c[t > leave + 5].max() > 0.5
+    cleared = t[after & (c == 0)]
+    print(f"danger at the wrist: cleared {cleared[0] - leave:.2f} s after the hand left")
+    assert len(cleared) and 15.0 < cleared[0] - leave < 24.0, cleared[:1] - leave
