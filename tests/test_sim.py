@@ -270,3 +270,83 @@ def test_danger_where_the_hand_was_fades_in_about_twenty_seconds():
     cleared = t[after & (c == 0)]
     print(f"danger at the wrist: cleared {cleared[0] - leave:.2f} s after the hand left")
     assert len(cleared) and 15.0 < cleared[0] - leave < 24.0, cleared[:1] - leave
+
+
+def test_checkerboard_renders_its_pattern(client):
+    """Each square's centre, projected through the camera, has the square's colour;
+    the hollow corner square is light at its centre and dark at its outline."""
+    from earcore.sim.tools import Checkerboard
+
+    board = Checkerboard()
+    shape, texture = board.visual_shape(client)
+    world_from_board = look_at([0.1, -0.05, 0.6], [0.0, 0.0, 0.0])  # printed face (+z) toward the camera
+    from earcore.sim.cell import _quaternion
+
+    w, x, y, z = _quaternion(world_from_board[:3, :3])
+    body = client.createMultiBody(0, -1, shape, world_from_board[:3, 3].tolist(), [x, y, z, w])
+    client.changeVisualShape(body, -1, textureUniqueId=texture)
+    sensor = SENSORS["f200"]
+    camera_pose = look_at([0.0, 0.0, 0.0], [0.1, -0.05, 0.6], up=(0, -1, 0))
+    camera = SimulatedCamera(client, "cam", sensor, camera_pose, rng=np.random.default_rng(0))
+    colour, depth, _ = camera.render_true()
+    grey = colour.mean(axis=2)
+    camera_from_board = np.linalg.inv(camera_pose) @ world_from_board
+    K = sensor.intrinsics
+
+    def pixel(p):
+        c = camera_from_board[:3, :3] @ p + camera_from_board[:3, 3]
+        u, v = (K @ (c / c[2]))[:2]
+        return grey[int(round(v)), int(round(u))]
+
+    for col, row, centre in board.square_centres():
+        value = pixel(centre)
+        dark = board.is_dark(col, row) and (col, row) != (0, 0)
+        assert (value < 60) if dark else (value > 120), (col, row, value)  # lit white renders ~160
+    outline = board.square_centres()[0][2] + np.array([0.45 * board.square, 0.0, 0.0])
+    assert pixel(outline) < 60
+    assert len(board.inner_corners()) == 24
+
+
+def test_tools_follow_the_flange():
+    from earcore.sim.cell import SimulatedCell
+    from earcore.sim.config import CellConfig
+    from earcore.sim.tools import Checkerboard, ObstaclePlate
+
+    config = CellConfig(cameras=[])
+    config.person.enabled = False
+    cell = SimulatedCell(config)
+    offset = np.eye(4)
+    offset[2, 3] = 0.12
+    board = cell.attach_tool(Checkerboard(), offset)
+    plate = cell.attach_tool(ObstaclePlate(), np.eye(4))
+    cell.controller.follow([cell.q + 0.3])
+    for _ in range(20):
+        cell.step()
+    tool0 = cell.model.fk(cell.q)[cell.model.link_names.index("tool0")]
+    for body, expected in ((board, tool0 @ offset), (plate, tool0)):
+        pos, orn = cell.p.getBasePositionAndOrientation(body)
+        assert np.allclose(pos, expected[:3, 3], atol=1e-5)
+        assert np.allclose(np.reshape(cell.p.getMatrixFromQuaternion(orn), (3, 3)), expected[:3, :3], atol=1e-5)
+    cell.close()
+
+
+@pytest.mark.parametrize("robot", ["ur10", "iiwa", "panda"])
+def test_other_robots_run_in_the_cell(robot):
+    from earcore.sim.cell import SimulatedCell, default_waypoints
+    from earcore.sim.config import CellConfig
+
+    config = CellConfig(robot=robot, camera_scale=0.25)
+    config.person.enabled = False
+    cell = SimulatedCell(config)
+    cell.controller.follow(default_waypoints(robot)[1:])
+    frames = []
+    for _ in range(15):
+        cell.step()
+        frames += cell.capture()
+    assert {f.camera for f in frames} == {c.name for c in config.cameras}
+    # pybullet's links sit where earcore's kinematics put them.
+    fk = cell.model.fk(cell.q)
+    for name, link in cell.link_ids.items():
+        state = cell.p.getLinkState(cell.robot_id, link, computeForwardKinematics=True)
+        assert np.allclose(state[4], fk[cell.model.link_names.index(name)][:3, 3], atol=2e-5)
+    cell.close()

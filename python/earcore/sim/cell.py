@@ -20,6 +20,18 @@ from earcore.urdf import parse_urdf
 
 __all__ = ["SimulatedCell", "default_waypoints"]
 
+
+def _quaternion(r: np.ndarray) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of a rotation matrix."""
+    w = np.sqrt(max(0.0, 1 + r[0, 0] + r[1, 1] + r[2, 2])) / 2
+    x = np.sqrt(max(0.0, 1 + r[0, 0] - r[1, 1] - r[2, 2])) / 2
+    y = np.sqrt(max(0.0, 1 - r[0, 0] + r[1, 1] - r[2, 2])) / 2
+    z = np.sqrt(max(0.0, 1 - r[0, 0] - r[1, 1] + r[2, 2])) / 2
+    x = np.copysign(x, r[2, 1] - r[1, 2])
+    y = np.copysign(y, r[0, 2] - r[2, 0])
+    z = np.copysign(z, r[1, 0] - r[0, 1])
+    return float(w), float(x), float(y), float(z)
+
 #: A-B-A joint targets per built-in robot (arm up in front, then swung to the side).
 _WAYPOINTS = {
     "ur5": [[0.0, -1.9, 1.6, -1.3, -1.57, 0.0], [1.3, -1.3, 1.2, -1.5, -1.57, 0.0]],
@@ -89,10 +101,14 @@ class SimulatedCell:
             np.full(self.model.dof, config.acceleration_fraction * config.max_acceleration),
         )
         self.q = default_waypoints(config.robot)[0].copy()
+        self._qd = np.zeros_like(self.q)
+        self._commanded: np.ndarray | None = None
         self._apply_joints()
         self.cameras = [self._make_camera(c) for c in config.cameras]
         self._next_capture = {c.name: 0.0 for c in self.cameras}
         self.person = self._make_person(config) if config.person.enabled else None
+        #: Tools held by the robot: (pybullet body, flange_from_tool, tool).
+        self.tools: list[tuple[int, np.ndarray, object]] = []
 
     # --- building -------------------------------------------------------------
 
@@ -165,6 +181,47 @@ class SimulatedCell:
             reaches = [Reach(float(s), tuple(t), pc.hold_s) for s, t in zip(starts, targets)]
         return HumanArm(self.p, pc.shoulder, pc.rest_hand, reaches, peak_speed=pc.peak_speed)
 
+    def attach_tool(self, tool, flange_from_tool: np.ndarray) -> int:
+        """Mount a tool (`earcore.sim.tools.Checkerboard`, `ObstaclePlate`) rigidly on the
+        flange (the tool link) at `flange_from_tool`; returns its pybullet body."""
+        shape, texture = tool.visual_shape(self.p)
+        body = self.p.createMultiBody(0, -1, shape, [0, 0, -10])
+        if texture >= 0:
+            self.p.changeVisualShape(body, -1, textureUniqueId=texture)
+        self.tools.append((body, np.asarray(flange_from_tool, dtype=np.float64), tool))
+        self._place_tools()
+        return body
+
+    def world_from_flange(self) -> np.ndarray:
+        state = self.p.getLinkState(self.robot_id, self._tool_link(), computeForwardKinematics=True)
+        m = np.eye(4)
+        m[:3, :3] = np.reshape(self.p.getMatrixFromQuaternion(state[5]), (3, 3))
+        m[:3, 3] = state[4]
+        return m
+
+    def world_from_tool(self, index: int = 0) -> np.ndarray:
+        return self.world_from_flange() @ self.tools[index][1]
+
+    def _place_tools(self) -> None:
+        for i, (body, _, _) in enumerate(self.tools):
+            pose = self.world_from_tool(i)
+            w, x, y, z = _quaternion(pose[:3, :3])
+            self.p.resetBasePositionAndOrientation(body, pose[:3, 3].tolist(), [x, y, z, w])
+
+    # --- the robot interface (what a real driver would provide) ----------------
+
+    @property
+    def joint_positions(self) -> np.ndarray:
+        return self.q.copy()
+
+    @property
+    def joint_velocities(self) -> np.ndarray:
+        return self._qd.copy()
+
+    def command_velocities(self, qd: np.ndarray) -> None:
+        """Direct velocity command for the next step (bypasses the trajectory follower)."""
+        self._commanded = np.asarray(qd, dtype=np.float64)
+
     # --- running --------------------------------------------------------------
 
     def _apply_joints(self) -> None:
@@ -172,12 +229,18 @@ class SimulatedCell:
             self.p.resetJointState(self.robot_id, j, float(v))
 
     def step(self) -> None:
-        """Advance one time step: the controller moves the robot, the person moves."""
+        """Advance one time step: the controller (or a direct velocity command) moves
+        the robot, its tools follow, the person moves."""
         dt = self.config.time_step
-        qd = self.controller.step(self.q, dt)
+        if self._commanded is not None:
+            qd, self._commanded = self._commanded, None
+        else:
+            qd = self.controller.step(self.q, dt)
         limits = self.model.joint_limits
         self.q = np.clip(self.q + qd * dt, limits[:, 0], limits[:, 1])
+        self._qd = qd
         self._apply_joints()
+        self._place_tools()
         self.time += dt
         if self.person is not None:
             self.person.set_time(self.time)
