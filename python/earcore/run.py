@@ -28,11 +28,16 @@ _last_progress = [0.0]
 
 
 def _progress(done: float, total: float, extra: str = "", *, final: bool = False) -> None:
-    """A one-line progress bar on stderr, redrawn at most twice a second."""
+    """A one-line progress bar on stderr, redrawn at most twice a second (a plain line
+    every 10 s when stderr is not a terminal, e.g. a log file)."""
     now = time.perf_counter()
-    if not final and now - _last_progress[0] < 0.5:
+    tty = sys.stderr.isatty()
+    if not final and now - _last_progress[0] < (0.5 if tty else 10.0):
         return
     _last_progress[0] = now
+    if not tty:
+        sys.stderr.write(f"  {done:5.1f}/{total:.1f} s simulated {extra}\n")
+        return
     width = 30
     filled = int(width * min(done / total, 1.0))
     sys.stderr.write(f"\r  [{'#' * filled}{'.' * (width - filled)}] {done:5.1f}/{total:.1f} s simulated {extra}")
@@ -89,10 +94,11 @@ def run(config: RunConfig, out: Path, *, progress: bool = True, record: bool = T
         while snapshots and cell.time >= snapshots[0]:
             written.append(str(draw_snapshot(out / f"danger_{snapshots.pop(0):05.1f}s.png", pipeline, cell)))
         if progress:
-            _progress(cell.time, config.duration, f"| {len(pipeline.tree.danger_voxels()[2])} dangerous voxels")
+            _progress(cell.time, config.duration, f"| perception {1e3 * report.total:.0f} ms/frame")
     if progress:
         _progress(cell.time, config.duration, "", final=True)
-        sys.stderr.write("\n")
+        if sys.stderr.isatty():
+            sys.stderr.write("\n")
     wall = time.perf_counter() - started
     timings = {s: [r.timings.get(s, 0.0) for r in reports] for s in reports[0].timings} if reports else {}
     danger = pipeline.tree.danger_voxels()[2]
