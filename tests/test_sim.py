@@ -350,3 +350,4 @@ def test_other_robots_run_in_the_cell(robot):
         state = cell.p.getLinkState(cell.robot_id, link, computeForwardKinematics=True)
         assert np.allclose(state[4], fk[cell.model.link_names.index(name)][:3, 3], atol=2e-5)
     cell.close()
+

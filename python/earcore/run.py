@@ -69,15 +69,21 @@ def run(config: RunConfig, out: Path, *, progress: bool = True, record: bool = T
     started = time.perf_counter()
     render_s = 0.0
     steps = int(round(config.duration / config.cell.time_step))
+    pending: dict = {}
+    next_map_frame = 0.0
     for _ in range(steps):
         if cell.controller.done:
             cell.controller.follow(path)
         cell.step()
         t0 = time.perf_counter()
-        frames = cell.capture()
+        for frame in cell.capture():
+            pending[frame.camera] = frame  # a faster camera's newest frame wins
         render_s += time.perf_counter() - t0
-        if not frames:
+        if not pending or cell.time + 1e-9 < next_map_frame:
             continue
+        next_map_frame += 1.0 / config.perception.rate_hz
+        frames = list(pending.values())
+        pending = {}
         report = pipeline.process(frames, cell.q, cell.time)
         reports.append(report)
         if recorder is not None:
@@ -156,9 +162,9 @@ def draw_snapshot(png: Path, pipeline, cell) -> Path:
     tree = pipeline.tree
     centres, _ = tree.occupied_voxels()
     dcentres, _, dvalues = tree.danger_voxels()
-    # Colour only the danger left behind (C below the hit value): voxels hit now are
-    # at 0.999 and shown as the map itself.
-    fading = dvalues < np.float32(0.999)
+    # Colour only the danger left behind: dangerous voxels that are not occupied now
+    # (what is there now is the map itself, in grey).
+    fading = tree.is_occupied(dcentres) != 1 if len(dcentres) else np.zeros(0, bool)
     dcentres, dvalues = dcentres[fading], dvalues[fading]
     bodies = cell.model.bodies(cell.q)
     fig, axes = plt.subplots(1, 2, figsize=(12, 5.5))

@@ -82,6 +82,9 @@ class CellConfig:
 
 @dataclass
 class PerceptionConfig:
+    #: Map frames per second (Paper II: 15, the Kinects' rate); faster cameras
+    #: contribute their newest frame to each map frame.
+    rate_hz: float = 15.0
     resolution: float = 0.05
     crop_radius: float = 1.5
     outlier_k: int = 20
