@@ -351,3 +351,23 @@ def test_other_robots_run_in_the_cell(robot):
         assert np.allclose(state[4], fk[cell.model.link_names.index(name)][:3, 3], atol=2e-5)
     cell.close()
 
+
+
+def test_random_reaches_from_the_seed():
+    from earcore.sim.cell import SimulatedCell
+    from earcore.sim.config import CellConfig
+
+    config = CellConfig(cameras=[])
+    config.person.reach_starts = []
+    config.person.reach_targets = []
+    config.person.peak_speed = 1.6
+    cells = [SimulatedCell(config) for _ in range(2)]
+    a, b = (c.person.reaches for c in cells)
+    assert a == b and len(a) >= 5  # same seed, same reaches
+    times = np.arange(0.0, a[2].start, 0.01)
+    speeds = [cells[0].person.speed(t) for t in times]
+    assert max(speeds) <= 1.6 * 1.01 and max(speeds) > 1.0
+    for reach in a:
+        assert 0.25 <= reach.target[0] <= 0.65 and reach.target[2] >= 0.1
+    for c in cells:
+        c.close()
