@@ -110,11 +110,16 @@ class PerceptionPipeline:
         if len(fixed) < 2:
             return
         poses = [self._pose_of(f) for f in fixed]
+        origin = self.robot.base[:3, 3]
         clouds = []
-        for f in fixed:
+        for f, pose in zip(fixed, poses):
             K = f.K
-            clouds.append(earcore.depth_to_points(f.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], max_depth=self.config.max_range))
-        refined = earcore.refine_camera_poses(clouds, poses)
+            local = earcore.depth_to_points(f.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], max_depth=self.config.max_range)
+            # Only the working volume: the far floor and walls are planes that let
+            # the alignment slide.
+            in_base = local @ pose[:3, :3].T + pose[:3, 3]
+            clouds.append(local[np.linalg.norm(in_base - origin, axis=1) <= self.config.crop_radius + 0.5])
+        refined = earcore.refine_camera_poses(clouds, poses, max_correspondence_distance=0.08)
         for f, pose in zip(fixed, refined):
             self.poses[f.camera] = pose
 

@@ -64,8 +64,15 @@ class CellConfig:
     table_size: tuple[float, float] = (1.6, 1.4)
     table_height: float = 0.75
     #: Static boxes on the table: (x_min, y_min, z_min, x_max, y_max, z_max) each.
+    #: The default clutter (parts boxes, a tray) also gives the cameras' ICP alignment
+    #: 3D structure to lock onto; a bare table is ambiguous along its plane.
     boxes: list[tuple[float, float, float, float, float, float]] = field(
-        default_factory=lambda: [(-0.45, 0.35, 0.0, -0.25, 0.6, 0.25)]
+        default_factory=lambda: [
+            (-0.45, 0.35, 0.0, -0.25, 0.6, 0.25),
+            (0.6, -0.6, 0.0, 0.8, -0.35, 0.4),
+            (-0.3, -0.6, 0.0, -0.1, -0.45, 0.15),
+            (0.9, -0.3, 0.0, 1.1, -0.1, 0.3),
+        ]
     )
     cameras: list[CameraConfig] = field(default_factory=default_cameras)
     #: Resolution factor for every camera (1 = the sensor's own; 0.5 renders 4× fewer pixels).
