@@ -4,7 +4,7 @@ rendered, processed into the map (robot removed, danger decaying), and the resul
 written as a rerun recording (out/cell.rrd: cameras, clouds, robot, map coloured by
 danger, current obstacles), PNG snapshots of the danger map and a JSON summary.
 
-    earcore run [--config cell.toml] [--duration 20] [--out out] [--camera-scale 1.0]
+    earcore run [--config cell.toml] [--duration 30] [--out out] [--camera-scale 1.0]
     earcore config dump > cell.toml        # every option with its default
 """
 
@@ -158,13 +158,15 @@ def draw_snapshot(png: Path, pipeline, cell) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.colors import PowerNorm
 
     tree = pipeline.tree
     centres, _ = tree.occupied_voxels()
     dcentres, _, dvalues = tree.danger_voxels()
-    # Colour only the danger left behind: dangerous voxels that are not occupied now
-    # (what is there now is the map itself, in grey).
-    fading = tree.is_occupied(dcentres) != 1 if len(dcentres) else np.zeros(0, bool)
+    # Colour only the danger left behind: dangerous voxels seen free now (what is
+    # there now is the map itself, in grey). Eq. 1 keeps C above 0.9 for ~15 s and then
+    # drops it fast, so the colour scale stretches the top of the range.
+    fading = tree.is_occupied(dcentres) == 0 if len(dcentres) else np.zeros(0, bool)
     dcentres, dvalues = dcentres[fading], dvalues[fading]
     bodies = cell.model.bodies(cell.q)
     fig, axes = plt.subplots(1, 2, figsize=(12, 5.5))
@@ -174,7 +176,10 @@ def draw_snapshot(png: Path, pipeline, cell) -> Path:
             near &= centres[:, 2] > 0.03
         ax.scatter(centres[near, i], centres[near, j], s=5, c="0.55", marker="s", linewidths=0, label="occupied now")
         order = np.argsort(dvalues)
-        sc = ax.scatter(dcentres[order, i], dcentres[order, j], s=7, c=dvalues[order], cmap="YlOrRd", vmin=0, vmax=1, marker="s", linewidths=0)
+        sc = ax.scatter(
+            dcentres[order, i], dcentres[order, j], s=7, c=dvalues[order], cmap="YlOrRd",
+            norm=PowerNorm(gamma=6, vmin=0, vmax=1), marker="s", linewidths=0,
+        )
         for a, b, r in zip(bodies["a"], bodies["b"], bodies["radius"]):
             ax.plot([a[i], b[i]], [a[j], b[j]], color="tab:blue", lw=max(1.0, r * 60), alpha=0.6, solid_capstyle="round")
         for a, b, r in cell.person_segments():
@@ -193,7 +198,7 @@ def draw_snapshot(png: Path, pipeline, cell) -> Path:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="earcore run", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", type=Path, help="TOML file (see `earcore config dump`); missing keys keep defaults")
-    parser.add_argument("--duration", type=float, help="simulated seconds (default 20)")
+    parser.add_argument("--duration", type=float, help="simulated seconds (default 30)")
     parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default ./out)")
     parser.add_argument("--seed", type=int, help="random seed of the cell (noise, random reaches)")
     parser.add_argument("--camera-scale", type=float, help="render every camera at this fraction of its resolution")

@@ -48,7 +48,7 @@ class PersonConfig:
     #: Peak hand speed (m/s); ISO/TS 15066 assumes up to 1.6.
     peak_speed: float = 1.2
     #: Reaches: start times (s) and hand targets; empty = random ones from the seed.
-    reach_starts: list[float] = field(default_factory=lambda: [2.0])
+    reach_starts: list[float] = field(default_factory=lambda: [1.0])
     reach_targets: list[tuple[float, float, float]] = field(default_factory=lambda: [(0.45, 0.25, 0.2)])
     hold_s: float = 1.5
 
@@ -114,9 +114,10 @@ class PerceptionConfig:
 
 @dataclass
 class RunConfig:
-    duration: float = 20.0
+    #: Simulated seconds: long enough for the danger the arm leaves (~3 s) to fade (~21 s).
+    duration: float = 30.0
     #: Snapshot times (s) of the danger map (PNG).
-    snapshots: list[float] = field(default_factory=lambda: [3.0, 6.0, 12.0, 19.9])
+    snapshots: list[float] = field(default_factory=lambda: [2.5, 10.0, 20.0, 29.9])
     #: Joint targets the robot shuttles between (A-B-A); empty = the robot's defaults.
     waypoints: list[list[float]] = field(default_factory=list)
     cell: CellConfig = field(default_factory=CellConfig)
