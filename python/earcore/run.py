@@ -188,7 +188,7 @@ def draw_snapshot(png: Path, pipeline, cell) -> Path:
         ax.set_aspect("equal")
         ax.set_xlim(-0.8, 1.5)
         ax.set_ylim(-1.0, 1.2) if j == 1 else ax.set_ylim(-0.2, 1.4)
-    fig.colorbar(sc, ax=axes, label="danger C (Eq. 1)", shrink=0.8)
+    fig.colorbar(sc, ax=axes, label="danger C (Eq. 1)", shrink=0.8, ticks=[0.5, 0.8, 0.9, 0.95, 0.99])
     fig.suptitle(f"t = {cell.time:.1f} s: occupied now (grey), danger left behind (colour), robot bodies (blue), person's arm (green, truth)")
     fig.savefig(png, dpi=90)
     plt.close(fig)
