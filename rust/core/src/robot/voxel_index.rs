@@ -275,9 +275,7 @@ impl VoxelIndex {
         let mut site: Vec<u32> = (0..n)
             .map(|i| if self.occupied[i] { i as u32 } else { NONE })
             .collect();
-        let [dx, dy, dz] = self.dims;
-        let strides = [1, dx, dx * dy];
-        let longest = dx.max(dy).max(dz);
+        let longest = self.dims.into_iter().max().unwrap_or(0);
         let mut line_f = vec![0.0; longest];
         let mut line_s = vec![NONE; longest];
         let mut out_f = vec![0.0; longest];
@@ -285,29 +283,22 @@ impl VoxelIndex {
         let mut v = vec![0usize; longest];
         let mut z = vec![0.0f64; longest + 1];
         for axis in 0..3 {
-            let len = self.dims[axis];
-            let stride = strides[axis];
-            // Every line along `axis`: its first cell runs over the other two axes.
-            let others: Vec<usize> = (0..3).filter(|&a| a != axis).collect();
-            for j in 0..self.dims[others[1]] {
-                for i in 0..self.dims[others[0]] {
-                    let start = i * strides[others[0]] + j * strides[others[1]];
-                    for q in 0..len {
-                        line_f[q] = sq[start + q * stride];
-                        line_s[q] = site[start + q * stride];
-                    }
-                    distance_transform_1d(
-                        &line_f[..len],
-                        &line_s[..len],
-                        &mut out_f[..len],
-                        &mut out_s[..len],
-                        &mut v,
-                        &mut z,
-                    );
-                    for q in 0..len {
-                        sq[start + q * stride] = out_f[q];
-                        site[start + q * stride] = out_s[q];
-                    }
+            for (start, stride, len) in self.lines(axis) {
+                for q in 0..len {
+                    line_f[q] = sq[start + q * stride];
+                    line_s[q] = site[start + q * stride];
+                }
+                distance_transform_1d(
+                    &line_f[..len],
+                    &line_s[..len],
+                    &mut out_f[..len],
+                    &mut out_s[..len],
+                    &mut v,
+                    &mut z,
+                );
+                for q in 0..len {
+                    sq[start + q * stride] = out_f[q];
+                    site[start + q * stride] = out_s[q];
                 }
             }
         }
@@ -316,6 +307,23 @@ impl VoxelIndex {
         self.nearest = site;
         self.box_distance = self.windowed_box_distance(0.5);
         self.cell_distance = self.windowed_box_distance(1.0);
+    }
+
+    /// The grid's lines along `axis` as (first cell, stride, length): the separable
+    /// passes of the distance fields run along each in turn.
+    fn lines(&self, axis: usize) -> impl Iterator<Item = (usize, usize, usize)> + '_ {
+        let strides = [1, self.dims[0], self.dims[0] * self.dims[1]];
+        let others: Vec<usize> = (0..3).filter(|&a| a != axis).collect();
+        let (a, b) = (others[0], others[1]);
+        (0..self.dims[b]).flat_map(move |j| {
+            (0..self.dims[a]).map(move |i| {
+                (
+                    i * strides[a] + j * strides[b],
+                    strides[axis],
+                    self.dims[axis],
+                )
+            })
+        })
     }
 
     /// Distance to the nearest occupied box within a window of `w` cells per axis:
@@ -336,32 +344,24 @@ impl VoxelIndex {
             .iter()
             .map(|&o| if o { 0.0 } else { f64::INFINITY })
             .collect();
-        let [dx, dy, dz] = self.dims;
-        let strides = [1, dx, dx * dy];
-        let mut line = vec![0.0f64; dx.max(dy).max(dz)];
+        let mut line = vec![0.0f64; self.dims.into_iter().max().unwrap_or(0)];
         for axis in 0..3 {
-            let len = self.dims[axis];
-            let stride = strides[axis];
-            let others: Vec<usize> = (0..3).filter(|&a| a != axis).collect();
-            for j in 0..self.dims[others[1]] {
-                for i in 0..self.dims[others[0]] {
-                    let start = i * strides[others[0]] + j * strides[others[1]];
-                    for q in 0..len {
-                        line[q] = f[start + q * stride];
+            for (start, stride, len) in self.lines(axis) {
+                for q in 0..len {
+                    line[q] = f[start + q * stride];
+                }
+                if line[..len].iter().all(|v| v.is_infinite()) {
+                    continue;
+                }
+                for q in 0..len {
+                    let lo = q.saturating_sub(w);
+                    let hi = (q + w).min(len - 1);
+                    let mut best = f64::INFINITY;
+                    for (k, v) in line[lo..=hi].iter().enumerate() {
+                        let n = (lo + k).abs_diff(q);
+                        best = best.min(v + gap[n]);
                     }
-                    if line[..len].iter().all(|v| v.is_infinite()) {
-                        continue;
-                    }
-                    for q in 0..len {
-                        let lo = q.saturating_sub(w);
-                        let hi = (q + w).min(len - 1);
-                        let mut best = f64::INFINITY;
-                        for (k, v) in line[lo..=hi].iter().enumerate() {
-                            let n = (lo + k).abs_diff(q);
-                            best = best.min(v + gap[n]);
-                        }
-                        f[start + q * stride] = best;
-                    }
+                    f[start + q * stride] = best;
                 }
             }
         }
