@@ -406,3 +406,18 @@ def test_icp_refinement_aligns_perturbed_cameras():
 
     assert relative_error(before) > 0.03
     assert relative_error(pipeline.poses) < 0.6 * relative_error(before)
+
+
+def test_pose_error_is_a_constant_calibration_error():
+    from earcore.perception import PerceptionPipeline
+    from earcore.sim.camera import Frame
+    from earcore.sim.config import PerceptionConfig
+
+    pipeline = PerceptionPipeline(PerceptionConfig(pose_error=(0.02, 0.01)), earcore.robots.load("ur5"), fixed_cameras={"a"})
+    pose = look_at([1.5, 1.5, 1.0], [0, 0, 0])
+    frame = Frame("a", 0.0, np.zeros((4, 4, 3), np.uint8), np.zeros((4, 4)), np.eye(3), pose)
+    first = pipeline._pose_of(frame)
+    assert np.linalg.norm(first[:3, 3] - pose[:3, 3]) == pytest.approx(0.02)
+    assert np.array_equal(pipeline._pose_of(frame), first)
+    moving = Frame("wrist", 0.0, frame.colour, frame.depth, frame.K, pose)
+    assert np.array_equal(pipeline._pose_of(moving), pose)

@@ -84,25 +84,16 @@ class PerceptionPipeline:
         self.poses[camera] = np.asarray(base_from_camera, dtype=np.float64)
 
     def _pose_of(self, frame: Frame) -> np.ndarray:
+        """The pose the loop believes: the calibrated one if set; for a fixed camera with
+        `pose_error`, its true pose perturbed once (a constant calibration error)."""
         if frame.camera in self.poses:
             return self.poses[frame.camera]
         t, r = self.config.pose_error
-        if t > 0 or r > 0:
-            return perturb_pose(frame.base_from_camera, t, r, self.rng)
+        fixed = self.fixed_cameras is None or frame.camera in self.fixed_cameras
+        if (t > 0 or r > 0) and fixed:
+            self.poses[frame.camera] = perturb_pose(frame.base_from_camera, t, r, self.rng)
+            return self.poses[frame.camera]
         return frame.base_from_camera
-
-    def camera_points(self, frame: Frame, pose: np.ndarray | None = None) -> np.ndarray:
-        """A frame's points in the base frame (no filtering)."""
-        K = frame.K
-        return earcore.depth_to_points(
-            frame.depth,
-            K[0, 0],
-            K[1, 1],
-            K[0, 2],
-            K[1, 2],
-            max_depth=self.config.max_range,
-            base_from_camera=self._pose_of(frame) if pose is None else pose,
-        )
 
     def refine(self, frames: list[Frame]) -> None:
         """Paper II's one-off ICP refinement of the fixed cameras against each other."""
