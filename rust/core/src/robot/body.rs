@@ -163,10 +163,15 @@ impl Body {
         // Cheap answers from the box's centre: farther than r plus the half diagonal
         // from the axis cannot touch; a centre inside the body is an overlap.
         let reach = r + (half[0] * half[0] + half[1] * half[1] + half[2] * half[2]).sqrt();
-        if point_segment_distance_squared(&c.a, &c.b, center) > reach * reach {
+        let centre_d2 = point_segment_distance_squared(&c.a, &c.b, center);
+        if centre_d2 > reach * reach {
             return false;
         }
-        if self.contains_point(center) {
+        let centre_inside = match self.shape {
+            BodyShape::Capsule => centre_d2 <= r * r,
+            BodyShape::Cylinder => self.contains_point(center),
+        };
+        if centre_inside {
             return true;
         }
         let (d2, t, _) = segment_box_closest(&c.a, &c.b, center, half);

@@ -411,13 +411,15 @@ impl VoxelIndex {
             if self.nearest[cell] == NONE {
                 continue;
             }
+            // Every box is ≥ cell_distance from p (p is in the cell) and ≥ box_distance
+            // − offset (the centre's bound moved by at most the offset); the ball of
+            // radius r + spacing/2 around p covers the enclosing capsule near here.
+            let needed = r + 0.5 * spacing + 1e-6;
+            if self.cell_distance[cell] as f64 > needed {
+                continue;
+            }
             let offset = crate::geometry::distance_squared(&p, &centre).sqrt();
-            // Every box is ≥ box_distance − offset from p (the centre's bound moved
-            // by at most the offset) and ≥ cell_distance (p is in the cell); the ball
-            // of radius r + spacing/2 around p covers the enclosing capsule near here.
-            let bound =
-                (self.box_distance[cell] as f64 - offset).max(self.cell_distance[cell] as f64);
-            if bound > r + 0.5 * spacing + 1e-6 {
+            if self.box_distance[cell] as f64 - offset > needed {
                 continue;
             }
             // A ball inside the body that reaches the nearest box proves a collision.
