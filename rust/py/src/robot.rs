@@ -109,6 +109,23 @@ fn obstacle_source(obstacles: &str) -> PyResult<VoxelSource> {
     }
 }
 
+/// The two ends of one motion, each a single (dof,) configuration.
+fn motion_ends(
+    q0: &Bound<'_, PyAny>,
+    q1: &Bound<'_, PyAny>,
+    dof: usize,
+    what: &str,
+) -> PyResult<(Vec<f64>, Vec<f64>)> {
+    let (a, _, s0) = configurations(q0, dof, "q0")?;
+    let (b, _, s1) = configurations(q1, dof, "q1")?;
+    if !(s0 && s1) {
+        return Err(PyValueError::new_err(format!(
+            "{what} takes two configurations of shape ({dof},)"
+        )));
+    }
+    Ok((a, b))
+}
+
 fn contact_link(c: &Contact) -> i32 {
     c.link().map_or(-1, |l| l as i32)
 }
@@ -502,13 +519,12 @@ impl PyRobotModel {
     ) -> PyResult<bool> {
         let source = obstacle_source(obstacles)?;
         let dof = self.dof();
-        let (a, _, s0) = configurations(q0, dof, "q0")?;
-        let (b, _, s1) = configurations(q1, dof, "q1")?;
-        if !(s0 && s1) {
-            return Err(PyValueError::new_err(
-                "check_motion() takes two configurations (dof,); use check_motions for batches",
-            ));
-        }
+        let (a, b) = motion_ends(
+            q0,
+            q1,
+            dof,
+            "check_motion() (use check_motions for batches)",
+        )?;
         let index = self.index(py, tree, source)?;
         let params = CheckParams { self_collision };
         let hit = py
@@ -645,13 +661,7 @@ impl PyRobotModel {
         resolution: f64,
     ) -> PyResult<f64> {
         let dof = self.dof();
-        let (a, _, s0) = configurations(q0, dof, "q0")?;
-        let (b, _, s1) = configurations(q1, dof, "q1")?;
-        if !(s0 && s1) {
-            return Err(PyValueError::new_err(
-                "motion_danger() takes two configurations (dof,)",
-            ));
-        }
+        let (a, b) = motion_ends(q0, q1, dof, "motion_danger()")?;
         py.detach(|| {
             let t = tree.read_detached();
             robot::motion_danger(&self.read(), &t, &a, &b, resolution)
