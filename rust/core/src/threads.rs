@@ -6,6 +6,7 @@
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 static NUM_THREADS: AtomicUsize = AtomicUsize::new(0);
+static CORES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
 
 #[cfg(feature = "parallel")]
 static POOL: std::sync::Mutex<Option<(usize, std::sync::Arc<rayon::ThreadPool>)>> =
@@ -19,9 +20,12 @@ pub fn set_num_threads(n: usize) {
 /// Threads that parallel loops will use now.
 pub fn num_threads() -> usize {
     match NUM_THREADS.load(Ordering::Relaxed) {
-        0 => std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1),
+        // available_parallelism() reads cgroup files on Linux (~30 µs): ask once.
+        0 => *CORES.get_or_init(|| {
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
+        }),
         n => n,
     }
 }
