@@ -37,6 +37,7 @@ from earcore.registration import (  # noqa: E402
     refine_camera_poses,
 )
 from earcore.cloud import (  # noqa: E402
+    cluster_points,
     crop,
     depth_to_points,
     estimate_normals,
@@ -51,6 +52,7 @@ __all__ = [
     "PlaneTarget",
     "icp_point_to_plane",
     "refine_camera_poses",
+    "cluster_points",
     "crop",
     "depth_to_points",
     "estimate_normals",

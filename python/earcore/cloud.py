@@ -10,7 +10,7 @@ import numpy.typing as npt
 
 from earcore import _earcore
 
-__all__ = ["crop", "depth_to_points", "estimate_normals", "remove_statistical_outliers", "voxel_downsample"]
+__all__ = ["cluster_points", "voxel_codes", "crop", "depth_to_points", "estimate_normals", "remove_statistical_outliers", "voxel_downsample"]
 
 
 def depth_to_points(
@@ -98,3 +98,17 @@ def estimate_normals(
     λ_min / Σλ (0 on a plane, 1/3 for isotropic scatter)."""
     normals, variation = _earcore.estimate_normals(points, k, viewpoint)
     return (normals, variation) if return_variation else normals
+
+
+def cluster_points(points, cell: float) -> np.ndarray:
+    """Euclidean clusters on a grid: a label (0, 1, ...) per point, points in the same
+    or touching cells of size `cell` (26 neighbours) sharing one. On a map's voxel
+    centres with `cell` = the resolution, these are the connected obstacles."""
+    return _earcore.cluster_points(points, cell).astype(np.int64)
+
+
+def voxel_codes(points, resolution: float) -> np.ndarray:
+    """One int64 per point naming its voxel (cells of size `resolution`, ±1 M cells per
+    axis around the origin), for set operations on voxels with numpy (`np.isin`)."""
+    k = np.floor(np.asarray(points, dtype=np.float64).reshape(-1, 3) / resolution).astype(np.int64) + (1 << 20)
+    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]

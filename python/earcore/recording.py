@@ -42,7 +42,7 @@ class Recorder:
         self._next_heavy = 0.0
         self._static_cameras: set[str] = set()
 
-    def log_frame(self, time_s: float, cell, pipeline, frames, report) -> None:
+    def log_frame(self, time_s: float, cell, pipeline, frames, report, executive=None) -> None:
         rr, rec = self.rr, self.stream
         rec.set_time("sim", duration=time_s)
         heavy = time_s + 1e-9 >= self._next_heavy
@@ -66,6 +66,8 @@ class Recorder:
             if heavy:
                 rec.log(f"{path}/rgb", rr.Image(frame.colour).compress(jpeg_quality=70))
                 rec.log(f"{path}/depth", rr.DepthImage((frame.depth * 1000).astype(np.uint16), meter=1000.0))
+        if executive is not None:
+            self._log_planning(cell, executive)
         rec.log("timings/perception_ms", rr.Scalars(1e3 * report.total))
         for stage, seconds in report.timings.items():
             rec.log(f"timings/{stage}_ms", rr.Scalars(1e3 * seconds))
@@ -77,6 +79,21 @@ class Recorder:
             )
             obstacles, osizes = pipeline.tree.current_obstacles()
             rec.log("world/map/current_obstacles", rr.Points3D(obstacles, radii=osizes / 2, colors=(220, 40, 40)))
+
+    def _log_planning(self, cell, executive) -> None:
+        """The path being executed (the tool's line), new plans and reflexes, the risk."""
+        rr, rec = self.rr, self.stream
+        log = executive.log
+        if executive.motion is not None and executive.motion.trajectory is not getattr(self, "_shown", None):
+            self._shown = executive.motion.trajectory
+            tool = cell.model.fk(self._shown.positions)[:, -1, :3, 3]
+            colour = (230, 140, 20) if executive.motion.kind == "reflex" else (40, 90, 220)
+            rec.log("world/plan/tool_path", rr.LineStrips3D([tool], colors=[colour], radii=0.004))
+        for event in log.reflexes[getattr(self, "_reflexes_shown", 0):]:
+            rec.log("events/reflex", rr.TextLog(f"reflex: {event['kind']} (risk {event.get('risk', 0.0):.2f})", level="WARN"))
+        self._reflexes_shown = len(log.reflexes)
+        if log.risk:
+            rec.log("planning/risk", rr.Scalars(min(log.risk[-1].risk, 10.0)))
 
     def _capsules(self, path: str, a: np.ndarray, b: np.ndarray, radii: np.ndarray, colour) -> None:
         rr = self.rr

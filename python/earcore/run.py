@@ -44,7 +44,11 @@ def _progress(done: float, total: float, extra: str = "", *, final: bool = False
     sys.stderr.flush()
 
 
-def run(config: RunConfig, out: Path, *, progress: bool = True, record: bool = True) -> dict:
+def run(
+    config: RunConfig, out: Path, *, progress: bool = True, record: bool = True, trips: int | None = None
+) -> dict:
+    """Run the cell for `config.duration` simulated seconds (or until `trips` A-B moves
+    are done, if given) and write the outputs to `out`; returns the summary."""
     from earcore.perception import PerceptionPipeline
     from earcore.sim.cell import SimulatedCell, default_waypoints
 
@@ -53,8 +57,15 @@ def run(config: RunConfig, out: Path, *, progress: bool = True, record: bool = T
     fixed = {c.name for c in config.cell.cameras if c.mount == "world"}
     pipeline = PerceptionPipeline(config.perception, cell.model, seed=config.cell.seed, fixed_cameras=fixed)
     pipeline.track_body = cell.robot_id
+    if config.perception.min_height is not None:
+        pipeline.add_support(*cell.table_box())
     waypoints = [np.asarray(w, float) for w in config.waypoints] or default_waypoints(config.cell.robot)
     path = waypoints[1:] + waypoints[::-1][1:]
+    executive = None
+    if config.planning.mode != "none":
+        from earcore.planning.executive import Executive
+
+        executive = Executive(cell, pipeline, config.planning, waypoints, seed=config.cell.seed)
     reports = []
     leaked = robot_total = 0
     arm_seen = arm_frames = 0
@@ -72,9 +83,15 @@ def run(config: RunConfig, out: Path, *, progress: bool = True, record: bool = T
     pending: dict = {}
     next_map_frame = 0.0
     for _ in range(steps):
-        if cell.controller.done:
+        if executive is not None:
+            executive.control(config.cell.time_step)
+        elif cell.controller.done:
             cell.controller.follow(path)
         cell.step()
+        if executive is not None:
+            executive.after_step()
+            if trips is not None and len(executive.trips) >= trips:
+                break
         t0 = time.perf_counter()
         for frame in cell.capture():
             pending[frame.camera] = frame  # a faster camera's newest frame wins
@@ -86,8 +103,10 @@ def run(config: RunConfig, out: Path, *, progress: bool = True, record: bool = T
         pending = {}
         report = pipeline.process(frames, cell.q, cell.time)
         reports.append(report)
+        if executive is not None:
+            executive.on_frame()
         if recorder is not None:
-            recorder.log_frame(cell.time, cell, pipeline, frames, report)
+            recorder.log_frame(cell.time, cell, pipeline, frames, report, executive)
         leaked, robot_total = leaked + report.tracked_inserted, robot_total + report.tracked_points
         # Is the person's arm in the map when a camera sees it?
         if cell.person is not None:
@@ -133,6 +152,9 @@ def run(config: RunConfig, out: Path, *, progress: bool = True, record: bool = T
         "min_robot_person_distance_m": min_distance,
         "snapshots": written,
     }
+    if executive is not None:
+        summary["planning"] = executive.summary()
+        summary["trips"] = [t.as_dict() for t in executive.trips]
     if recorder is not None:
         recorder.close()
         summary["recording"] = str(recorder.path)

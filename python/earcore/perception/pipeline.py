@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import earcore
+from earcore.cloud import voxel_codes
 from earcore.robots import RobotModel
 from earcore.sim.camera import Frame
 from earcore.sim.config import PerceptionConfig
@@ -95,6 +96,21 @@ class PerceptionPipeline:
             return self.poses[frame.camera]
         return frame.base_from_camera
 
+    def add_support(self, box_min, box_max, *, keep_clear: float = 0.25) -> int:
+        """Put the robot's support (its table: a box below z = 0 in the base frame) into
+        the map as occupied voxels, except within `keep_clear` metres (horizontally) of
+        the robot's base, where the robot's mount is and its padded shoulder and upper arm
+        dip to the table top (a UR5's do). Returns the voxels added."""
+        res = self.tree.resolution
+        lo, hi = np.asarray(box_min, dtype=np.float64), np.asarray(box_max, dtype=np.float64)
+        axes = [np.arange(np.floor(lo[i] / res) + 0.5, np.ceil(hi[i] / res), 1.0) * res for i in range(3)]
+        centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        base = self.robot.base[:3, 3]
+        centres = centres[np.linalg.norm(centres[:, :2] - base[:2], axis=1) > keep_clear]
+        for _ in range(8):  # hits until the log-odds clamp: the table stays put
+            self.tree.update_nodes(centres, occupied=True)
+        return len(centres)
+
     def refine(self, frames: list[Frame]) -> None:
         """Paper II's one-off ICP refinement of the fixed cameras against each other."""
         fixed = [f for f in frames if self.fixed_cameras is None or f.camera in self.fixed_cameras]
@@ -137,6 +153,9 @@ class PerceptionPipeline:
             report.points_in += len(pts)
             t1 = time.perf_counter()
             pts, idx = earcore.crop(pts, center=origin, radius=c.crop_radius, return_index=True)
+            if c.min_height is not None:
+                above = pts[:, 2] >= c.min_height
+                pts, idx = pts[above], idx[above]
             robot = np.zeros(len(pts))
             if tracking and frame.segmentation is not None:
                 robot = (frame.segmentation.reshape(-1)[pixels[idx]] == self.track_body).astype(np.float64)
@@ -197,7 +216,38 @@ class PerceptionPipeline:
         t6 = time.perf_counter()
         for stage, dt in zip(STAGES[2:], (t3 - t2, t4 - t3, t5 - t4, t6 - t5)):
             report.timings[stage] += dt
-        return self._close_frame(report, time_s)
+        report = self._close_frame(report, time_s)
+        t7 = time.perf_counter()
+        self._clear_robot_volume(q)
+        report.timings["self_filter"] += time.perf_counter() - t7
+        return report
+
+    def _clear_robot_volume(self, q: np.ndarray) -> int:
+        """Free the occupied voxels that touch the robot's bodies and were not seen in
+        this frame. A robot point that slipped through the self-filter would otherwise
+        stay for good (the robot hides its voxel from every camera) and put every plan
+        that starts there in collision; an obstacle really touching the robot is seen
+        again each frame and stays. Returns the voxels freed."""
+        res = self.tree.resolution
+        bodies = self.robot.bodies(q)
+        r = bodies["radius"][:, None] + res
+        lo = np.minimum(bodies["a"], bodies["b"]) - r
+        hi = np.maximum(bodies["a"], bodies["b"]) + r
+        centres, sizes, log_odds = self.tree.leaves(lo.min(axis=0), hi.max(axis=0))
+        suspect = (log_odds > 0) & (sizes <= 1.01 * res)
+        if not suspect.any():
+            return 0
+        centres = centres[suspect]
+        # Voxel boxes that may overlap a body: centres within half a diagonal of it.
+        touching = centres[~self.robot.self_filter(centres, q, 0.5 * np.sqrt(3) * res)]
+        if len(touching):
+            seen, _ = self.tree.current_obstacles()
+            if len(seen):
+                touching = touching[~np.isin(voxel_codes(touching, res), voxel_codes(seen, res))]
+        # A few misses take a voxel from the clamp (log-odds 3.5) to free (< 0).
+        for _ in range(10 if len(touching) else 0):
+            self.tree.update_nodes(touching, occupied=False)
+        return len(touching)
 
     def _close_frame(self, report: FrameReport, time_s: float) -> FrameReport:
         t7 = time.perf_counter()

@@ -125,7 +125,7 @@ class SimulatedCell:
 
         sx, sy = config.table_size
         h = config.table_height
-        box([-0.35, -sy / 2, -0.04], [-0.35 + sx, sy / 2, 0.0], (0.55, 0.45, 0.35, 1))  # table top
+        box(*self.table_box(), (0.55, 0.45, 0.35, 1))  # table top
         for x in (-0.3, -0.4 + sx):
             for y in (-sy / 2 + 0.05, sy / 2 - 0.05):
                 box([x, y - 0.03, -h], [x + 0.06, y + 0.03, -0.04], (0.4, 0.4, 0.4, 1))  # legs
@@ -133,6 +133,11 @@ class SimulatedCell:
         for b in config.boxes:
             box(b[:3], b[3:], (0.2, 0.45, 0.7, 1))
         return bodies
+
+    def table_box(self) -> tuple[list[float], list[float]]:
+        """The table top's box (min, max corners) in the base frame; its top is z = 0."""
+        sx, sy = self.config.table_size
+        return [-0.35, -sy / 2, -0.04], [-0.35 + sx, sy / 2, 0.0]
 
     def _root_frame(self) -> np.ndarray:
         """world_from_root of the loaded robot (pybullet reports the inertial frame)."""

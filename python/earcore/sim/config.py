@@ -12,7 +12,16 @@ from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["CameraConfig", "CellConfig", "PerceptionConfig", "PersonConfig", "RunConfig", "dump_toml", "load_config"]
+__all__ = [
+    "CameraConfig",
+    "CellConfig",
+    "PerceptionConfig",
+    "PersonConfig",
+    "PlanningConfig",
+    "RunConfig",
+    "dump_toml",
+    "load_config",
+]
 
 
 @dataclass
@@ -94,6 +103,11 @@ class PerceptionConfig:
     rate_hz: float = 15.0
     resolution: float = 0.05
     crop_radius: float = 1.5
+    #: Points lower than this (m, base frame) are dropped: the robot's table (its top at
+    #: z = 0) is known geometry, added to the map by `PerceptionPipeline.add_support`,
+    #: and sensed table points would fill the 5 cm voxels above the top with obstacles
+    #: that the robot's shoulder brushes. None keeps everything.
+    min_height: float | None = 0.02
     outlier_k: int = 20
     outlier_std_ratio: float = 2.0
     #: Voxel-grid size before insertion (m); 0 disables it.
@@ -113,6 +127,39 @@ class PerceptionConfig:
 
 
 @dataclass
+class PlanningConfig:
+    """Paper II's planning layers (Table I)."""
+
+    #: "predictive" (danger-costed choice + reflexes, Paper II), "reactive" (the
+    #: paper's baseline: shortest path, stop and re-plan when blocked) or "none" (the
+    #: robot shuttles along the straight joint-space path, no planning).
+    mode: str = "predictive"
+    #: RRT-Connect: time limit per attempt (s) and attempts (solutions to choose from).
+    time_limit: float = 1.0
+    attempts: int = 3
+    #: Largest joint step (rad) between checked configurations along a motion.
+    motion_resolution: float = 0.02
+    #: Re-plan the rest of the path every this many seconds when the danger map offers
+    #: a path cheaper by `replan_gain` (0 = only when the path is blocked).
+    replan_period: float = 1.0
+    replan_gain: float = 0.15
+    #: Reflexes (Eqs. 2-3): risk D = |v|² / (β d) against the threshold T.
+    reflexes: bool = True
+    risk_beta: float = 1.5
+    risk_threshold: float = 1.0
+    #: Backtracking: this fraction of the executed path; else move the end-effector
+    #: this far away from the closest obstacle point (m).
+    backtrack_fraction: float = 0.1
+    move_away_distance: float = 0.15
+    #: Goal tolerances for end-effector pose goals (m, rad).
+    position_tolerance: float = 0.01
+    orientation_tolerance: float = 0.1
+    #: Seconds of the run before planning starts, used to learn the static scene (the
+    #: reflex layer tracks what is not part of it).
+    warmup: float = 0.5
+
+
+@dataclass
 class RunConfig:
     #: Simulated seconds: long enough for the danger the arm leaves (~3 s) to fade (~21 s).
     duration: float = 30.0
@@ -122,6 +169,7 @@ class RunConfig:
     waypoints: list[list[float]] = field(default_factory=list)
     cell: CellConfig = field(default_factory=CellConfig)
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    planning: PlanningConfig = field(default_factory=PlanningConfig)
 
 
 def _build(cls, data: dict[str, Any], where: str):
@@ -136,6 +184,8 @@ def _build(cls, data: dict[str, Any], where: str):
             value = _build(CellConfig, value, f"{where}.cell")
         elif name == "perception":
             value = _build(PerceptionConfig, value, f"{where}.perception")
+        elif name == "planning":
+            value = _build(PlanningConfig, value, f"{where}.planning")
         elif name == "person":
             value = _build(PersonConfig, value, f"{where}.person")
         elif name == "cameras":

@@ -213,3 +213,18 @@ pub fn estimate_normals<'py>(
     let (normals, variation) = py.detach(|| cloud::estimate_normals(slice, k, vp)).py()?;
     Ok((rows_to_array(py, normals)?, vec_to_array(py, variation)))
 }
+
+/// Cluster label (uint32, 0, 1, ... in order of first appearance) per point: points
+/// in the same or touching cells of size `cell` (26 neighbours) share a cluster.
+#[pyfunction]
+#[pyo3(signature = (points, cell))]
+pub fn cluster_points<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    cell: f64,
+) -> PyResult<Bound<'py, PyArray1<u32>>> {
+    let pts = self::points(points, "points")?;
+    let slice = pts.as_slice()?;
+    let labels = py.detach(|| cloud::cluster_points(slice, cell)).py()?;
+    Ok(vec_to_array(py, labels))
+}

@@ -48,6 +48,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cloud::statistical_outlier_indices, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::voxel_downsample_raw, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::estimate_normals, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::cluster_points, m)?)?;
     m.add_function(wrap_pyfunction!(icp::icp_point_to_plane_raw, m)?)?;
     Ok(())
 }

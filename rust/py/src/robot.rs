@@ -11,8 +11,8 @@ use std::sync::Arc;
 
 use earcore_core::na::Vector3;
 use earcore_core::robot::{
-    self, Body, BodyShape, Chain, CheckParams, Contact, FitShape, Frame, Joint, JointKind,
-    PlacedBodies, RobotModel, VoxelIndex, VoxelSource,
+    self, Body, BodyShape, Chain, CheckParams, Clearance, Contact, FitShape, Frame, Joint,
+    JointKind, PlacedBodies, RobotModel, VoxelIndex, VoxelSource,
 };
 use numpy::ndarray::{Array1, Array2, Array4};
 use numpy::{IntoPyArray, PyArray1, PyArray2};
@@ -128,6 +128,51 @@ fn motion_ends(
 
 fn contact_link(c: &Contact) -> i32 {
     c.link().map_or(-1, |l| l as i32)
+}
+
+/// The dict `clearance` returns: distance, link, on_robot, on_obstacle (scalars and
+/// 3-vectors for one configuration, arrays for a batch).
+fn clearance_dict<'py>(
+    py: Python<'py>,
+    found: &[Option<(usize, Clearance)>],
+    single: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let nan = [f64::NAN; 3];
+    let distance: Vec<f64> = found
+        .iter()
+        .map(|f| f.map_or(f64::INFINITY, |(_, c)| c.distance))
+        .collect();
+    let link: Vec<i64> = found
+        .iter()
+        .map(|f| f.map_or(-1, |(l, _)| l as i64))
+        .collect();
+    let on_robot: Vec<[f64; 3]> = found
+        .iter()
+        .map(|f| f.map_or(nan, |(_, c)| c.on_body))
+        .collect();
+    let on_obstacle: Vec<[f64; 3]> = found
+        .iter()
+        .map(|f| f.map_or(nan, |(_, c)| c.on_obstacle))
+        .collect();
+    let d = PyDict::new(py);
+    if single {
+        d.set_item("distance", distance[0])?;
+        d.set_item("link", link[0])?;
+        d.set_item(
+            "on_robot",
+            Array1::from(on_robot[0].to_vec()).into_pyarray(py),
+        )?;
+        d.set_item(
+            "on_obstacle",
+            Array1::from(on_obstacle[0].to_vec()).into_pyarray(py),
+        )?;
+    } else {
+        d.set_item("distance", vec_to_array(py, distance))?;
+        d.set_item("link", vec_to_array(py, link))?;
+        d.set_item("on_robot", rows_to_array(py, on_robot)?)?;
+        d.set_item("on_obstacle", rows_to_array(py, on_obstacle)?)?;
+    }
+    Ok(d)
 }
 
 impl PyRobotModel {
@@ -605,48 +650,34 @@ impl PyRobotModel {
         obstacles: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
         let source = obstacle_source(obstacles)?;
-        let (q, k, single) = configurations(qs, self.dof(), "qs")?;
+        let (q, _, single) = configurations(qs, self.dof(), "qs")?;
         let index = self.index(py, tree, source)?;
         let found = py
             .detach(|| robot::clearances(&self.read(), &index, &q))
             .py()?;
-        let nan = [f64::NAN; 3];
-        let distance: Vec<f64> = found
-            .iter()
-            .map(|f| f.map_or(f64::INFINITY, |(_, c)| c.distance))
-            .collect();
-        let link: Vec<i64> = found
-            .iter()
-            .map(|f| f.map_or(-1, |(l, _)| l as i64))
-            .collect();
-        let on_robot: Vec<[f64; 3]> = found
-            .iter()
-            .map(|f| f.map_or(nan, |(_, c)| c.on_body))
-            .collect();
-        let on_obstacle: Vec<[f64; 3]> = found
-            .iter()
-            .map(|f| f.map_or(nan, |(_, c)| c.on_obstacle))
-            .collect();
-        let d = PyDict::new(py);
-        if single {
-            d.set_item("distance", distance[0])?;
-            d.set_item("link", link[0])?;
-            d.set_item(
-                "on_robot",
-                Array1::from(on_robot[0].to_vec()).into_pyarray(py),
-            )?;
-            d.set_item(
-                "on_obstacle",
-                Array1::from(on_obstacle[0].to_vec()).into_pyarray(py),
-            )?;
-        } else {
-            debug_assert_eq!(distance.len(), k);
-            d.set_item("distance", vec_to_array(py, distance))?;
-            d.set_item("link", vec_to_array(py, link))?;
-            d.set_item("on_robot", rows_to_array(py, on_robot)?)?;
-            d.set_item("on_obstacle", rows_to_array(py, on_obstacle)?)?;
-        }
-        Ok(d)
+        clearance_dict(py, &found, single)
+    }
+
+    /// Clearance to boxes given directly (e.g. one tracked obstacle's voxels: centres
+    /// (N, 3) and their edge length `size`), exact and without a map. Same result as
+    /// `clearance`: distance (inf when there are no boxes; negative when touching),
+    /// link, on_robot, on_obstacle.
+    #[pyo3(signature = (centres, size, qs))]
+    fn clearance_to_voxels<'py>(
+        &self,
+        py: Python<'py>,
+        centres: &Bound<'py, PyAny>,
+        size: f64,
+        qs: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let (q, _, single) = configurations(qs, self.dof(), "qs")?;
+        let boxes = point_rows(centres, "centres")?;
+        let boxes = boxes.as_slice()?;
+        let half = [0.5 * size; 3];
+        let found = py
+            .detach(|| robot::clearances_to_boxes(&self.read(), &q, boxes, half))
+            .py()?;
+        clearance_dict(py, &found, single)
     }
 
     /// Paper II's Eq. 4 danger cost of the straight motion q0 → q1 on `tree`'s danger
@@ -665,6 +696,30 @@ impl PyRobotModel {
         py.detach(|| {
             let t = tree.read_detached();
             robot::motion_danger(&self.read(), &t, &a, &b, resolution)
+        })
+        .py()
+    }
+
+    /// Eq. 4 along a polyline (M, dof): the sum of `motion_danger` over its segments.
+    #[pyo3(signature = (tree, path, resolution = 0.02))]
+    fn path_danger(
+        &self,
+        py: Python<'_>,
+        tree: &PyOcTree,
+        path: &Bound<'_, PyAny>,
+        resolution: f64,
+    ) -> PyResult<f64> {
+        let dof = self.dof();
+        let (q, k, _) = configurations(path, dof, "path")?;
+        py.detach(|| {
+            let t = tree.read_detached();
+            let model = self.read();
+            let mut total = 0.0;
+            for i in 1..k {
+                let (a, b) = (&q[(i - 1) * dof..i * dof], &q[i * dof..(i + 1) * dof]);
+                total += robot::motion_danger(&model, &t, a, b, resolution)?;
+            }
+            Ok(total)
         })
         .py()
     }

@@ -1,6 +1,8 @@
 //! Point clouds: depth images to points, cropping, statistical outlier removal,
-//! voxel-grid down-sampling, surface normals, and the k-d tree they share.
+//! voxel-grid down-sampling, surface normals, Euclidean clusters, and the k-d tree
+//! they share.
 
+mod clusters;
 mod crop;
 mod depth;
 mod icp;
@@ -9,6 +11,7 @@ mod normals;
 mod outliers;
 mod voxel_grid;
 
+pub use clusters::cluster_points;
 pub use crop::{crop_box, crop_sphere};
 pub use depth::{depth_to_points, BrownConrady, DepthFrame, Intrinsics};
 pub use icp::{icp_point_to_plane, IcpParams, IcpResult, IcpTarget, PlaneTarget};

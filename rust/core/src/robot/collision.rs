@@ -4,6 +4,7 @@
 use crate::error::{Error, Result};
 use crate::octree::OcTree;
 use crate::robot::body::Body;
+use crate::robot::capsule::point_segment_distance_squared;
 use crate::robot::chain::Frame;
 use crate::robot::model::{PlacedBodies, RobotModel};
 use crate::robot::voxel_index::{Clearance, SampleVerdict, UndecidedRuns, VoxelIndex};
@@ -229,6 +230,74 @@ pub fn clearances(
                 Ok(index
                     .bodies_clearance(&bodies, &mut candidates)?
                     .map(|(tag, c)| (links[tag], c)))
+            })
+            .collect()
+    })
+}
+
+/// Robot-to-boxes clearance per configuration, for obstacles given as boxes rather
+/// than a map (e.g. the voxels of one tracked obstacle, all with the same `half`
+/// size): exact body-box distances (negative when overlapping), no index. A box is
+/// skipped when a lower bound on its distance (centre to axis, less the box's half
+/// diagonal and the body's radius) cannot beat the best found.
+pub fn clearances_to_boxes(
+    model: &RobotModel,
+    qs: &[f64],
+    centres: &[[f64; 3]],
+    half: [f64; 3],
+) -> Result<Vec<Option<(usize, Clearance)>>> {
+    check_all(model, qs)?;
+    if !half.iter().all(|h| h.is_finite() && *h >= 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "box half sizes must be finite and >= 0, got {half:?}"
+        )));
+    }
+    if let Some(i) = centres
+        .iter()
+        .position(|c| !c.iter().all(|v| v.is_finite()))
+    {
+        return Err(Error::InvalidArgument(format!(
+            "box centre {i} is not finite: {:?}",
+            centres[i]
+        )));
+    }
+    let reach = (half[0] * half[0] + half[1] * half[1] + half[2] * half[2]).sqrt();
+    let dof = model.dof();
+    chunked(qs, dof, |part| {
+        let mut scratch = Scratch::new(model);
+        part.chunks(dof)
+            .map(|q| {
+                model.place_into(q, &mut scratch.frames, &mut scratch.placed);
+                let placed = &scratch.placed;
+                let mut best: Option<(usize, Clearance)> = None;
+                for ((link, body), moving) in
+                    placed.links.iter().zip(&placed.bodies).zip(&placed.moving)
+                {
+                    if !moving {
+                        continue;
+                    }
+                    let axis = body.enclosing_capsule();
+                    for c in centres {
+                        let bound = point_segment_distance_squared(&axis.a, &axis.b, c).sqrt()
+                            - reach
+                            - axis.radius;
+                        if best.is_some_and(|(_, b)| bound >= b.distance) {
+                            continue;
+                        }
+                        let contact = body.box_contact(c, &half);
+                        if best.is_none_or(|(_, b)| contact.distance < b.distance) {
+                            best = Some((
+                                *link,
+                                Clearance {
+                                    distance: contact.distance,
+                                    on_body: contact.on_body,
+                                    on_obstacle: contact.on_box,
+                                },
+                            ));
+                        }
+                    }
+                }
+                Ok(best)
             })
             .collect()
     })

@@ -14,8 +14,8 @@ pub use body::{Body, BodyBoxContact, BodyShape};
 pub use capsule::Capsule;
 pub use chain::{Chain, Frame, Joint, JointKind};
 pub use collision::{
-    check_configurations, check_motion, clearances, interpolate, motion_danger, CheckParams,
-    Contact,
+    check_configurations, check_motion, clearances, clearances_to_boxes, interpolate,
+    motion_danger, CheckParams, Contact,
 };
 pub use fit::{fit_body, fit_capsule, fit_cylinder, FitShape};
 pub use model::{PlacedBodies, RobotModel};

@@ -1,0 +1,290 @@
+"""Runs a task in the cell: A-B-A trips planned predictively (danger map + reflexes,
+Paper II) or reactively (the paper's baseline), executed as time-parameterised
+trajectories, with the per-trip figures of Table II.
+
+The loop calls `control(dt)` before every simulation step (it sends the joint
+velocities) and `on_frame(time)` after every map frame (reflexes, re-planning).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from earcore.planning.errors import PlanningError, StartInCollision
+from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
+from earcore.planning.reflex import ObstacleTracker, RiskReport, plan_reflex
+from earcore.planning.trajectory import Trajectory, path_length, time_parameterize
+
+__all__ = ["Executive", "TripReport"]
+
+
+@dataclass
+class TripReport:
+    """One move to a goal (Table II's row entries)."""
+
+    goal: int
+    start_time: float
+    planning_time: float = 0.0
+    optimisation_time: float = 0.0
+    execution_time: float = 0.0
+    #: Executed path: joint space (rad) and the end-effector's (m).
+    path_length: float = 0.0
+    tool_path_length: float = 0.0
+    plans: int = 0
+    stops: int = 0
+    reflexes: int = 0
+    collisions: int = 0
+    #: Smallest true robot-person distance during the trip (m; inf without a person).
+    min_clearance: float = float("inf")
+    completed: bool = False
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class _Motion:
+    trajectory: Trajectory
+    start: float
+    kind: str  # "plan" | "reflex"
+
+
+@dataclass
+class ExecutiveLog:
+    """Everything the recording shows: planned paths, reflexes, risk per frame."""
+
+    plans: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    reflexes: list[dict] = field(default_factory=list)
+    risk: list[RiskReport] = field(default_factory=list)
+    #: (time, message) of every planning call that produced no path.
+    failures: list[tuple[float, str]] = field(default_factory=list)
+
+
+class Executive:
+    def __init__(self, cell, pipeline, config, goals: list[np.ndarray], *, seed: int = 0) -> None:
+        if config.mode not in ("predictive", "reactive"):
+            raise ValueError(f"planning mode must be 'predictive' or 'reactive', got {config.mode!r}")
+        self.cell = cell
+        self.pipeline = pipeline
+        self.config = config
+        self.robot = cell.model
+        self.tree = pipeline.tree
+        self.goals = [np.asarray(g, dtype=np.float64) for g in goals]
+        kind = PredictivePlanner if config.mode == "predictive" else ReactivePlanner
+        self.planner = kind(
+            self.robot,
+            self.tree,
+            time_limit=config.time_limit,
+            attempts=config.attempts,
+            resolution=config.motion_resolution,
+            seed=seed,
+        )
+        self.reflexes_on = config.mode == "predictive" and config.reflexes
+        self.tracker = ObstacleTracker(self.robot, self.tree.resolution, beta=config.risk_beta)
+        self.v_max = cell.controller.max_velocity
+        self.a_max = cell.controller.max_acceleration
+        self.motion: _Motion | None = None
+        self.command = np.zeros(self.robot.dof)
+        self.goal_index = 0
+        self.trip: TripReport | None = None
+        self.trips: list[TripReport] = []
+        self.executed: list[np.ndarray] = []
+        self.log = ExecutiveLog()
+        #: Seconds from a frame's arrival to the reflex command (tracking + planning).
+        self.reflex_latencies: list[float] = []
+        self._last_replan = 0.0
+        self._in_contact = False
+
+    # --- helpers -----------------------------------------------------------------
+
+    def _start_motion(self, path: np.ndarray, kind: str) -> None:
+        # Keep the speed the robot already has along the new path's first direction.
+        first = path[1] - path[0] if len(path) > 1 else np.zeros(len(path[0]))
+        norm = float(np.linalg.norm(first))
+        along = float(self.command @ first) / norm if norm > 0 else 0.0
+        traj = time_parameterize(
+            path, self.v_max, self.a_max, control_period=self.cell.config.time_step, initial_speed=along
+        )
+        self.motion = _Motion(traj, self.cell.time, kind)
+
+    def _remaining(self) -> np.ndarray | None:
+        if self.motion is None:
+            return None
+        return self.motion.trajectory.remaining_path(self.cell.time - self.motion.start)
+
+    def _plan(self, q: np.ndarray) -> PlanChoice | None:
+        goal = self.goals[self.goal_index]
+        try:
+            choice = self.planner.plan(q, goal)
+        except StartInCollision as exc:
+            self.log.failures.append((self.cell.time, str(exc)))
+            self._recover(q)
+            return None
+        except PlanningError as exc:
+            self.log.failures.append((self.cell.time, str(exc)))
+            return None
+        finally:
+            if self.trip is not None:
+                self.trip.plans += 1
+        self.trip.planning_time += choice.planning_time
+        self.trip.optimisation_time += choice.optimisation_time
+        self.log.plans.append((self.cell.time, choice.path))
+        return choice
+
+    def _recover(self, q: np.ndarray) -> None:
+        """The robot touches an occupied voxel: move away from it (a reflex)."""
+        c = self.robot.clearance(self.tree, q)
+        if not np.isfinite(c["distance"]):
+            return
+        report = RiskReport(self.cell.time, 0, 0.0, 0.0, float(c["distance"]), c["on_robot"], c["on_obstacle"], 0.0, False, 0.0)
+        move = plan_reflex(self.robot, self.tree, q, np.zeros((0, len(q))), report,
+                           move_away_distance=self.config.move_away_distance, resolution=self.config.motion_resolution)
+        if move is not None:
+            self._start_motion(move.path, "reflex")
+            self.log.reflexes.append({"time": self.cell.time, "kind": "recover_" + move.kind})
+
+    def _new_trip(self) -> None:
+        self.goal_index = (self.goal_index + 1) % len(self.goals)
+        self.trip = TripReport(goal=self.goal_index, start_time=self.cell.time)
+        self.executed = [self.cell.q.copy()]
+        self._last_replan = self.cell.time
+        choice = self._plan(self.cell.q)
+        if choice is not None:
+            self._start_motion(choice.path, "plan")
+
+    def _finish_trip(self) -> None:
+        trip = self.trip
+        trip.execution_time = self.cell.time - trip.start_time
+        path = np.asarray(self.executed)
+        trip.path_length = path_length(path)
+        tool = self.robot.fk(path)[:, -1, :3, 3]
+        trip.tool_path_length = float(np.linalg.norm(np.diff(tool, axis=0), axis=1).sum())
+        trip.completed = True
+        self.trips.append(trip)
+        self.trip = None
+        self.motion = None
+
+    # --- the loop's two calls ------------------------------------------------------
+
+    def control(self, dt: float) -> None:
+        """Joint velocities for the next step: track the motion's reference, within the
+        speed and acceleration limits (a stop brakes at the acceleration limit)."""
+        q = self.cell.q
+        if self.trip is None and self.cell.time >= self.config.warmup:
+            self._new_trip()
+        desired = np.zeros_like(q)
+        if self.motion is not None:
+            t = self.cell.time - self.motion.start + dt
+            desired = (self.motion.trajectory.sample(t) - q) / dt
+        step = self.a_max * dt
+        command = np.clip(desired, self.command - step, self.command + step)
+        self.command = np.clip(command, -self.v_max, self.v_max)
+        self.cell.command_velocities(self.command)
+
+    def after_step(self) -> None:
+        q = self.cell.q
+        if self.trip is None:
+            return
+        self.executed.append(q.copy())
+        if self.motion is None:
+            return
+        done = self.cell.time - self.motion.start >= self.motion.trajectory.duration
+        settled = np.abs(self.motion.trajectory.positions[-1] - q).max() < 1e-3
+        if done and settled:
+            if self.motion.kind == "plan" and np.abs(self.goals[self.goal_index] - q).max() < 1e-3:
+                self._finish_trip()
+            else:
+                self.motion = None  # a reflex ended: on_frame plans on from here
+
+    def on_frame(self) -> RiskReport | None:
+        """After a map frame: contacts (ground truth), reflexes, re-planning."""
+        cell, q = self.cell, self.cell.q
+        if self.trip is None:
+            if cell.time < self.config.warmup:
+                self.tracker.learn_static(self.tree.current_obstacles()[0])
+            return None
+        distance = cell.robot_person_distance()
+        self.trip.min_clearance = min(self.trip.min_clearance, distance)
+        contact = distance <= 0.0
+        if contact and not self._in_contact:
+            self.trip.collisions += 1
+        self._in_contact = contact
+        report = None
+        if self.reflexes_on:
+            t0 = time.perf_counter()
+            tcp_speed = self._tool_speed()
+            report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed)
+            self.log.risk.append(report)
+            in_reflex = self.motion is not None and self.motion.kind == "reflex"
+            if report.fires(self.config.risk_threshold) and not in_reflex:
+                move = plan_reflex(
+                    self.robot, self.tree, q, np.asarray(self.executed), report,
+                    backtrack_fraction=self.config.backtrack_fraction,
+                    move_away_distance=self.config.move_away_distance,
+                    resolution=self.config.motion_resolution,
+                )
+                self.trip.reflexes += 1
+                if move is not None:
+                    self._start_motion(move.path, "reflex")
+                else:
+                    self.motion = None  # nothing free: stop where we are
+                self.reflex_latencies.append(time.perf_counter() - t0)
+                self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk})
+                return report
+        if self.motion is not None and self.motion.kind == "reflex":
+            return report
+        remaining = self._remaining()
+        blocked = remaining is not None and len(remaining) > 1 and not self.planner.rrt.path_is_valid(remaining)
+        if self.config.mode == "reactive":
+            if blocked:
+                self.motion = None  # stop; re-plan once stopped
+                self.trip.stops += 1
+            elif self.motion is None and np.abs(self.command).max() < 1e-3:
+                choice = self._plan(q)
+                if choice is not None:
+                    self._start_motion(choice.path, "plan")
+            return report
+        # Predictive: re-plan when blocked, when idle, or periodically when the danger
+        # map offers a clearly cheaper path.
+        due = self.config.replan_period > 0 and cell.time - self._last_replan >= self.config.replan_period
+        if blocked or self.motion is None or due:
+            self._last_replan = cell.time
+            if blocked:
+                self.trip.stops += 1
+            choice = self._plan(q)
+            if choice is None:
+                if blocked:
+                    self.motion = None
+                return report
+            if blocked or self.motion is None:
+                self._start_motion(choice.path, "plan")
+            else:
+                current = self.planner.cost(remaining) if len(remaining) > 1 else 0.0
+                if choice.cost < (1 - self.config.replan_gain) * current:
+                    self._start_motion(choice.path, "plan")
+        return report
+
+    def _tool_speed(self) -> float:
+        """End-effector speed (m/s) from the commanded joint velocities."""
+        q = self.cell.q
+        dt = 1e-3
+        p = self.robot.fk(np.stack([q, np.clip(q + self.command * dt, *self.robot.joint_limits.T)]))[:, -1, :3, 3]
+        return float(np.linalg.norm(p[1] - p[0]) / dt)
+
+    def summary(self) -> dict:
+        """Mean ± std of the Table II figures over completed trips."""
+        trips = [t for t in self.trips if t.completed]
+        out: dict = {"trips": len(trips)}
+        for key in ("planning_time", "optimisation_time", "execution_time", "path_length", "tool_path_length"):
+            values = np.array([getattr(t, key) for t in trips])
+            out[key] = (float(values.mean()), float(values.std())) if len(values) else (float("nan"), float("nan"))
+        for key in ("collisions", "reflexes", "stops", "plans"):
+            out[key] = int(sum(getattr(t, key) for t in trips))
+        clear = [t.min_clearance for t in trips]
+        out["min_clearance"] = float(min(clear)) if clear else float("inf")
+        lat = np.array(self.reflex_latencies)
+        out["reflex_compute_ms"] = (float(1e3 * lat.mean()), float(1e3 * lat.max())) if len(lat) else None
+        return out

@@ -1,0 +1,260 @@
+"""The reflexive layer (Paper II §C.6): obstacles tracked across frames, the risk of
+Eq. 2, and the reflex moves, with ISO/TS 15066 speed-and-separation figures alongside.
+
+Per map frame:
+1. the voxels hit in the frame (`OcTree.current_obstacles`) minus the static scene
+   (voxels seen during a warm-up, grown by one voxel for noise) are clustered
+   (`earcore.cluster_points`, 26-connected voxels) into obstacles;
+2. clusters are matched to the previous frame's tracks by nearest centroid; a track's
+   velocity is the least-squares slope of its centroid over the last few frames;
+3. per track, d = exact clearance between the robot's bodies and the cluster's voxel
+   boxes (`RobotModel.clearance_to_voxels`) and the risk D = |v|² / (β d) (Eq. 2);
+   the reflex fires when D ≥ T (Eq. 3) for an obstacle that approaches the robot
+   (moving away from it is no danger, however fast).
+
+The reflex itself (`plan_reflex`): back off along the last `backtrack_fraction` (10 %)
+of the executed path if that path is free, else move the end-effector
+`move_away_distance` along the inverted vector from it to the closest obstacle point.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import earcore
+from earcore.cloud import voxel_codes
+
+__all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_reflex", "protective_separation"]
+
+
+@dataclass
+class ObstacleTrack:
+    id: int
+    #: (time, centroid) of the last few frames.
+    history: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    voxels: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def centroid(self) -> np.ndarray:
+        return self.history[-1][1]
+
+
+@dataclass
+class RiskReport:
+    """What the reflex layer saw in one frame."""
+
+    time: float
+    tracks: int
+    #: Highest risk D over approaching obstacles (0 when none), its obstacle's speed
+    #: and clearance, and the closest points (robot, obstacle) for a move-away.
+    risk: float
+    speed: float
+    clearance: float
+    on_robot: np.ndarray | None
+    on_obstacle: np.ndarray | None
+    #: ISO/TS 15066 protective separation distance for that obstacle and the robot's
+    #: current speed (information only), and whether the separation is below it.
+    protective_separation: float
+    ssm_violated: bool
+    compute_s: float
+
+    def fires(self, threshold: float) -> bool:
+        return self.risk >= threshold
+
+
+def protective_separation(
+    human_speed: float,
+    robot_speed: float,
+    *,
+    reaction_time: float,
+    stopping_time: float,
+    intrusion: float = 0.0,
+    sensor_uncertainty: float = 0.05,
+    robot_uncertainty: float = 0.005,
+) -> float:
+    """ISO/TS 15066 (5.5.4.2) S_p = v_h (T_r + T_s) + v_r T_r + S_s + C + Z_d + Z_r, with
+    the robot's stopping distance S_s = v_r T_s / 2 (constant deceleration)."""
+    s_h = human_speed * (reaction_time + stopping_time)
+    s_r = robot_speed * reaction_time
+    s_s = 0.5 * robot_speed * stopping_time
+    return s_h + s_r + s_s + intrusion + sensor_uncertainty + robot_uncertainty
+
+
+class ObstacleTracker:
+    """Tracks clusters of current-obstacle voxels and rates their risk (Eq. 2)."""
+
+    def __init__(
+        self,
+        robot,
+        resolution: float,
+        *,
+        beta: float = 1.5,
+        min_voxels: int = 3,
+        gate: float = 0.35,
+        window: int = 4,
+    ) -> None:
+        self.robot = robot
+        self.resolution = resolution
+        self.beta = beta
+        self.min_voxels = min_voxels
+        #: Largest centroid jump (m) between frames that still counts as the same
+        #: obstacle (1.6 m/s at 15 Hz moves 0.11 m; a cluster's visible part shifts more).
+        self.gate = gate
+        self.window = window
+        self.tracks: list[ObstacleTrack] = []
+        self._static: np.ndarray = np.zeros(0, dtype=np.int64)
+        self._next_id = 0
+
+    def _keys(self, centres: np.ndarray) -> np.ndarray:
+        return voxel_codes(centres, self.resolution)
+
+    def learn_static(self, centres: np.ndarray) -> None:
+        """Add voxels (e.g. the current obstacles during a warm-up without people) to
+        the static scene, grown by one voxel in every direction for sensor noise."""
+        centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+        offsets = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)]) * self.resolution
+        grown = (centres[:, None, :] + offsets[None]).reshape(-1, 3)
+        self._static = np.union1d(self._static, self._keys(grown))
+
+    def dynamic_voxels(self, centres: np.ndarray) -> np.ndarray:
+        centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+        if not len(self._static) or not len(centres):
+            return centres
+        return centres[~np.isin(self._keys(centres), self._static)]
+
+    def update(self, time_s: float, centres: np.ndarray, q: np.ndarray, robot_speed: float = 0.0) -> RiskReport:
+        """One frame: the current obstacles' voxel centres, the robot's joint state and
+        its speed (m/s, for the ISO figure). Returns the frame's risk report."""
+        t0 = time.perf_counter()
+        voxels = self.dynamic_voxels(centres)
+        clusters: list[np.ndarray] = []
+        if len(voxels):
+            labels = earcore.cluster_points(voxels, self.resolution)
+            counts = np.bincount(labels)
+            clusters = [voxels[labels == i] for i in np.flatnonzero(counts >= self.min_voxels)]
+        self._associate(time_s, clusters)
+        best = None
+        for track in self.tracks:
+            c = self.robot.clearance_to_voxels(track.voxels, self.resolution, q)
+            d = float(c["distance"])
+            v = track.velocity
+            speed = float(np.linalg.norm(v))
+            towards = c["on_robot"] - c["on_obstacle"]
+            approaching = float(v @ towards) > 0 if d > 0 else True
+            risk = speed**2 / (self.beta * max(d, 1e-3)) if approaching else 0.0
+            if best is None or risk > best[0] or (risk == best[0] and d < best[2]):
+                best = (risk, speed, d, c["on_robot"], c["on_obstacle"])
+        frame_period = 1.0 / 15.0
+        if best is None:
+            sp = protective_separation(0.0, robot_speed, reaction_time=frame_period, stopping_time=0.0)
+            return RiskReport(time_s, 0, 0.0, 0.0, float("inf"), None, None, sp, False, time.perf_counter() - t0)
+        risk, speed, d, on_robot, on_obstacle = best
+        sp = protective_separation(speed, robot_speed, reaction_time=frame_period, stopping_time=0.2)
+        return RiskReport(
+            time_s, len(self.tracks), risk, speed, d, on_robot, on_obstacle, sp, d < sp, time.perf_counter() - t0
+        )
+
+    def _associate(self, time_s: float, clusters: list[np.ndarray]) -> None:
+        centroids = [c.mean(axis=0) for c in clusters]
+        unmatched = list(range(len(clusters)))
+        kept = []
+        for track in self.tracks:
+            if not unmatched:
+                break
+            dists = [np.linalg.norm(centroids[i] - track.centroid) for i in unmatched]
+            j = int(np.argmin(dists))
+            if dists[j] <= self.gate:
+                i = unmatched.pop(j)
+                track.history = (track.history + [(time_s, centroids[i])])[-self.window :]
+                track.voxels = clusters[i]
+                track.velocity = _slope(track.history)
+                kept.append(track)
+        for i in unmatched:
+            kept.append(ObstacleTrack(self._next_id, [(time_s, centroids[i])], clusters[i]))
+            self._next_id += 1
+        self.tracks = kept
+
+
+def _slope(history: list[tuple[float, np.ndarray]]) -> np.ndarray:
+    """Least-squares velocity of positions over time (zero with one sample)."""
+    if len(history) < 2:
+        return np.zeros(3)
+    t = np.array([h[0] for h in history])
+    p = np.array([h[1] for h in history])
+    t = t - t.mean()
+    denom = float(t @ t)
+    return (t @ (p - p.mean(axis=0))) / denom if denom > 0 else np.zeros(3)
+
+
+@dataclass
+class ReflexMove:
+    """A reflex: the kind ("backtrack" or "move_away") and the joint path to run."""
+
+    kind: str
+    path: np.ndarray
+
+
+def _end_effector_jacobian(robot, q: np.ndarray, link: int, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Position of `link`'s origin and its (3, dof) Jacobian by central differences
+    (one batched forward-kinematics call)."""
+    dof = len(q)
+    qs = np.vstack([q, q + eps * np.eye(dof), q - eps * np.eye(dof)])
+    lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
+    qs = np.clip(qs, lo, hi)
+    p = robot.fk(qs)[:, link, :3, 3]
+    steps = (qs[1 : dof + 1] - qs[dof + 1 :]).diagonal()
+    jac = (p[1 : dof + 1] - p[dof + 1 :]).T / np.where(steps == 0, 1.0, steps)
+    return p[0], jac
+
+
+def plan_reflex(
+    robot,
+    tree,
+    q: np.ndarray,
+    executed: np.ndarray,
+    report: RiskReport,
+    *,
+    backtrack_fraction: float = 0.1,
+    move_away_distance: float = 0.15,
+    resolution: float = 0.02,
+    end_effector_link: int | None = None,
+) -> ReflexMove | None:
+    """Paper II's reflex for the current state: backtrack along the last
+    `backtrack_fraction` of `executed` (the joint states passed, oldest first) if that
+    path is free, else move the end-effector away from the closest obstacle point.
+    None when neither move is free (the caller stops the robot)."""
+    q = np.asarray(q, dtype=np.float64)
+    executed = np.asarray(executed, dtype=np.float64).reshape(-1, len(q))
+    if len(executed) >= 2:
+        seg = np.linalg.norm(np.diff(executed, axis=0), axis=1)
+        total = seg.sum()
+        if total > 1e-6:
+            # Walk back from the end until the fraction of the executed length is covered.
+            back = np.r_[0.0, np.cumsum(seg[::-1])]
+            n = int(np.searchsorted(back, backtrack_fraction * total))
+            tail = np.vstack([q[None], executed[::-1][: n + 1]])
+            keep = np.r_[True, np.linalg.norm(np.diff(tail, axis=0), axis=1) > 1e-9]
+            tail = tail[keep]
+            if len(tail) >= 2 and not np.any(robot.check_motions(tree, tail[:-1], tail[1:], resolution)):
+                return ReflexMove("backtrack", tail)
+    if report.on_obstacle is None:
+        return None
+    link = end_effector_link if end_effector_link is not None else len(robot.link_names) - 1
+    position, jac = _end_effector_jacobian(robot, q, link)
+    away = position - report.on_obstacle
+    norm = np.linalg.norm(away)
+    if norm < 1e-9:
+        return None
+    step = away / norm * move_away_distance
+    # Damped least squares: the joint step that moves the end-effector by `step`.
+    damping = 0.05
+    dq = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(3), step)
+    lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
+    target = np.clip(q + dq, lo, hi)
+    if robot.check_motion(tree, q, target, resolution):
+        return None
+    return ReflexMove("move_away", np.stack([q, target]))

@@ -1,0 +1,203 @@
+"""Joint-space RRT-Connect (OMPL) with earcore's collision core as the validity check.
+
+OMPL explores; every state and every edge it proposes is checked in Rust against the
+map (`RobotModel.check_configurations` / `check_motion`, including self-collision).
+Solutions are shortcut and B-spline smoothed by OMPL's simplifier, which keeps only
+changes that stay valid.
+
+Needs the `ompl` package (PyPI, 2.x API): ``pip install 'earcore[planning]'``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from earcore.planning.errors import GoalInCollision, NoPathFound, StartInCollision
+from earcore.planning.trajectory import path_length
+
+__all__ = ["JointSpacePlanner", "PlannedPath"]
+
+
+def _ompl():
+    try:
+        from ompl import base as ob
+        from ompl import geometric as og
+        from ompl import util as ou
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise ImportError("planning needs OMPL: pip install 'earcore[planning]' (PyPI package `ompl` >= 2)") from exc
+    ou.setLogLevel(ou.LOG_ERROR)
+    return ob, og, ou
+
+
+@dataclass
+class PlannedPath:
+    """One solution: waypoints (M, dof) and how long finding and simplifying it took."""
+
+    waypoints: np.ndarray
+    planning_time: float
+    simplify_time: float
+
+    @property
+    def length(self) -> float:
+        return path_length(self.waypoints)
+
+
+class JointSpacePlanner:
+    """RRT-Connect in the robot's joint space against `tree` (the map; whatever is
+    occupied in it, static structure and current obstacles alike, is forbidden).
+
+    `resolution` (rad) is the largest joint step between checked configurations on an
+    edge; `range` the RRT step (0 = OMPL's default, 20 % of the space's extent).
+    Joint limits wider than ±π (UR's ±2π) are narrowed to `max_joint_span` around the
+    start, which keeps the search in the part of the space a task uses.
+    """
+
+    def __init__(
+        self,
+        robot,
+        tree,
+        *,
+        resolution: float = 0.02,
+        range: float = 0.0,
+        obstacles: str = "occupied",
+        max_joint_span: float = 2 * np.pi,
+        seed: int | None = None,
+    ) -> None:
+        self.robot = robot
+        self.tree = tree
+        self.resolution = resolution
+        self.range = range
+        self.obstacles = obstacles
+        self.max_joint_span = max_joint_span
+        self.dof = robot.dof
+        self._ob, self._og, ou = _ompl()
+        if seed is not None:
+            ou.RNG.setSeed(int(seed))
+        #: Validity queries made by the last `plan` call (states, edges) and the time
+        #: spent in them, for the planning benchmark's "validity share".
+        self.checks = {"states": 0, "motions": 0, "seconds": 0.0}
+
+    # --- validity, as the planner sees it ---------------------------------------
+
+    def is_valid(self, q) -> bool:
+        return not bool(self.robot.check_configurations(self.tree, q, obstacles=self.obstacles))
+
+    def path_is_valid(self, path) -> bool:
+        """Every edge of a polyline free at the planner's resolution."""
+        path = np.asarray(path, dtype=np.float64)
+        if len(path) == 1:
+            return self.is_valid(path[0])
+        hits = self.robot.check_motions(self.tree, path[:-1], path[1:], self.resolution, obstacles=self.obstacles)
+        return not bool(np.any(hits))
+
+    def _describe(self, q) -> str | None:
+        hit, link = self.robot.check_configurations(self.tree, q, obstacles=self.obstacles, return_links=True)
+        if not hit:
+            return None
+        return self.robot.link_names[link] if link >= 0 else "self-collision"
+
+    # --- planning ---------------------------------------------------------------
+
+    def _setup(self, start: np.ndarray, goal: np.ndarray):
+        ob, og = self._ob, self._og
+        dof = self.dof
+        space = ob.RealVectorStateSpace(dof)
+        bounds = ob.RealVectorBounds(dof)
+        limits = self.robot.joint_limits
+        for j in range(dof):
+            lo, hi = float(limits[j, 0]), float(limits[j, 1])
+            if hi - lo > self.max_joint_span:
+                centre = 0.5 * (start[j] + goal[j])
+                lo = max(lo, centre - 0.5 * self.max_joint_span)
+                hi = min(hi, centre + 0.5 * self.max_joint_span)
+            bounds.setLow(j, lo)
+            bounds.setHigh(j, hi)
+        space.setBounds(bounds)
+        setup = og.SimpleSetup(space)
+        si = setup.getSpaceInformation()
+        robot, tree, obstacles, res, checks = self.robot, self.tree, self.obstacles, self.resolution, self.checks
+
+        def state_valid(s) -> bool:
+            checks["states"] += 1
+            return not robot.check_configurations(tree, s[0:dof], obstacles=obstacles)
+
+        class EdgeValidator(ob.MotionValidator):
+            def checkMotion(self, s1, s2) -> bool:  # noqa: N802 (OMPL's name)
+                checks["motions"] += 1
+                return not robot.check_motion(tree, s1[0:dof], s2[0:dof], res, obstacles=obstacles)
+
+        setup.setStateValidityChecker(state_valid)
+        si.setMotionValidator(EdgeValidator(si))
+        planner = og.RRTConnect(si)
+        if self.range > 0:
+            planner.setRange(self.range)
+        setup.setPlanner(planner)
+
+        def state(q):
+            st = si.allocState()
+            st[0:dof] = [float(v) for v in q]
+            return st
+
+        setup.setStartAndGoalStates(state(start), state(goal))
+        setup.setup()
+        return setup, si
+
+    def check_ends(self, start, goal) -> tuple[np.ndarray, np.ndarray]:
+        """Validate and convert the two ends (raises the planning errors)."""
+        start = np.asarray(start, dtype=np.float64)
+        goal = np.asarray(goal, dtype=np.float64)
+        for name, q in (("start", start), ("goal", goal)):
+            if q.shape != (self.dof,):
+                raise ValueError(f"{name} must have {self.dof} joint values, got shape {q.shape}")
+            if not np.isfinite(q).all():
+                raise ValueError(f"{name} contains NaN or infinite values: {q}")
+        # Joints outside their limits raise ValueError (naming the joint) here.
+        link = self._describe(start)
+        if link is not None:
+            raise StartInCollision(f"the start configuration is in collision ({link})", link)
+        link = self._describe(goal)
+        if link is not None:
+            raise GoalInCollision(f"the goal configuration is in collision ({link})", link)
+        return start, goal
+
+    def plan(
+        self, start, goal, *, time_limit: float = 1.0, attempts: int = 1, simplify: bool = True
+    ) -> list[PlannedPath]:
+        """Up to `attempts` independent RRT-Connect solutions start → goal, each found
+        within `time_limit` seconds (Paper II, Table I: 1 s, 3 attempts). Raises
+        `StartInCollision`, `GoalInCollision`, or `NoPathFound` when no attempt
+        succeeds; never runs longer than attempts × (time_limit + simplification)."""
+        start, goal = self.check_ends(start, goal)
+        if not (time_limit > 0 and attempts >= 1):
+            raise ValueError("time_limit must be > 0 and attempts >= 1")
+        self.checks.update(states=0, motions=0, seconds=0.0)
+        if not self.robot.check_motion(self.tree, start, goal, self.resolution, obstacles=self.obstacles):
+            # The straight motion is free: RRT-Connect would find it at once; skip OMPL.
+            direct = PlannedPath(np.stack([start, goal]), 0.0, 0.0)
+            return [direct]
+        setup, si = self._setup(start, goal)
+        ob, og = self._ob, self._og
+        simplifier = og.PathSimplifier(si)
+        found = []
+        for _ in range(attempts):
+            setup.clear()
+            t0 = time.perf_counter()
+            status = setup.solve(time_limit)
+            t1 = time.perf_counter()
+            if status.getStatus() != ob.PlannerStatus.EXACT_SOLUTION:
+                continue
+            path = og.PathGeometric(setup.getSolutionPath())
+            if simplify:
+                simplifier.simplifyMax(path)
+                simplifier.smoothBSpline(path, 3)
+            waypoints = np.array([s[0 : self.dof] for s in path.getStates()], dtype=np.float64)
+            found.append(PlannedPath(waypoints, t1 - t0, time.perf_counter() - t1))
+        if not found:
+            raise NoPathFound(
+                f"RRT-Connect found no collision-free path in {attempts} attempt(s) of {time_limit:g} s "
+                "(the goal may be enclosed by obstacles)"
+            )
+        return found

@@ -1,0 +1,147 @@
+"""Time parameterisation: a joint-space path (waypoints) becomes a trajectory q(t)
+that respects per-joint speed and acceleration limits (Paper II, Table I: 50 % / 60 %
+of the maximum).
+
+The path is resampled densely by arc length s; along it the speed ṡ is limited by
+
+    |q'_j(s)| ṡ ≤ v_j                      (joint speed)
+    |q''_j(s)| ṡ² ≤ a_j / 2                (the curvature's share of the acceleration)
+    |q'_j(s)| |s̈| ≤ a_j / 2                (the tangential share)
+
+so every joint's acceleration |q'_j s̈ + q''_j ṡ²| stays within a_j. A forward pass
+(accelerate from rest) and a backward pass (brake to rest) give the fastest profile
+under these bounds; times follow from ṡ. Corners of a polyline have infinite
+curvature; they are passed slowly enough that the velocity jump there fits in one
+control period, so hand it smoothed paths (the planner does).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Trajectory", "path_length", "time_parameterize"]
+
+
+def path_length(path: np.ndarray) -> float:
+    """Euclidean joint-space length of a polyline (rad)."""
+    path = np.asarray(path, dtype=np.float64)
+    return float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum()) if len(path) > 1 else 0.0
+
+
+@dataclass
+class Trajectory:
+    """Knots of a timed path: times (T,), positions (T, dof), velocities (T, dof), and
+    the arc length `s` and path speed `speed` (ṡ) at each knot. Between knots the path
+    speed changes at a constant rate, so `sample` reproduces the planned motion."""
+
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    s: np.ndarray
+    speed: np.ndarray
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1])
+
+    def sample(self, t: float | np.ndarray) -> np.ndarray:
+        """Positions at time(s) t (clamped to [0, duration])."""
+        t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
+        scalar = t.ndim == 0
+        t = np.atleast_1d(t)
+        if len(self.times) == 1:
+            out = np.repeat(self.positions[:1], len(t), axis=0)
+            return out[0] if scalar else out
+        i = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
+        tau = t - self.times[i]
+        ds = self.s[i + 1] - self.s[i]
+        accel = (self.speed[i + 1] ** 2 - self.speed[i] ** 2) / (2 * ds)
+        s = np.minimum(self.s[i] + self.speed[i] * tau + 0.5 * accel * tau**2, self.s[i + 1])
+        out = np.stack([np.interp(s, self.s, self.positions[:, j]) for j in range(self.positions.shape[1])], axis=1)
+        return out[0] if scalar else out
+
+    def remaining_path(self, t: float) -> np.ndarray:
+        """Knot positions from time t to the end (the current position first)."""
+        later = self.positions[self.times > t]
+        return np.vstack([self.sample(t)[None], later])
+
+
+def _resample(path: np.ndarray, step: float) -> np.ndarray:
+    """Points every `step` (or less) of Euclidean joint-space arc length, the
+    waypoints included."""
+    out = [path[0]]
+    for a, b in zip(path[:-1], path[1:]):
+        n = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+        out.extend(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    return np.asarray(out)
+
+
+def time_parameterize(
+    path,
+    max_velocity,
+    max_acceleration,
+    *,
+    step: float = 0.01,
+    control_period: float = 1.0 / 30.0,
+    initial_speed: float = 0.0,
+) -> Trajectory:
+    """The fastest trajectory along `path` (M, dof) from rest to rest within the limits
+    (per joint, rad/s and rad/s²), sampled every `step` rad of arc length, for a
+    controller that updates its command every `control_period` seconds.
+    `initial_speed` (ṡ at the start, rad/s) lets a robot already moving along the
+    path's first direction continue instead of being asked to be at rest (re-planning
+    on the fly); it is capped by the limits there."""
+    path = np.asarray(path, dtype=np.float64)
+    if path.ndim != 2 or len(path) < 1:
+        raise ValueError(f"path must be an (M, dof) array with M >= 1, got shape {path.shape}")
+    if not np.isfinite(path).all():
+        raise ValueError("path contains NaN or infinite values")
+    v_max = np.broadcast_to(np.asarray(max_velocity, dtype=np.float64), path.shape[1:])
+    a_max = np.broadcast_to(np.asarray(max_acceleration, dtype=np.float64), path.shape[1:])
+    if not (np.all(v_max > 0) and np.all(a_max > 0)):
+        raise ValueError("velocity and acceleration limits must be > 0")
+    # Drop repeated waypoints (zero-length segments have no direction).
+    keep = np.r_[True, np.linalg.norm(np.diff(path, axis=0), axis=1) > 1e-12]
+    path = path[keep]
+    if len(path) == 1:
+        return Trajectory(np.zeros(1), path.copy(), np.zeros_like(path), np.zeros(1), np.zeros(1))
+    q = _resample(path, step)
+    ds = np.linalg.norm(np.diff(q, axis=0), axis=1)
+    s = np.r_[0.0, np.cumsum(ds)]
+    # Path derivatives: one-sided on the segments, central at the knots.
+    dq_seg = np.diff(q, axis=0) / ds[:, None]  # (n-1, dof), unit length
+    d1 = np.empty_like(q)
+    d1[0], d1[-1] = dq_seg[0], dq_seg[-1]
+    d1[1:-1] = 0.5 * (dq_seg[:-1] + dq_seg[1:])
+    d2 = np.zeros_like(q)
+    d2[1:-1] = (dq_seg[1:] - dq_seg[:-1]) / (0.5 * (ds[:-1] + ds[1:]))[:, None]
+    with np.errstate(divide="ignore"):
+        v_lim = np.min(v_max / np.abs(d1), axis=1)
+        curv_lim = np.sqrt(np.min(0.5 * a_max / np.abs(d2), axis=1))
+        # Tangential acceleration allowed on each segment (both ends' directions).
+        a_seg = np.minimum(
+            np.min(0.5 * a_max / np.abs(dq_seg), axis=1),
+            np.minimum(np.min(0.5 * a_max / np.abs(d1[:-1]), axis=1), np.min(0.5 * a_max / np.abs(d1[1:]), axis=1)),
+        )
+        # At a knot the direction turns by Δ (a corner of the polyline): the velocity
+        # jumps by ṡ·|Δ_j|, which a controller running every `control_period` must
+        # absorb within half its acceleration.
+        turn = np.zeros_like(q)
+        turn[1:-1] = np.abs(dq_seg[1:] - dq_seg[:-1])
+        jump_lim = np.min(0.5 * a_max * control_period / turn, axis=1)
+    cap = np.minimum(np.minimum(v_lim, curv_lim), jump_lim)
+    cap[0] = min(max(float(initial_speed), 0.0), cap[0])
+    cap[-1] = 0.0
+    # Forward (accelerate) and backward (brake) passes on ṡ²: v²[i] = min(cap²[i],
+    # v²[i-1] + 2 a ds) unrolls to a running minimum of cap² - C plus C, with C the
+    # cumulative 2 a ds (and the same backwards), so no loop is needed.
+    c = np.r_[0.0, np.cumsum(2 * a_seg * ds)]
+    v2 = np.minimum(cap, 1e6) ** 2
+    v2 = np.minimum.accumulate(v2 - c) + c
+    v2 = np.minimum.accumulate((v2 + c)[::-1])[::-1] - c
+    sd = np.sqrt(np.maximum(v2, 0.0))
+    dt = 2 * ds / np.maximum(sd[:-1] + sd[1:], 1e-12)
+    times = np.r_[0.0, np.cumsum(dt)]
+    return Trajectory(times, q, d1 * sd[:, None], s, sd)

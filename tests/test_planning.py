@@ -1,0 +1,296 @@
+"""Planning (issue 7): time parameterisation, RRT-Connect with the collision core, the
+danger-costed choice, obstacle tracking, risk and reflexes, the executive in the cell."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import earcore
+
+pytest.importorskip("ompl")
+
+from earcore.planning import (  # noqa: E402
+    GoalInCollision,
+    JointSpacePlanner,
+    NoPathFound,
+    ObstacleTracker,
+    PredictivePlanner,
+    StartInCollision,
+    plan_reflex,
+    protective_separation,
+    time_parameterize,
+)
+
+A = np.array([0.0, -1.9, 1.6, -1.3, -1.57, 0.0])
+B = np.array([1.3, -1.3, 1.2, -1.5, -1.57, 0.0])
+V_MAX = np.array([1.57, 1.57, 1.57, 1.57, 1.57, 1.57])
+A_MAX = np.full(6, 1.8)
+
+
+@pytest.fixture(scope="module")
+def ur5():
+    return earcore.robots.load("ur5")
+
+
+def pillar_tree() -> earcore.OcTree:
+    """A 10 × 10 cm pillar in the direct path of the tool from A to B."""
+    tree = earcore.OcTree(0.05)
+    pillar = np.array([[x, y, z] for x in (0.3, 0.35) for y in (0.35, 0.4) for z in np.arange(0.025, 0.9, 0.05)])
+    tree.update_nodes(pillar)
+    return tree
+
+
+def dense_collides(robot, tree, path, step=0.005) -> bool:
+    """Reference: every configuration of the polyline at `step` rad, checked one by one."""
+    qs = [path[0]]
+    for a, b in zip(path[:-1], path[1:]):
+        n = max(1, int(np.ceil(np.abs(b - a).max() / step)))
+        qs.extend(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    return bool(robot.check_configurations(tree, np.array(qs)).any())
+
+
+# --- time parameterisation ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["polyline", "smooth"])
+def test_trajectory_respects_limits_and_follows_the_path(kind):
+    rng = np.random.default_rng(3)
+    if kind == "polyline":
+        path = A + np.cumsum(rng.normal(scale=0.4, size=(5, 6)), axis=0)
+    else:
+        s = np.linspace(0, 1, 150)[:, None]
+        path = A + 0.6 * np.sin(3 * s + np.arange(6))
+    dt = 1 / 30
+    traj = time_parameterize(path, V_MAX, A_MAX, control_period=dt)
+    assert np.allclose(traj.sample(0.0), path[0]) and np.allclose(traj.sample(traj.duration), path[-1])
+    # Every waypoint is passed (the knots include them).
+    for w in path:
+        assert np.abs(traj.positions - w).max(axis=1).min() < 1e-9
+    # Speed limit at the knots; speed and acceleration by finite differences at the
+    # controller's rate (the reference: what a controller sampling it would command).
+    assert (np.abs(traj.velocities) <= V_MAX * (1 + 1e-9)).all()
+    q = traj.sample(np.arange(0, traj.duration + dt, dt))
+    v = np.diff(q, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    assert (np.abs(v) <= V_MAX * 1.001).all()
+    assert (np.abs(a) <= A_MAX * 1.05).all()
+    assert np.abs(v[0]).max() < 0.1 and np.abs(v[-1]).max() < 0.1  # rest to rest
+
+
+def test_trajectory_bad_input():
+    with pytest.raises(ValueError, match="NaN"):
+        time_parameterize([[0.0, np.nan]], [1, 1], [1, 1])
+    with pytest.raises(ValueError, match="> 0"):
+        time_parameterize([[0.0, 0.0], [1.0, 1.0]], [1, 0], [1, 1])
+    with pytest.raises(ValueError, match="shape"):
+        time_parameterize(np.zeros(3), 1, 1)
+    single = time_parameterize([[0.5, 0.5]], 1, 1)
+    assert single.duration == 0.0 and np.allclose(single.sample(3.0), [0.5, 0.5])
+
+
+# --- RRT-Connect with the collision core ------------------------------------------------
+
+
+def test_rrt_connect_paths_are_collision_free(ur5):
+    tree = pillar_tree()
+    assert ur5.check_motion(tree, A, B), "the scene must block the direct motion"
+    planner = JointSpacePlanner(ur5, tree, seed=7)
+    solutions = planner.plan(A, B, attempts=3, time_limit=1.0)
+    assert len(solutions) >= 1
+    for s in solutions:
+        assert np.allclose(s.waypoints[0], A) and np.allclose(s.waypoints[-1], B)
+        assert not dense_collides(ur5, tree, s.waypoints)
+    assert planner.checks["states"] + planner.checks["motions"] > 0
+
+
+def test_direct_motion_skips_the_search(ur5):
+    planner = JointSpacePlanner(ur5, earcore.OcTree(0.05))
+    (only,) = planner.plan(A, B)
+    assert only.waypoints.shape == (2, 6) and planner.checks["states"] == 0
+
+
+def test_planning_errors_name_the_cause(ur5):
+    tree = pillar_tree()
+    planner = JointSpacePlanner(ur5, tree, seed=1)
+    tool_a = ur5.fk(A)[-1, :3, 3]
+    blocked = earcore.OcTree(0.05)
+    blocked.update_nodes(tool_a[None])
+    with pytest.raises(StartInCollision, match="start"):
+        JointSpacePlanner(ur5, blocked).plan(A, B)
+    with pytest.raises(GoalInCollision, match="goal"):
+        JointSpacePlanner(ur5, blocked).plan(B, A)
+    with pytest.raises(NoPathFound):
+        planner.plan(A, B, time_limit=1e-6, attempts=1)
+    with pytest.raises(ValueError, match="joint values"):
+        planner.plan(A[:5], B)
+    with pytest.raises(ValueError, match="NaN"):
+        planner.plan(np.full(6, np.nan), B)
+    with pytest.raises(ValueError):
+        planner.plan(A + np.r_[0, 0, 10, 0, 0, 0], B)  # outside the elbow's limits
+
+
+# --- danger-costed choice ------------------------------------------------------------------
+
+
+def test_path_danger_is_the_sum_of_its_segments(ur5):
+    tree = earcore.OcTree(0.05)
+    blob = np.random.default_rng(0).uniform([0.1, 0.1, 0.3], [0.4, 0.5, 0.7], (300, 3))
+    tree.insert_point_cloud(blob, [1.0, 1.0, 1.0])
+    tree.end_frame(1 / 15)
+    tree.insert_point_cloud(np.array([[2.0, 2.0, 2.0]]), [1.0, 1.0, 1.0])  # the blob is not hit again
+    tree.end_frame(1 / 15)
+    path = np.stack([A, (A + B) / 2 + 0.2, B])
+    segments = ur5.motion_danger(tree, path[0], path[1], 0.05) + ur5.motion_danger(tree, path[1], path[2], 0.05)
+    assert ur5.path_danger(tree, path, 0.05) == pytest.approx(segments, rel=1e-12)
+    assert segments > ur5.path_danger(earcore.OcTree(0.05), path, 0.05)  # danger adds cost
+
+
+def test_predictive_planner_picks_the_cheapest_solution(ur5):
+    tree = pillar_tree()
+    # Danger on one side of the pillar (voxels hit once, then decaying).
+    side = np.array([[x, y, z] for x in (0.15, 0.2, 0.25) for y in (0.2, 0.25) for z in np.arange(0.3, 0.8, 0.05)])
+    tree.insert_point_cloud(side, [0.2, -0.8, 0.5])
+    tree.end_frame(1 / 15)
+    tree.insert_point_cloud(side + [0, 0, 2.0], [0.2, -0.8, 0.5])  # the side is seen free now
+    tree.end_frame(1 / 15)
+    planner = PredictivePlanner(ur5, tree, attempts=3, seed=11)
+    choice = planner.plan(A, B)
+    costs = [ur5.path_danger(tree, p.waypoints, 0.05) for p, _ in choice.candidates]
+    assert choice.cost == pytest.approx(min(costs))
+    assert np.array_equal(choice.path, choice.candidates[int(np.argmin(costs))][0].waypoints)
+    assert choice.planning_time >= 0 and choice.optimisation_time > 0
+
+
+# --- obstacles, risk and reflexes -------------------------------------------------------------
+
+
+def test_cluster_points_match_a_flood_fill():
+    rng = np.random.default_rng(5)
+    res = 0.05
+    cells = np.unique(rng.integers(0, 8, (120, 3)), axis=0)
+    centres = (cells + 0.5) * res
+    labels = earcore.cluster_points(centres, res)
+    # Reference: flood fill over pairs whose cells differ by at most one per axis.
+    near = (np.abs(cells[:, None] - cells[None]) <= 1).all(axis=2)
+    comp = -np.ones(len(cells), int)
+    for s in range(len(cells)):
+        if comp[s] >= 0:
+            continue
+        comp[s] = s
+        frontier = [s]
+        while frontier:
+            i = frontier.pop()
+            for j in np.flatnonzero(near[i] & (comp < 0)):
+                comp[j] = s
+                frontier.append(j)
+    assert ((labels[:, None] == labels[None]) == (comp[:, None] == comp[None])).all()
+    with pytest.raises(ValueError):
+        earcore.cluster_points(centres, 0.0)
+
+
+def test_clearance_to_voxels_matches_sampled_capsules():
+    from earcore.robots import urdf_path
+
+    ur5c = earcore.RobotModel.from_urdf(urdf_path("ur5"), shape="capsule")
+    rng = np.random.default_rng(2)
+    res = 0.05
+    for _ in range(5):
+        q = A + rng.normal(scale=0.3, size=6)
+        centres = (np.floor(rng.uniform([-0.6, -0.6, 0.0], [0.8, 0.8, 0.9], (40, 3)) / res) + 0.5) * res
+        got = ur5c.clearance_to_voxels(centres, res, q)
+        bodies = ur5c.bodies(q)
+        best = np.inf
+        moving = np.array(ur5c.fixed_to_root)[bodies["link"]] == False  # noqa: E712
+        for a, b, r in zip(bodies["a"][moving], bodies["b"][moving], bodies["radius"][moving]):
+            pts = a + (b - a) * np.linspace(0, 1, 2001)[:, None]
+            outside = np.maximum(np.abs(pts[:, None, :] - centres[None]) - res / 2, 0.0)
+            best = min(best, float(np.linalg.norm(outside, axis=2).min()) - r)
+        if best > 0:
+            assert got["distance"] <= best + 1e-9
+            assert got["distance"] >= best - 1e-3  # axis sampled every ≤ 0.5 mm
+            assert np.linalg.norm(got["on_robot"] - got["on_obstacle"]) == pytest.approx(got["distance"], abs=1e-9)
+    assert ur5c.clearance_to_voxels(np.zeros((0, 3)), res, A)["distance"] == np.inf
+
+
+def test_tracker_estimates_velocity_and_risk(ur5):
+    res = 0.05
+    tracker = ObstacleTracker(ur5, res, beta=1.5)
+    table = np.array([[x, y, -0.025] for x in np.arange(-0.3, 1.0, res) for y in np.arange(-0.6, 0.6, res)])
+    tracker.learn_static(table)
+    blob = np.array([[x, y, z] for x in (0, res) for y in (0, res) for z in (0, res)])
+    tool = ur5.fk(A)[-1, :3, 3]
+    start = tool + np.array([0.6, 0.0, 0.0])
+    velocity = np.array([-1.2, 0.0, 0.0])  # towards the tool
+    report = None
+    for k in range(6):
+        t = k / 15
+        centre = start + velocity * t
+        voxels = (np.floor((blob + centre) / res) + 0.5) * res
+        report = tracker.update(t, np.vstack([voxels, table]), A)
+    assert len(tracker.tracks) == 1  # the table is static scene
+    assert np.linalg.norm(tracker.tracks[0].velocity - velocity) < 0.25
+    d = ur5.clearance_to_voxels(tracker.tracks[0].voxels, res, A)["distance"]
+    assert report.clearance == pytest.approx(d)
+    assert report.risk == pytest.approx(report.speed**2 / (1.5 * d))
+    # The same obstacle moving away is no risk.
+    away = ObstacleTracker(ur5, res)
+    for k in range(6):
+        voxels = (np.floor((blob + start - velocity * k / 15) / res) + 0.5) * res
+        report = away.update(k / 15, voxels, A)
+    assert report.risk == 0.0 and report.speed > 1.0
+
+
+def test_protective_separation_formula():
+    # ISO/TS 15066: v_h (T_r + T_s) + v_r T_r + v_r T_s / 2 + C + Z_d + Z_r.
+    got = protective_separation(1.6, 0.5, reaction_time=0.1, stopping_time=0.3, intrusion=0.02,
+                                sensor_uncertainty=0.05, robot_uncertainty=0.01)
+    assert got == pytest.approx(1.6 * 0.4 + 0.5 * 0.1 + 0.5 * 0.3 / 2 + 0.02 + 0.05 + 0.01)
+
+
+def test_reflex_backtracks_or_moves_away(ur5):
+    tree = earcore.OcTree(0.05)
+    executed = A + np.linspace(0, 1, 50)[:, None] * (B - A)
+    q = executed[-1]
+    tool = ur5.fk(q)[-1, :3, 3]
+    from earcore.planning.reflex import RiskReport
+
+    obstacle = tool + np.array([0.12, 0.0, 0.0])
+    report = RiskReport(0.0, 1, 2.0, 1.0, 0.1, tool, obstacle, 0.5, True, 0.0)
+    move = plan_reflex(ur5, tree, q, executed, report, backtrack_fraction=0.1)
+    assert move.kind == "backtrack"
+    length = np.linalg.norm(B - A)
+    back = np.linalg.norm(np.diff(move.path, axis=0), axis=1).sum()
+    assert 0.1 * length <= back <= 0.1 * length + np.linalg.norm(executed[1] - executed[0]) + 1e-9
+    # Block the way back: the reflex moves the tool away from the obstacle instead.
+    # (the obstacle came from behind: the closest obstacle point is that voxel).
+    behind = ur5.fk(executed[-8])[-1, :3, 3]
+    tree.update_nodes(behind[None])
+    assert not ur5.check_configurations(tree, q)
+    obstacle = (np.floor(behind / 0.05) + 0.5) * 0.05
+    report = RiskReport(0.0, 1, 2.0, 1.0, 0.05, tool, obstacle, 0.5, True, 0.0)
+    move = plan_reflex(ur5, tree, q, executed, report, move_away_distance=0.1)
+    assert move.kind == "move_away"
+    new_tool = ur5.fk(move.path[-1])[-1, :3, 3]
+    assert np.linalg.norm(new_tool - obstacle) > np.linalg.norm(tool - obstacle) + 0.05
+    assert not ur5.check_motion(tree, move.path[0], move.path[-1])
+
+
+# --- the executive in the cell -------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_executive_shuttles_in_the_cell(tmp_path):
+    pytest.importorskip("pybullet")
+    from earcore.run import run
+    from earcore.sim.config import RunConfig
+
+    config = RunConfig(duration=14.0, snapshots=[])
+    config.cell.camera_scale = 0.25
+    config.cell.person.enabled = False
+    summary = run(config, tmp_path, progress=False, record=False, trips=2)
+    trips = summary["trips"]
+    assert len(trips) == 2 and all(t["completed"] for t in trips)
+    assert summary["planning"]["collisions"] == 0
+    # Without obstacles each trip is the direct motion at the limits: A to B and back.
+    assert trips[0]["path_length"] == pytest.approx(np.linalg.norm(B - A), rel=0.02)
