@@ -133,3 +133,29 @@ def test_frame_cost_follows_the_active_set_not_the_map():
     tree.insert_point_cloud(VOXEL + [0, 0, 1.0], ORIGIN)
     second = tree.end_frame(0.1)
     assert second.hit == 1 and second.decayed <= second.active
+
+
+def test_free_rays_clear_space_without_hits():
+    """`insert_free_rays`: the same rays as `insert_point_cloud`, minus the hits; the
+    danger of a voxel they see free decays."""
+    rng = np.random.default_rng(9)
+    origin = np.array([0.1, -0.2, 1.5])
+    points = rng.uniform([-1, -1, 0], [1, 1, 0.3], (2000, 3))
+    free_only, full = earcore.OcTree(0.05), earcore.OcTree(0.05)
+    free_only.insert_free_rays(points, origin)
+    full.insert_point_cloud(points, origin)
+    fc, _, fl = free_only.leaves()
+    gc, _, gl = full.leaves()
+    assert (fl < 0).all()  # nothing occupied
+    assert (free_only.is_occupied(gc[gl < 0]) == 0).all()  # every free cell of the full scan
+    # End cells are known only where another ray crossed them.
+    assert (free_only.is_occupied(gc[gl > 0]) != 1).all() and (free_only.is_occupied(gc[gl > 0]) == -1).any()
+    # Danger: hit once, then seen free through free rays only.
+    tree = earcore.OcTree(0.05)
+    blob = np.array([[0.0, 0.0, 0.5]])
+    tree.insert_point_cloud(blob, origin)
+    tree.end_frame(1 / 15)
+    behind = origin + 1.5 * (blob[0] - origin)
+    tree.insert_free_rays(behind[None], origin)
+    tree.end_frame(1 / 15)
+    assert 0 < tree.danger(blob)[0] < 0.999

@@ -17,8 +17,10 @@ from earcore.planning import (  # noqa: E402
     ObstacleTracker,
     PredictivePlanner,
     StartInCollision,
+    UnreachablePose,
     plan_reflex,
     protective_separation,
+    solve_ik,
     time_parameterize,
 )
 
@@ -128,6 +130,45 @@ def test_planning_errors_name_the_cause(ur5):
         planner.plan(np.full(6, np.nan), B)
     with pytest.raises(ValueError):
         planner.plan(A + np.r_[0, 0, 10, 0, 0, 0], B)  # outside the elbow's limits
+
+
+# --- inverse kinematics for pose goals ---------------------------------------------------
+
+
+def rotation_angle(r: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
+
+
+def test_ik_reaches_poses_of_random_configurations(ur5):
+    rng = np.random.default_rng(4)
+    for _ in range(8):
+        target = ur5.fk(rng.uniform(-2, 2, 6))[-1]
+        result = solve_ik(ur5, target, rng=rng)
+        reached = ur5.fk(result.q)[-1]
+        assert np.linalg.norm(reached[:3, 3] - target[:3, 3]) <= 0.01
+        assert rotation_angle(reached[:3, :3] @ target[:3, :3].T) <= 0.1
+
+
+def test_ik_errors():
+    ur5 = earcore.robots.load("ur5")
+    far = np.eye(4)
+    far[:3, 3] = [3.0, 0.0, 0.5]
+    with pytest.raises(UnreachablePose, match="restarts"):
+        solve_ik(ur5, far, restarts=3)
+    skew = np.eye(4)
+    skew[0, 1] = 0.5
+    with pytest.raises(ValueError, match="rotation"):
+        solve_ik(ur5, skew)
+
+
+def test_planning_to_a_pose_goal(ur5):
+    tree = pillar_tree()
+    target = ur5.fk(B)[-1]
+    (path, *_) = JointSpacePlanner(ur5, tree, seed=3).plan(A, target)
+    reached = ur5.fk(path.waypoints[-1])[-1]
+    assert np.linalg.norm(reached[:3, 3] - target[:3, 3]) <= 0.01
+    assert rotation_angle(reached[:3, :3] @ target[:3, :3].T) <= 0.1
+    assert not dense_collides(ur5, tree, path.waypoints)
 
 
 # --- danger-costed choice ------------------------------------------------------------------

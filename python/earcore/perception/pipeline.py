@@ -140,7 +140,7 @@ class PerceptionPipeline:
         origin = self.robot.base[:3, 3]
         # Per camera: points in the base frame, cropped (Paper II merges the cameras'
         # clouds, then pre-processes the merged cloud once).
-        clouds, origins, columns = [], [], []
+        clouds, origins, columns, lows = [], [], [], []
         tracking = self.track_body is not None
         t0 = time.perf_counter()
         for frame in frames:
@@ -154,7 +154,9 @@ class PerceptionPipeline:
             t1 = time.perf_counter()
             pts, idx = earcore.crop(pts, center=origin, radius=c.crop_radius, return_index=True)
             if c.min_height is not None:
+                # Low points (the table) only clear the space in front of them.
                 above = pts[:, 2] >= c.min_height
+                lows.append(pts[~above])
                 pts, idx = pts[above], idx[above]
             robot = np.zeros(len(pts))
             if tracking and frame.segmentation is not None:
@@ -208,6 +210,10 @@ class PerceptionPipeline:
             report.tracked_inserted += int((tracked & keep).sum())
         pts, camera = pts[keep], camera[keep]
         t5 = time.perf_counter()
+        for sensor_origin, low in zip(origins, lows):
+            if len(low):
+                low = earcore.voxel_downsample(low, self.tree.resolution)
+                self.tree.insert_free_rays(low, sensor_origin, max_range=c.max_range)
         for i, sensor_origin in enumerate(origins):
             mine = pts[camera == i]
             if len(mine):

@@ -5,6 +5,7 @@ parameterisation within the speed and acceleration limits, and the executive tha
 A-B-A tasks in the cell. Needs ``pip install 'earcore[planning]'`` (OMPL)."""
 
 from earcore.planning.errors import GoalInCollision, NoPathFound, PlanningError, StartInCollision
+from earcore.planning.ik import IkResult, UnreachablePose, solve_ik
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
 from earcore.planning.reflex import ObstacleTracker, ReflexMove, RiskReport, plan_reflex, protective_separation
 from earcore.planning.rrt import JointSpacePlanner, PlannedPath
@@ -12,6 +13,9 @@ from earcore.planning.trajectory import Trajectory, path_length, time_parameteri
 
 __all__ = [
     "GoalInCollision",
+    "IkResult",
+    "UnreachablePose",
+    "solve_ik",
     "JointSpacePlanner",
     "NoPathFound",
     "ObstacleTracker",

@@ -16,9 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from earcore.planning.errors import GoalInCollision, NoPathFound, StartInCollision
+from earcore.planning.ik import solve_ik
 from earcore.planning.trajectory import path_length
 
 __all__ = ["JointSpacePlanner", "PlannedPath"]
+
+_SEEDED = False
 
 
 def _ompl():
@@ -65,6 +68,8 @@ class JointSpacePlanner:
         obstacles: str = "occupied",
         max_joint_span: float = 2 * np.pi,
         seed: int | None = None,
+        position_tolerance: float = 0.01,
+        orientation_tolerance: float = 0.1,
     ) -> None:
         self.robot = robot
         self.tree = tree
@@ -72,10 +77,16 @@ class JointSpacePlanner:
         self.range = range
         self.obstacles = obstacles
         self.max_joint_span = max_joint_span
+        #: Tolerances for end-effector pose goals (Table I: 0.01 m, 0.1 rad).
+        self.position_tolerance = position_tolerance
+        self.orientation_tolerance = orientation_tolerance
         self.dof = robot.dof
         self._ob, self._og, ou = _ompl()
-        if seed is not None:
+        global _SEEDED
+        if seed is not None and not _SEEDED:
+            # OMPL's generator is process-wide and can be seeded once, before first use.
             ou.RNG.setSeed(int(seed))
+            _SEEDED = True
         #: Validity queries made by the last `plan` call (states, edges) and the time
         #: spent in them, for the planning benchmark's "validity share".
         self.checks = {"states": 0, "motions": 0, "seconds": 0.0}
@@ -120,14 +131,22 @@ class JointSpacePlanner:
         si = setup.getSpaceInformation()
         robot, tree, obstacles, res, checks = self.robot, self.tree, self.obstacles, self.resolution, self.checks
 
+        clock = time.perf_counter
+
         def state_valid(s) -> bool:
+            t0 = clock()
+            free = not robot.check_configurations(tree, s[0:dof], obstacles=obstacles)
             checks["states"] += 1
-            return not robot.check_configurations(tree, s[0:dof], obstacles=obstacles)
+            checks["seconds"] += clock() - t0
+            return free
 
         class EdgeValidator(ob.MotionValidator):
             def checkMotion(self, s1, s2) -> bool:  # noqa: N802 (OMPL's name)
+                t0 = clock()
+                free = not robot.check_motion(tree, s1[0:dof], s2[0:dof], res, obstacles=obstacles)
                 checks["motions"] += 1
-                return not robot.check_motion(tree, s1[0:dof], s2[0:dof], res, obstacles=obstacles)
+                checks["seconds"] += clock() - t0
+                return free
 
         setup.setStateValidityChecker(state_valid)
         si.setMotionValidator(EdgeValidator(si))
@@ -146,9 +165,16 @@ class JointSpacePlanner:
         return setup, si
 
     def check_ends(self, start, goal) -> tuple[np.ndarray, np.ndarray]:
-        """Validate and convert the two ends (raises the planning errors)."""
+        """Validate and convert the two ends (raises the planning errors). A 4×4 goal is
+        an end-effector pose (world_from_tool of the last link), reached through inverse
+        kinematics within the tolerances, starting from `start`."""
         start = np.asarray(start, dtype=np.float64)
         goal = np.asarray(goal, dtype=np.float64)
+        if goal.shape == (4, 4) and start.shape == (self.dof,) and np.isfinite(start).all():
+            goal = solve_ik(
+                self.robot, goal, seed_q=start, tree=self.tree,
+                position_tolerance=self.position_tolerance, orientation_tolerance=self.orientation_tolerance,
+            ).q
         for name, q in (("start", start), ("goal", goal)):
             if q.shape != (self.dof,):
                 raise ValueError(f"{name} must have {self.dof} joint values, got shape {q.shape}")
@@ -166,7 +192,8 @@ class JointSpacePlanner:
     def plan(
         self, start, goal, *, time_limit: float = 1.0, attempts: int = 1, simplify: bool = True
     ) -> list[PlannedPath]:
-        """Up to `attempts` independent RRT-Connect solutions start → goal, each found
+        """Up to `attempts` independent RRT-Connect solutions start → goal (a joint state,
+        or a 4×4 end-effector pose: see `check_ends`), each found
         within `time_limit` seconds (Paper II, Table I: 1 s, 3 attempts). Raises
         `StartInCollision`, `GoalInCollision`, or `NoPathFound` when no attempt
         succeeds; never runs longer than attempts × (time_limit + simplification)."""

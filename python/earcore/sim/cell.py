@@ -179,7 +179,12 @@ class SimulatedCell:
         if pc.reach_starts:
             if len(pc.reach_starts) != len(pc.reach_targets):
                 raise ValueError("person.reach_starts and person.reach_targets must have the same length")
-            reaches = [Reach(s, tuple(t), pc.hold_s) for s, t in zip(pc.reach_starts, pc.reach_targets)]
+            speeds = list(pc.reach_speeds) or [None] * len(pc.reach_starts)
+            if len(speeds) != len(pc.reach_starts):
+                raise ValueError("person.reach_speeds must be empty or as long as person.reach_starts")
+            reaches = [
+                Reach(s, tuple(t), pc.hold_s, v) for s, t, v in zip(pc.reach_starts, pc.reach_targets, speeds)
+            ]
         else:
             starts = np.cumsum(self.rng.uniform(3.0, 8.0, 8))
             targets = self.rng.uniform([0.3, -0.2, 0.1], [0.6, 0.4, 0.45], (8, 3))

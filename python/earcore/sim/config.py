@@ -60,6 +60,8 @@ class PersonConfig:
     reach_starts: list[float] = field(default_factory=lambda: [1.0])
     reach_targets: list[tuple[float, float, float]] = field(default_factory=lambda: [(0.45, 0.25, 0.2)])
     hold_s: float = 1.5
+    #: Peak hand speed per reach (m/s); empty = `peak_speed` for all.
+    reach_speeds: list[float] = field(default_factory=list)
 
 
 @dataclass
@@ -103,10 +105,11 @@ class PerceptionConfig:
     rate_hz: float = 15.0
     resolution: float = 0.05
     crop_radius: float = 1.5
-    #: Points lower than this (m, base frame) are dropped: the robot's table (its top at
-    #: z = 0) is known geometry, added to the map by `PerceptionPipeline.add_support`,
-    #: and sensed table points would fill the 5 cm voxels above the top with obstacles
-    #: that the robot's shoulder brushes. None keeps everything.
+    #: Points lower than this (m, base frame) only clear the space in front of them (free
+    #: rays, no hit): the robot's table (its top at z = 0) is known geometry, added to
+    #: the map by `PerceptionPipeline.add_support`, and sensed table points would fill
+    #: the 5 cm voxels above the top with obstacles that the robot's shoulder brushes.
+    #: None inserts every point as a hit.
     min_height: float | None = 0.02
     outlier_k: int = 20
     outlier_std_ratio: float = 2.0

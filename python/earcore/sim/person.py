@@ -29,6 +29,8 @@ class Reach:
     start: float
     target: tuple[float, float, float]
     hold: float = 1.0
+    #: Peak hand speed of this reach (m/s); None = the arm's default.
+    speed: float | None = None
 
 
 def minimum_jerk(s: np.ndarray | float) -> np.ndarray | float:
@@ -72,14 +74,15 @@ class HumanArm:
             self.bodies.append(p.createMultiBody(0, shape, visual, [0, 0, -10]))
         self.set_time(0.0)
 
-    def duration(self, target) -> float:
-        """Seconds one way from rest to `target` at the peak speed."""
-        return MINIMUM_JERK_PEAK * float(np.linalg.norm(np.asarray(target) - self.rest)) / self.peak_speed
+    def duration(self, target, speed: float | None = None) -> float:
+        """Seconds one way from rest to `target` at the peak speed (the arm's own, or
+        `speed`)."""
+        return MINIMUM_JERK_PEAK * float(np.linalg.norm(np.asarray(target) - self.rest)) / (speed or self.peak_speed)
 
     def hand_position(self, t: float) -> np.ndarray:
         for reach in self.reaches:
             target = np.asarray(reach.target, dtype=np.float64)
-            go = self.duration(target)
+            go = self.duration(target, reach.speed)
             end = reach.start + 2 * go + reach.hold
             if reach.start <= t < end:
                 if t < reach.start + go:

@@ -331,6 +331,27 @@ impl PyOcTree {
         Ok(report.into())
     }
 
+    /// Rays that only clear space: the cells each ray from `sensor_origin` to a point
+    /// crosses are marked free (end cells excluded), no end cell is hit; seen-free
+    /// danger decays as with `insert_point_cloud`. For points that are not obstacles
+    /// (e.g. a table the map models as known geometry).
+    #[pyo3(signature = (points, sensor_origin, max_range = None))]
+    fn insert_free_rays(
+        &self,
+        py: Python<'_>,
+        points: &Bound<'_, PyAny>,
+        sensor_origin: &Bound<'_, PyAny>,
+        max_range: Option<f64>,
+    ) -> PyResult<PyInsertReport> {
+        let pts = self::points(points, "points")?;
+        let origin = vector3(sensor_origin, "sensor_origin")?;
+        let slice = pts.as_slice()?;
+        let report = self
+            .with_write(py, |t| t.insert_free_rays(slice, origin, max_range))
+            .py()?;
+        Ok(report.into())
+    }
+
     /// Occupancy per point: -1 unknown, 0 free, 1 occupied (int8, shape (N,)).
     fn is_occupied<'py>(
         &self,

@@ -38,13 +38,37 @@ impl OcTree {
         max_range: Option<f64>,
         discretize: bool,
     ) -> Result<InsertReport> {
+        self.insert_scan(points, origin, max_range, discretize, true)
+    }
+
+    /// Like `insert_point_cloud`, but the rays only clear space: every cell a ray
+    /// crosses is marked free (its end cell excluded), no end cell is hit. For points
+    /// known not to be obstacles (e.g. on a support surface the map models otherwise),
+    /// whose rays still show what lies in front of them is empty.
+    pub fn insert_free_rays(
+        &mut self,
+        points: &[[f64; 3]],
+        origin: [f64; 3],
+        max_range: Option<f64>,
+    ) -> Result<InsertReport> {
+        self.insert_scan(points, origin, max_range, false, false)
+    }
+
+    fn insert_scan(
+        &mut self,
+        points: &[[f64; 3]],
+        origin: [f64; 3],
+        max_range: Option<f64>,
+        discretize: bool,
+        hits: bool,
+    ) -> Result<InsertReport> {
         let (origin, points) = self.checked_scan(points, origin, max_range)?;
         let rays = if discretize {
             self.discretized(&points)
         } else {
             points
         };
-        let volume = self.trace(&rays, origin, max_range);
+        let volume = self.trace(&rays, origin, max_range, hits);
         let mut updates: Vec<KeyUpdate> = Vec::new();
         let mut hits = Vec::new();
         let (hit, miss) = (self.lo.hit, self.lo.miss);
@@ -131,7 +155,13 @@ impl OcTree {
     }
 
     /// Mark the cells of every ray (OctoMap's `computeUpdate`), split over threads.
-    fn trace(&self, points: &[Point3f], origin: Point3f, max_range: Option<f64>) -> KeyVolume {
+    fn trace(
+        &self,
+        points: &[Point3f],
+        origin: Point3f,
+        max_range: Option<f64>,
+        hits: bool,
+    ) -> KeyVolume {
         // One volume per thread (each covers the whole scan's box, so fewer is
         // cheaper to zero and merge); threads take interleaved chunks of the image
         // rows, which balances long and short rays between them.
@@ -143,7 +173,7 @@ impl OcTree {
         let volumes = threads::map_parts(&parts, |&part| {
             let mut volume = KeyVolume::with_bounds(lo, hi);
             for chunk in points.chunks(CHUNK).skip(part).step_by(parts.len()) {
-                trace_part(conv, origin, chunk, max_range, &mut volume);
+                trace_part(conv, origin, chunk, max_range, hits, &mut volume);
             }
             volume
         });
@@ -179,13 +209,14 @@ fn key_bounds(
 }
 
 /// The rays of one part of a scan (OctoMap's `computeUpdate`, float arithmetic as in
-/// OctoMap): end cells marked occupied, then every ray's cells marked free, four rays
-/// at a time where the CPU allows.
+/// OctoMap): end cells marked occupied (unless `hits` is false), then every ray's
+/// cells marked free.
 fn trace_part(
     conv: &KeyConverter,
     origin: Point3f,
     points: &[Point3f],
     max_range: Option<f64>,
+    hits: bool,
     volume: &mut KeyVolume,
 ) {
     let mut starts = Vec::with_capacity(points.len());
@@ -196,8 +227,10 @@ fn trace_part(
             Some(r) => norm(sub(p, origin)) <= r,
         };
         let end = if within {
-            if let Some(k) = conv.coord_to_key_checked(p) {
-                volume.mark_occupied(k);
+            if hits {
+                if let Some(k) = conv.coord_to_key_checked(p) {
+                    volume.mark_occupied(k);
+                }
             }
             p
         } else {
