@@ -335,3 +335,29 @@ def test_executive_shuttles_in_the_cell(tmp_path):
     assert summary["planning"]["collisions"] == 0
     # Without obstacles each trip is the direct motion at the limits: A to B and back.
     assert trips[0]["path_length"] == pytest.approx(np.linalg.norm(B - A), rel=0.02)
+
+
+def test_fig7_circles_put_the_tool_on_its_circles():
+    """The Fig. 7 driver's reference: during each circle the tool stays at the circle's
+    radius and height while the pan joint turns once."""
+    pytest.importorskip("pybullet")
+    from earcore.perception import PerceptionPipeline
+    from earcore.planning.experiments import CirclesDriver
+    from earcore.sim.cell import SimulatedCell
+    from earcore.sim.config import RunConfig
+
+    config = RunConfig()
+    config.cell.person.enabled = False
+    config.cell.camera_scale = 0.1
+    cell = SimulatedCell(config.cell)
+    pipeline = PerceptionPipeline(config.perception, cell.model)
+    driver = CirclesDriver(cell, pipeline, repetitions=1)
+    circles = [(start, data) for start, kind, data in driver.segments if kind == "circle"]
+    assert len(circles) == 3
+    for (start, (_, _, duration)), radius in zip(circles, driver.radii):
+        qs = np.array([driver.reference(start + f * duration) for f in np.linspace(0, 1, 9)])
+        tool = cell.model.fk(qs)[:, -1, :3, 3]
+        assert np.allclose(np.linalg.norm(tool[:, :2], axis=1), radius, atol=0.006)
+        assert np.allclose(tool[:, 2], driver.height + 0.1, atol=0.006)
+        assert abs(qs[-1, 0] - qs[0, 0]) == pytest.approx(2 * np.pi)
+    cell.close()

@@ -66,7 +66,7 @@ class Recorder:
             if heavy:
                 rec.log(f"{path}/rgb", rr.Image(frame.colour).compress(jpeg_quality=70))
                 rec.log(f"{path}/depth", rr.DepthImage((frame.depth * 1000).astype(np.uint16), meter=1000.0))
-        if executive is not None:
+        if executive is not None and hasattr(executive, "log"):
             self._log_planning(cell, executive)
         rec.log("timings/perception_ms", rr.Scalars(1e3 * report.total))
         for stage, seconds in report.timings.items():

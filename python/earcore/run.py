@@ -45,10 +45,21 @@ def _progress(done: float, total: float, extra: str = "", *, final: bool = False
 
 
 def run(
-    config: RunConfig, out: Path, *, progress: bool = True, record: bool = True, trips: int | None = None
+    config: RunConfig,
+    out: Path,
+    *,
+    progress: bool = True,
+    record: bool = True,
+    trips: int | None = None,
+    driver=None,
 ) -> dict:
     """Run the cell for `config.duration` simulated seconds (or until `trips` A-B moves
-    are done, if given) and write the outputs to `out`; returns the summary."""
+    are done, if given) and write the outputs to `out`; returns the summary.
+
+    The robot is driven by the planning executive (`config.planning.mode`), by a plain
+    A-B-A shuttle (mode "none"), or by `driver(cell, pipeline)`: an object with
+    `control(dt)`, `after_step()`, `on_frame()`, `summary()` and `finished` (e.g. the
+    Fig. 7 circles in `earcore.planning.experiments`)."""
     from earcore.perception import PerceptionPipeline
     from earcore.sim.cell import SimulatedCell, default_waypoints
 
@@ -62,7 +73,9 @@ def run(
     waypoints = [np.asarray(w, float) for w in config.waypoints] or default_waypoints(config.cell.robot)
     path = waypoints[1:] + waypoints[::-1][1:]
     executive = None
-    if config.planning.mode != "none":
+    if driver is not None:
+        executive = driver(cell, pipeline)
+    elif config.planning.mode != "none":
         from earcore.planning.executive import Executive
 
         executive = Executive(cell, pipeline, config.planning, waypoints, seed=config.cell.seed)
@@ -90,7 +103,7 @@ def run(
         cell.step()
         if executive is not None:
             executive.after_step()
-            if trips is not None and len(executive.trips) >= trips:
+            if getattr(executive, "finished", False) or (trips is not None and len(executive.trips) >= trips):
                 break
         t0 = time.perf_counter()
         for frame in cell.capture():
@@ -154,7 +167,7 @@ def run(
     }
     if executive is not None:
         summary["planning"] = executive.summary()
-        summary["trips"] = [t.as_dict() for t in executive.trips]
+        summary["trips"] = [t.as_dict() for t in getattr(executive, "trips", [])]
     if recorder is not None:
         recorder.close()
         summary["recording"] = str(recorder.path)

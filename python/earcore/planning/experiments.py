@@ -1,9 +1,10 @@
-"""Paper II's whole-system test (Table II) in the simulated cell.
+"""Paper II's experiments in the simulated cell: the whole-system test (Table II) and
+the danger-map construction test (Fig. 7).
 
 A-B-A return trips of the UR5, four experiments with one seed:
   Exp. 1  reactive planner, a static pillar blocking the direct path;
   Exp. 2  reactive planner, a person's arm entering the direct path at random
-          (peak hand speeds drawn between 0.25 and 1.6 m/s);
+          (one reach after another, held 1-3 s, peak hand speed 0.25-1.6 m/s);
   Exp. 3  predictive planner + reflexes, the same arm (same reaches);
   Direct  no obstacle.
 Prints mean ± std per return trip of planning, optimisation and execution time, path
@@ -11,6 +12,13 @@ length, and the totals of collisions (true contacts), reflexes and stops, and th
 minimum true robot-person distance.
 
     earcore experiment table2 [--trips 15] [--seed 0] [--camera-scale 0.25] [--out out/table2]
+
+Fig. 7: the obstacle plate (10 × 20 cm) on the end-effector runs horizontal circles of
+radius 20, 32 and 46 cm around the robot's base (9.1, 14.69, 21.06 s each), the whole
+sequence repeated; the danger of every voxel is averaged over the run and reported per
+band of radius, with a picture.
+
+    earcore experiment fig7 [--repetitions 20] [--camera-scale 0.25] [--out out/fig7]
 """
 
 from __future__ import annotations
@@ -26,20 +34,31 @@ import numpy as np
 
 from earcore.sim.config import RunConfig
 
-__all__ = ["experiment_configs", "main", "table2"]
+__all__ = ["CirclesDriver", "experiment_configs", "fig7", "main", "table2"]
 
 #: A 10 × 10 cm pillar between the tool's A and B positions (Exp. 1).
 PILLAR = (0.28, 0.33, 0.0, 0.38, 0.43, 0.8)
 
 
-def _reaches(seed: int, duration: float) -> tuple[list[float], list[tuple[float, float, float]], list[float]]:
-    """Random reaches into the direct path: a new one every 3-7 s, the hand aimed near
-    the middle of the tool's A-B sweep, peak speed 0.25-1.6 m/s."""
+def _reaches(seed: int, duration: float, rest=(0.85, 0.5, 0.05)):
+    """Random reaches into the direct path, one after another (1-4 s apart): the hand
+    aimed at the middle of the tool's A-B sweep, held there 1-3 s, peak speed
+    0.25-1.6 m/s (slow and fast reaches alike)."""
+    from earcore.sim.person import MINIMUM_JERK_PEAK
+
     rng = np.random.default_rng([seed, 7])
-    starts = list(np.cumsum(rng.uniform(3.0, 7.0, int(duration / 3) + 1)) - 1.0)
-    targets = [tuple(t) for t in rng.uniform([0.15, 0.3, 0.35], [0.35, 0.5, 0.55], (len(starts), 3))]
-    speeds = list(rng.uniform(0.25, 1.6, len(starts)))
-    return starts, targets, speeds
+    starts, targets, speeds, holds = [], [], [], []
+    t = rng.uniform(1.0, 3.0)
+    while t < duration:
+        target = rng.uniform([0.22, 0.25, 0.4], [0.36, 0.48, 0.56])
+        speed, hold = rng.uniform(0.25, 1.6), rng.uniform(1.0, 3.0)
+        starts.append(float(t))
+        targets.append(tuple(float(v) for v in target))
+        speeds.append(float(speed))
+        holds.append(float(hold))
+        go = MINIMUM_JERK_PEAK * float(np.linalg.norm(target - np.asarray(rest))) / speed
+        t += 2 * go + hold + rng.uniform(1.0, 4.0)
+    return starts, targets, speeds, holds
 
 
 def experiment_configs(seed: int = 0, camera_scale: float = 0.25, duration: float = 600.0) -> dict[str, RunConfig]:
@@ -54,11 +73,11 @@ def experiment_configs(seed: int = 0, camera_scale: float = 0.25, duration: floa
     configs["Exp. 1"] = exp1
     person = deepcopy(base)
     person.cell.person.enabled = True
-    starts, targets, speeds = _reaches(seed, duration)
+    starts, targets, speeds, holds = _reaches(seed, duration, person.cell.person.rest_hand)
     person.cell.person.reach_starts = starts
     person.cell.person.reach_targets = targets
     person.cell.person.reach_speeds = speeds
-    person.cell.person.hold_s = 1.0
+    person.cell.person.reach_holds = holds
     exp2 = deepcopy(person)
     exp2.planning.mode = "reactive"
     configs["Exp. 2"] = exp2
@@ -118,15 +137,184 @@ def format_table(results: dict) -> str:
     return "\n".join(lines)
 
 
+class CirclesDriver:
+    """Drives the Fig. 7 test: circles of the tool around the base at `height`, the pan
+    joint sweeping a full turn per circle (alternating direction so the joint stays
+    within its range), moves between circles time-parameterised; averages the danger
+    map over the run on a grid around the robot."""
+
+    def __init__(self, cell, pipeline, *, radii=(0.20, 0.32, 0.46), durations=(9.1, 14.69, 21.06),
+                 repetitions: int = 20, height: float = 0.35) -> None:
+        from earcore.planning.ik import solve_ik
+        from earcore.planning.trajectory import time_parameterize
+        from earcore.sim.tools import ObstaclePlate
+
+        self.cell, self.pipeline = cell, pipeline
+        self.radii, self.height = radii, height
+        robot = cell.model
+        # The plate hangs 10 cm below the flange, its plane vertical (seen by the side cameras).
+        flange_from_plate = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0.1], [0, 0, 0, 1]], dtype=float)
+        cell.attach_tool(ObstaclePlate(), flange_from_plate)
+        down = np.diag([1.0, -1.0, -1.0, 1.0])  # tool z pointing down
+        postures = []
+        q = cell.q
+        for r in radii:
+            target = down.copy()
+            target[:3, 3] = [r, 0.0, height + 0.1]
+            q = solve_ik(robot, target, seed_q=q, position_tolerance=0.005).q
+            postures.append(q)
+        # The schedule: (start time, kind, data) segments, one after another.
+        self.segments = []
+        t, q, direction = 0.0, cell.q.copy(), 1.0
+        for _ in range(repetitions):
+            for posture, duration in zip(postures, durations):
+                start = posture.copy()
+                start[0] = q[0]  # keep the pan angle where it is
+                move = time_parameterize(np.stack([q, start]), cell.controller.max_velocity,
+                                         cell.controller.max_acceleration, control_period=cell.config.time_step)
+                self.segments.append((t, "move", move))
+                t += move.duration
+                self.segments.append((t, "circle", (start, direction, duration)))
+                t += duration
+                q = start.copy()
+                q[0] += direction * 2 * np.pi
+                direction = -direction
+        self.end_time = t
+        self.command = np.zeros(robot.dof)
+        res = pipeline.tree.resolution
+        self.res = res
+        # Danger accumulated on a grid: 1.2 m around the base, ±0.25 m around the height.
+        self.lo = np.array([-1.2, -1.2, height - 0.25])
+        self.shape = np.ceil(np.array([2.4, 2.4, 0.5]) / res).astype(int)
+        self.sum = np.zeros(self.shape)
+        self.frames = 0
+        self.trips: list = []
+
+    @property
+    def finished(self) -> bool:
+        return self.cell.time >= self.end_time
+
+    def reference(self, t: float) -> np.ndarray:
+        for start, kind, data in reversed(self.segments):
+            if t >= start:
+                break
+        if kind == "move":
+            return data.sample(t - start)
+        posture, direction, duration = data
+        q = posture.copy()
+        q[0] += direction * 2 * np.pi * min((t - start) / duration, 1.0)
+        return q
+
+    def control(self, dt: float) -> None:
+        desired = (self.reference(self.cell.time + dt) - self.cell.q) / dt
+        step = self.cell.controller.max_acceleration * dt
+        self.command = np.clip(np.clip(desired, self.command - step, self.command + step),
+                               -self.cell.controller.max_velocity, self.cell.controller.max_velocity)
+        self.cell.command_velocities(self.command)
+
+    def after_step(self) -> None:
+        pass
+
+    def on_frame(self) -> None:
+        centres, _, values = self.pipeline.tree.danger_voxels()
+        index = np.floor((centres - self.lo) / self.res).astype(int)
+        inside = np.all((index >= 0) & (index < self.shape), axis=1)
+        np.add.at(self.sum, tuple(index[inside].T), values[inside])
+        self.frames += 1
+
+    def average(self) -> tuple[np.ndarray, np.ndarray]:
+        """Voxel centres that ever held danger and their danger averaged over the run."""
+        mean = self.sum / max(self.frames, 1)
+        cells = np.argwhere(mean > 0)
+        return (cells + 0.5) * self.res + self.lo, mean[tuple(cells.T)]
+
+    def bands(self) -> list[dict]:
+        """Mean of the time-averaged danger per band of horizontal radius (each band
+        centred on a circle, half-way to its neighbours)."""
+        centres, mean = self.average()
+        radius = np.linalg.norm(centres[:, :2] - self.cell.model.base[:2, 3], axis=1)
+        edges = np.r_[self.radii[0] - 0.1, [(a + b) / 2 for a, b in zip(self.radii[:-1], self.radii[1:])], self.radii[-1] + 0.12]
+        out = []
+        for r, lo, hi in zip(self.radii, edges[:-1], edges[1:]):
+            sel = (radius >= lo) & (radius < hi)
+            out.append({"radius_m": r, "from_m": float(lo), "to_m": float(hi), "voxels": int(sel.sum()),
+                        "mean_danger": float(mean[sel].mean()) if sel.any() else 0.0})
+        return out
+
+    def summary(self) -> dict:
+        return {"frames": self.frames, "bands": self.bands()}
+
+
+def fig7(repetitions: int = 20, camera_scale: float = 0.25, out: Path = Path("out/fig7"), seed: int = 0) -> dict:
+    """Run the danger-map construction test; writes fig7.png and fig7.json to `out`."""
+    from earcore.run import run
+
+    config = RunConfig(duration=1e9, snapshots=[])
+    config.cell.seed = seed
+    config.cell.camera_scale = camera_scale
+    config.cell.person.enabled = False
+    config.cell.boxes = []
+    holder = {}
+
+    def make(cell, pipeline):
+        holder["driver"] = CirclesDriver(cell, pipeline, repetitions=repetitions)
+        return holder["driver"]
+
+    summary = run(config, out, progress=False, record=False, driver=make)
+    driver = holder["driver"]
+    result = {"repetitions": repetitions, "simulated_s": summary["simulated_s"], "bands": driver.bands()}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "fig7.json").write_text(json.dumps(result, indent=2))
+    _draw_fig7(out / "fig7.png", driver, result)
+    return result
+
+
+def _draw_fig7(png: Path, driver: CirclesDriver, result: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    centres, mean = driver.average()
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.2), gridspec_kw={"width_ratios": [1.3, 1]})
+    # Top view: the highest time-averaged danger over the heights of each column.
+    order = np.argsort(mean)
+    sc = ax.scatter(centres[order, 0], centres[order, 1], c=mean[order], s=30, marker="s", cmap="YlOrRd", vmin=0, vmax=1)
+    for r in driver.radii:
+        ax.add_patch(plt.Circle((0, 0), r, fill=False, ls="--", color="tab:blue", lw=1))
+    ax.set_aspect("equal")
+    ax.set_xlim(-0.8, 0.8)
+    ax.set_ylim(-0.8, 0.8)
+    ax.set_title("average danger per voxel (top view), circles of the plate (dashed)")
+    fig.colorbar(sc, ax=ax, shrink=0.8, label="danger averaged over the run")
+    bands = result["bands"]
+    bx.bar([f"{b['radius_m']*100:.0f} cm" for b in bands], [b["mean_danger"] for b in bands], color=["#b2182b", "#ef8a62", "#fddbc7"])
+    bx.set_ylim(0, 1)
+    bx.set_ylabel("mean of the voxels' average danger")
+    bx.set_title(f"per band, {result['repetitions']} repetitions\n(Paper II: inner 0.5-1, middle 0.2-0.5, outer 0-0.2)")
+    fig.tight_layout()
+    fig.savefig(png, dpi=90)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="earcore experiment", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("name", choices=["table2"], help="which experiment")
+    parser.add_argument("name", choices=["table2", "fig7"], help="which experiment")
+    parser.add_argument("--repetitions", type=int, default=20, help="fig7: repetitions of the three circles (default 20)")
     parser.add_argument("--trips", type=int, default=15, help="A-B-A return trips per experiment (default 15)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--camera-scale", type=float, default=0.25, help="camera resolution factor (rendering dominates the run time)")
     parser.add_argument("--only", nargs="*", help="run only these experiments, e.g. 'Exp. 3' Direct")
-    parser.add_argument("--out", type=Path, default=Path("out/table2"))
+    parser.add_argument("--out", type=Path, default=Path("out/table2"), help="output folder (fig7: out/fig7)")
     args = parser.parse_args(argv)
+    if args.name == "fig7":
+        out = args.out if args.out != Path("out/table2") else Path("out/fig7")
+        result = fig7(args.repetitions, args.camera_scale, out, args.seed)
+        for b in result["bands"]:
+            print(f"  circle {100 * b['radius_m']:.0f} cm (band {100 * b['from_m']:.0f}-{100 * b['to_m']:.0f} cm): "
+                  f"mean danger {b['mean_danger']:.3f} over {b['voxels']} voxels")
+        print(f"picture: {out / 'fig7.png'}")
+        return 0
     results = table2(args.trips, args.seed, args.camera_scale, args.out, args.only)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "table2.json").write_text(json.dumps(results, indent=2, default=float))

@@ -179,11 +179,13 @@ class SimulatedCell:
         if pc.reach_starts:
             if len(pc.reach_starts) != len(pc.reach_targets):
                 raise ValueError("person.reach_starts and person.reach_targets must have the same length")
-            speeds = list(pc.reach_speeds) or [None] * len(pc.reach_starts)
-            if len(speeds) != len(pc.reach_starts):
-                raise ValueError("person.reach_speeds must be empty or as long as person.reach_starts")
+            n = len(pc.reach_starts)
+            speeds = list(pc.reach_speeds) or [None] * n
+            holds = list(pc.reach_holds) or [pc.hold_s] * n
+            if len(speeds) != n or len(holds) != n:
+                raise ValueError("person.reach_speeds and reach_holds must be empty or as long as person.reach_starts")
             reaches = [
-                Reach(s, tuple(t), pc.hold_s, v) for s, t, v in zip(pc.reach_starts, pc.reach_targets, speeds)
+                Reach(s, tuple(t), h, v) for s, t, h, v in zip(pc.reach_starts, pc.reach_targets, holds, speeds)
             ]
         else:
             starts = np.cumsum(self.rng.uniform(3.0, 8.0, 8))

@@ -60,8 +60,9 @@ class PersonConfig:
     reach_starts: list[float] = field(default_factory=lambda: [1.0])
     reach_targets: list[tuple[float, float, float]] = field(default_factory=lambda: [(0.45, 0.25, 0.2)])
     hold_s: float = 1.5
-    #: Peak hand speed per reach (m/s); empty = `peak_speed` for all.
+    #: Peak hand speed (m/s) and hold (s) per reach; empty = `peak_speed` / `hold_s`.
     reach_speeds: list[float] = field(default_factory=list)
+    reach_holds: list[float] = field(default_factory=list)
 
 
 @dataclass
