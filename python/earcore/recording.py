@@ -87,7 +87,7 @@ class Recorder:
         if executive.motion is not None and executive.motion.trajectory is not getattr(self, "_shown", None):
             self._shown = executive.motion.trajectory
             tool = cell.model.fk(self._shown.positions)[:, -1, :3, 3]
-            colour = (230, 140, 20) if executive.motion.kind == "reflex" else (40, 90, 220)
+            colour = (230, 140, 20) if executive.motion.kind in ("reflex", "backtrack") else (40, 90, 220)
             rec.log("world/plan/tool_path", rr.LineStrips3D([tool], colors=[colour], radii=0.004))
         for event in log.reflexes[getattr(self, "_reflexes_shown", 0):]:
             rec.log("events/reflex", rr.TextLog(f"reflex: {event['kind']} (risk {event.get('risk', 0.0):.2f})", level="WARN"))

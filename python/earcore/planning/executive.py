@@ -21,6 +21,19 @@ from earcore.planning.trajectory import Trajectory, path_length, time_parameteri
 __all__ = ["Executive", "TripReport"]
 
 
+def _snapshot(tree):
+    """A copy of a map (through its .ot serialisation)."""
+    import tempfile
+    from pathlib import Path
+
+    import earcore
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "static.ot"
+        tree.write(path)
+        return earcore.OcTree.read(path)
+
+
 @dataclass
 class TripReport:
     """One move to a goal (Table II's row entries)."""
@@ -49,7 +62,7 @@ class TripReport:
 class _Motion:
     trajectory: Trajectory
     start: float
-    kind: str  # "plan" | "reflex"
+    kind: str  # "plan" | "reflex" (move away) | "backtrack"
 
 
 @dataclass
@@ -88,15 +101,22 @@ class Executive:
         self.a_max = cell.controller.max_acceleration
         self.motion: _Motion | None = None
         self.command = np.zeros(self.robot.dof)
+        #: Position feedback gain of the trajectory follower (1/s).
+        self.gain = 8.0
         self.goal_index = 0
         self.trip: TripReport | None = None
         self.trips: list[TripReport] = []
         self.executed: list[np.ndarray] = []
+        #: The states that brought the robot here on this trip, minus what a backtrack
+        #: took back (a second backtrack goes further back, never forward again).
+        self.progress: list[np.ndarray] = []
         self.log = ExecutiveLog()
         #: Seconds from a frame's arrival to the reflex command (tracking + planning).
         self.reflex_latencies: list[float] = []
         self._last_replan = 0.0
         self._in_contact = False
+        #: The map as it was at the end of the warm-up (the static scene), for reflexes.
+        self.static_tree = None
 
     # --- helpers -----------------------------------------------------------------
 
@@ -135,13 +155,28 @@ class Executive:
         return choice
 
     def _recover(self, q: np.ndarray) -> None:
-        """The robot touches an occupied voxel: move away from it (a reflex)."""
-        c = self.robot.clearance(self.tree, q)
+        """The robot touches an occupied voxel: move away from it. With the reflex layer
+        on, from the frame's moving obstacles (any move that steadily increases the
+        clearance to them and stays free of the static scene); else from the nearest
+        occupied voxel of the map."""
+        dynamic = self.tracker.last_dynamic if (self.reflexes_on and self.static_tree is not None) else None
+        if dynamic is not None and len(dynamic):
+            c = self.robot.clearance_to_voxels(dynamic, self.tree.resolution, q)
+            tree, escape = self.static_tree, True
+        else:
+            c = self.robot.clearance(self.tree, q)
+            tree, escape, dynamic = self.tree, False, None
         if not np.isfinite(c["distance"]):
             return
-        report = RiskReport(self.cell.time, 0, 0.0, 0.0, float(c["distance"]), c["on_robot"], c["on_obstacle"], 0.0, False, 0.0)
-        move = plan_reflex(self.robot, self.tree, q, np.zeros((0, len(q))), report,
-                           move_away_distance=self.config.move_away_distance, resolution=self.config.motion_resolution)
+        report = RiskReport(
+            self.cell.time, 0, 0.0, 0.0, float(c["distance"]), c["on_robot"], c["on_obstacle"], 0.0, False, 0.0,
+            link=int(c["link"]),
+        )
+        move = plan_reflex(
+            self.robot, tree, q, np.zeros((0, len(q))), report,
+            move_away_distance=self.config.move_away_distance, resolution=self.config.motion_resolution,
+            dynamic=dynamic, voxel_size=self.tree.resolution, escape=escape,
+        )
         if move is not None:
             self._start_motion(move.path, "reflex")
             self.log.reflexes.append({"time": self.cell.time, "kind": "recover_" + move.kind})
@@ -150,6 +185,7 @@ class Executive:
         self.goal_index = (self.goal_index + 1) % len(self.goals)
         self.trip = TripReport(goal=self.goal_index, start_time=self.cell.time)
         self.executed = [self.cell.q.copy()]
+        self.progress = [self.cell.q.copy()]
         self._last_replan = self.cell.time
         choice = self._plan(self.cell.q)
         if choice is not None:
@@ -177,8 +213,14 @@ class Executive:
             self._new_trip()
         desired = np.zeros_like(q)
         if self.motion is not None:
-            t = self.cell.time - self.motion.start + dt
-            desired = (self.motion.trajectory.sample(t) - q) / dt
+            # Feed-forward of the reference's velocity plus a feedback on the position
+            # error that never asks for more speed than can be braked away before the
+            # error closes (√(2·a·|e|)): no overshoot when the reference changes abruptly.
+            t = self.cell.time - self.motion.start
+            now, ahead = self.motion.trajectory.sample(np.array([t, t + dt]))
+            error = now - q
+            feedback = np.sign(error) * np.minimum(self.gain * np.abs(error), np.sqrt(2 * self.a_max * np.abs(error)))
+            desired = (ahead - now) / dt + feedback
         step = self.a_max * dt
         command = np.clip(desired, self.command - step, self.command + step)
         self.command = np.clip(command, -self.v_max, self.v_max)
@@ -189,6 +231,8 @@ class Executive:
         if self.trip is None:
             return
         self.executed.append(q.copy())
+        if self.motion is None or self.motion.kind != "backtrack":
+            self.progress.append(q.copy())
         if self.motion is None:
             return
         done = self.cell.time - self.motion.start >= self.motion.trajectory.duration
@@ -206,6 +250,9 @@ class Executive:
             if cell.time < self.config.warmup:
                 self.tracker.learn_static(self.tree.current_obstacles()[0])
             return None
+        if self.static_tree is None:
+            self.static_tree = _snapshot(self.tree)
+            self.robot.check_configurations(self.static_tree, q)  # builds its index now, not in a reflex
         distance = cell.robot_person_distance()
         self.trip.min_clearance = min(self.trip.min_clearance, distance)
         contact = distance <= 0.0
@@ -218,23 +265,34 @@ class Executive:
             tcp_speed = self._tool_speed()
             report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed)
             self.log.risk.append(report)
-            in_reflex = self.motion is not None and self.motion.kind == "reflex"
-            if report.fires(self.config.risk_threshold) and not in_reflex:
+            in_reflex = self.motion is not None and self.motion.kind in ("reflex", "backtrack")
+            close = report.approaching and report.clearance < self.config.min_separation
+            # A running reflex is not restarted, except a backtrack the obstacle still
+            # closes in on: then it becomes a move away.
+            backtracking = self.motion is not None and self.motion.kind == "backtrack"
+            if report.fires(self.config.risk_threshold, self.config.min_separation) and (not in_reflex or (close and backtracking)):
+                # The static scene (index cached) plus this frame's moving voxels
+                # (exact): no rebuild of the live map's index before the reflex.
                 move = plan_reflex(
-                    self.robot, self.tree, q, np.asarray(self.executed), report,
+                    self.robot, self.static_tree, q, np.asarray(self.progress), report,
                     backtrack_fraction=self.config.backtrack_fraction,
                     move_away_distance=self.config.move_away_distance,
                     resolution=self.config.motion_resolution,
+                    dynamic=self.tracker.last_dynamic, voxel_size=self.tree.resolution,
+                    prefer_move_away=close, escape=report.clearance <= 0,
                 )
                 self.trip.reflexes += 1
                 if move is not None:
-                    self._start_motion(move.path, "reflex")
+                    self._start_motion(move.path, "backtrack" if move.kind == "backtrack" else "reflex")
+                    if move.kind == "backtrack":
+                        # Take the undone stretch off the progress stack.
+                        del self.progress[max(1, len(self.progress) - (len(move.path) - 1)):]
                 else:
                     self.motion = None  # nothing free: stop where we are
                 self.reflex_latencies.append(time.perf_counter() - t0)
                 self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk})
                 return report
-        if self.motion is not None and self.motion.kind == "reflex":
+        if self.motion is not None and self.motion.kind in ("reflex", "backtrack"):
             return report
         remaining = self._remaining()
         blocked = remaining is not None and len(remaining) > 1 and not self.planner.rrt.path_is_valid(remaining)

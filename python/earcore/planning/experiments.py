@@ -4,7 +4,7 @@ the danger-map construction test (Fig. 7).
 A-B-A return trips of the UR5, four experiments with one seed:
   Exp. 1  reactive planner, a static pillar blocking the direct path;
   Exp. 2  reactive planner, a person's arm entering the direct path at random
-          (one reach after another, held 1-3 s, peak hand speed 0.25-1.6 m/s);
+          (one reach after another, held 2-5 s, peak hand speed 0.25-1.6 m/s);
   Exp. 3  predictive planner + reflexes, the same arm (same reaches);
   Direct  no obstacle.
 Prints mean ± std per return trip of planning, optimisation and execution time, path
@@ -41,9 +41,10 @@ PILLAR = (0.28, 0.33, 0.0, 0.38, 0.43, 0.8)
 
 
 def _reaches(seed: int, duration: float, rest=(0.85, 0.5, 0.05)):
-    """Random reaches into the direct path, one after another (1-4 s apart): the hand
-    aimed at the middle of the tool's A-B sweep, held there 1-3 s, peak speed
-    0.25-1.6 m/s (slow and fast reaches alike)."""
+    """Random reaches into the direct path, one after another (0.5-3 s apart): the hand
+    aimed at the middle of the tool's A-B sweep, held there 2-5 s (Paper II's obstacle
+    was held into the path by hand), peak speed 0.25-1.6 m/s (slow and fast reaches
+    alike)."""
     from earcore.sim.person import MINIMUM_JERK_PEAK
 
     rng = np.random.default_rng([seed, 7])
@@ -51,13 +52,13 @@ def _reaches(seed: int, duration: float, rest=(0.85, 0.5, 0.05)):
     t = rng.uniform(1.0, 3.0)
     while t < duration:
         target = rng.uniform([0.22, 0.25, 0.4], [0.36, 0.48, 0.56])
-        speed, hold = rng.uniform(0.25, 1.6), rng.uniform(1.0, 3.0)
+        speed, hold = rng.uniform(0.25, 1.6), rng.uniform(2.0, 5.0)
         starts.append(float(t))
         targets.append(tuple(float(v) for v in target))
         speeds.append(float(speed))
         holds.append(float(hold))
         go = MINIMUM_JERK_PEAK * float(np.linalg.norm(target - np.asarray(rest))) / speed
-        t += 2 * go + hold + rng.uniform(1.0, 4.0)
+        t += 2 * go + hold + rng.uniform(0.5, 3.0)
     return starts, targets, speeds, holds
 
 

@@ -61,9 +61,15 @@ class RiskReport:
     protective_separation: float
     ssm_violated: bool
     compute_s: float
+    #: Whether that obstacle moves towards the robot.
+    approaching: bool = False
+    #: The robot link holding `on_robot` (-1: unknown).
+    link: int = -1
 
-    def fires(self, threshold: float) -> bool:
-        return self.risk >= threshold
+    def fires(self, threshold: float, min_separation: float = 0.0) -> bool:
+        """Eq. 3 (risk ≥ T), or an approaching obstacle closer than `min_separation`
+        (a slow hand's risk stays below T until it touches)."""
+        return self.risk >= threshold or (self.approaching and self.clearance < min_separation)
 
 
 def protective_separation(
@@ -107,6 +113,7 @@ class ObstacleTracker:
         self.window = window
         self.tracks: list[ObstacleTrack] = []
         self._static: np.ndarray = np.zeros(0, dtype=np.int64)
+        self._dynamic: np.ndarray = np.zeros((0, 3))
         self._next_id = 0
 
     def _keys(self, centres: np.ndarray) -> np.ndarray:
@@ -126,11 +133,16 @@ class ObstacleTracker:
             return centres
         return centres[~np.isin(self._keys(centres), self._static)]
 
+    @property
+    def last_dynamic(self) -> np.ndarray:
+        """The voxels of the last frame that are not static scene (every cluster)."""
+        return self._dynamic
+
     def update(self, time_s: float, centres: np.ndarray, q: np.ndarray, robot_speed: float = 0.0) -> RiskReport:
         """One frame: the current obstacles' voxel centres, the robot's joint state and
         its speed (m/s, for the ISO figure). Returns the frame's risk report."""
         t0 = time.perf_counter()
-        voxels = self.dynamic_voxels(centres)
+        voxels = self._dynamic = self.dynamic_voxels(centres)
         clusters: list[np.ndarray] = []
         if len(voxels):
             labels = earcore.cluster_points(voxels, self.resolution)
@@ -147,15 +159,16 @@ class ObstacleTracker:
             approaching = float(v @ towards) > 0 if d > 0 else True
             risk = speed**2 / (self.beta * max(d, 1e-3)) if approaching else 0.0
             if best is None or risk > best[0] or (risk == best[0] and d < best[2]):
-                best = (risk, speed, d, c["on_robot"], c["on_obstacle"])
+                best = (risk, speed, d, c["on_robot"], c["on_obstacle"], approaching and speed > 0.05, int(c["link"]))
         frame_period = 1.0 / 15.0
         if best is None:
             sp = protective_separation(0.0, robot_speed, reaction_time=frame_period, stopping_time=0.0)
             return RiskReport(time_s, 0, 0.0, 0.0, float("inf"), None, None, sp, False, time.perf_counter() - t0)
-        risk, speed, d, on_robot, on_obstacle = best
+        risk, speed, d, on_robot, on_obstacle, approaching, link = best
         sp = protective_separation(speed, robot_speed, reaction_time=frame_period, stopping_time=0.2)
         return RiskReport(
-            time_s, len(self.tracks), risk, speed, d, on_robot, on_obstacle, sp, d < sp, time.perf_counter() - t0
+            time_s, len(self.tracks), risk, speed, d, on_robot, on_obstacle, sp, d < sp,
+            time.perf_counter() - t0, approaching, link,
         )
 
     def _associate(self, time_s: float, clusters: list[np.ndarray]) -> None:
@@ -198,17 +211,36 @@ class ReflexMove:
     path: np.ndarray
 
 
-def _end_effector_jacobian(robot, q: np.ndarray, link: int, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-    """Position of `link`'s origin and its (3, dof) Jacobian by central differences
-    (one batched forward-kinematics call)."""
+def _point_jacobian(robot, q: np.ndarray, link: int, point: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    """(3, dof) Jacobian of a point fixed to `link` (given in the world at q), by
+    central differences from one batched forward-kinematics call."""
     dof = len(q)
-    qs = np.vstack([q, q + eps * np.eye(dof), q - eps * np.eye(dof)])
     lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
-    qs = np.clip(qs, lo, hi)
-    p = robot.fk(qs)[:, link, :3, 3]
+    qs = np.clip(np.vstack([q, q + eps * np.eye(dof), q - eps * np.eye(dof)]), lo, hi)
+    frames = robot.fk(qs)[:, link]
+    local = np.linalg.solve(frames[0], np.r_[point, 1.0])
+    p = frames[:, :3, :] @ local
     steps = (qs[1 : dof + 1] - qs[dof + 1 :]).diagonal()
-    jac = (p[1 : dof + 1] - p[dof + 1 :]).T / np.where(steps == 0, 1.0, steps)
-    return p[0], jac
+    return (p[1 : dof + 1] - p[dof + 1 :]).T / np.where(steps == 0, 1.0, steps)
+
+
+def _path_free(robot, tree, path: np.ndarray, resolution: float, dynamic, voxel_size: float, escape: bool) -> bool:
+    """Every edge of `path` free on `tree` and, when given, clear of the `dynamic` voxel
+    boxes (checked exactly at configurations ≤ `resolution` apart). With `escape` (the
+    robot already touches a dynamic obstacle) the path must instead take the robot
+    steadily away from them: clearance never shrinking, larger at the end."""
+    if np.any(robot.check_motions(tree, path[:-1], path[1:], resolution)):
+        return False
+    if dynamic is None or not len(dynamic):
+        return True
+    qs = [path[0]]
+    for a, b in zip(path[:-1], path[1:]):
+        n = max(1, int(np.ceil(np.abs(b - a).max() / resolution)))
+        qs.extend(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    d = robot.clearance_to_voxels(dynamic, voxel_size, np.asarray(qs))["distance"]
+    if escape:
+        return bool(np.all(np.diff(d) >= -1e-3) and d[-1] > d[0])
+    return bool(np.all(d > 0))
 
 
 def plan_reflex(
@@ -222,14 +254,28 @@ def plan_reflex(
     move_away_distance: float = 0.15,
     resolution: float = 0.02,
     end_effector_link: int | None = None,
+    dynamic: np.ndarray | None = None,
+    voxel_size: float = 0.05,
+    escape: bool = False,
+    prefer_move_away: bool = False,
 ) -> ReflexMove | None:
     """Paper II's reflex for the current state: backtrack along the last
     `backtrack_fraction` of `executed` (the joint states passed, oldest first) if that
-    path is free, else move the end-effector away from the closest obstacle point.
-    None when neither move is free (the caller stops the robot)."""
+    path is free, else move the robot's point closest to the obstacle (`report.on_robot`
+    on `report.link`; the end-effector when unknown) `move_away_distance` straight away
+    from the closest obstacle point.
+    None when neither move is free (the caller stops the robot).
+
+    Moves are checked against `tree`; for a fast reflex pass the static scene as `tree`
+    (its collision index is built once and cached) and the frame's moving obstacles as
+    `dynamic` voxel centres (edge `voxel_size`), checked exactly without an index, so a
+    reflex never waits for the live map's index to be rebuilt. `escape`: the robot
+    touches a dynamic obstacle already; accept moves that steadily increase the
+    clearance to it (see `_path_free`). `prefer_move_away`: skip the backtrack (an
+    obstacle this close is escaped fastest straight away from it)."""
     q = np.asarray(q, dtype=np.float64)
     executed = np.asarray(executed, dtype=np.float64).reshape(-1, len(q))
-    if len(executed) >= 2:
+    if len(executed) >= 2 and not prefer_move_away:
         seg = np.linalg.norm(np.diff(executed, axis=0), axis=1)
         total = seg.sum()
         if total > 1e-6:
@@ -239,12 +285,19 @@ def plan_reflex(
             tail = np.vstack([q[None], executed[::-1][: n + 1]])
             keep = np.r_[True, np.linalg.norm(np.diff(tail, axis=0), axis=1) > 1e-9]
             tail = tail[keep]
-            if len(tail) >= 2 and not np.any(robot.check_motions(tree, tail[:-1], tail[1:], resolution)):
+            if len(tail) >= 2 and _path_free(robot, tree, tail, resolution, dynamic, voxel_size, escape):
                 return ReflexMove("backtrack", tail)
     if report.on_obstacle is None:
         return None
-    link = end_effector_link if end_effector_link is not None else len(robot.link_names) - 1
-    position, jac = _end_effector_jacobian(robot, q, link)
+    # Move the robot's point closest to the obstacle straight away from it (the paper
+    # moves the end-effector; when a forearm is the part in danger, moving the tool
+    # away can bring the forearm closer).
+    if report.on_robot is not None and report.link >= 0 and end_effector_link is None:
+        link, position = report.link, np.asarray(report.on_robot, dtype=np.float64)
+    else:
+        link = end_effector_link if end_effector_link is not None else len(robot.link_names) - 1
+        position = robot.fk(q)[link, :3, 3]
+    jac = _point_jacobian(robot, q, link, position)
     away = position - report.on_obstacle
     norm = np.linalg.norm(away)
     if norm < 1e-9:
@@ -255,6 +308,7 @@ def plan_reflex(
     dq = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(3), step)
     lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
     target = np.clip(q + dq, lo, hi)
-    if robot.check_motion(tree, q, target, resolution):
+    path = np.stack([q, target])
+    if not _path_free(robot, tree, path, resolution, dynamic, voxel_size, escape):
         return None
-    return ReflexMove("move_away", np.stack([q, target]))
+    return ReflexMove("move_away", path)

@@ -155,6 +155,9 @@ class PlanningConfig:
     #: this far away from the closest obstacle point (m).
     backtrack_fraction: float = 0.1
     move_away_distance: float = 0.15
+    #: Beyond the paper: an approaching obstacle closer than this (m) also fires the
+    #: reflex, as a move away (a slow hand's risk D stays below T until it touches).
+    min_separation: float = 0.06
     #: Goal tolerances for end-effector pose goals (m, rad).
     position_tolerance: float = 0.01
     orientation_tolerance: float = 0.1

@@ -68,6 +68,9 @@ fn body_from_spec((a, b, r, shape): BodySpec) -> PyResult<Body> {
     }
 }
 
+/// Collision indices kept per robot model.
+const INDEX_CACHE_SIZE: usize = 4;
+
 struct CachedIndex {
     key: (u64, u64, VoxelSource, [u64; 3], u64),
     index: Arc<VoxelIndex>,
@@ -81,7 +84,9 @@ pub struct PyRobotModel {
     name: String,
     padding: f64,
     margin: Mutex<f64>,
-    index_cache: Mutex<Option<CachedIndex>>,
+    /// The last few collision indices, most recent first (a planner often alternates
+    /// between maps, e.g. the live map and a static one).
+    index_cache: Mutex<Vec<CachedIndex>>,
     filter_cache: Mutex<Option<(Vec<f64>, f64, PlacedBodies)>>,
 }
 
@@ -200,9 +205,13 @@ impl PyRobotModel {
             [centre.x.to_bits(), centre.y.to_bits(), centre.z.to_bits()],
             margin.to_bits(),
         );
-        if let Some(c) = self.index_cache.lock().as_ref() {
-            if c.key == key {
-                return Ok(c.index.clone());
+        {
+            let mut cache = self.index_cache.lock();
+            if let Some(i) = cache.iter().position(|c| c.key == key) {
+                let hit = cache.remove(i);
+                let index = hit.index.clone();
+                cache.insert(0, hit);
+                return Ok(index);
             }
         }
         let index = py
@@ -212,10 +221,17 @@ impl PyRobotModel {
             })
             .py()?;
         let index = Arc::new(index);
-        *self.index_cache.lock() = Some(CachedIndex {
-            key,
-            index: index.clone(),
-        });
+        let mut cache = self.index_cache.lock();
+        // One entry per (map, source, base, margin): a newer revision replaces its own.
+        cache.retain(|c| (c.key.0, c.key.2, c.key.3, c.key.4) != (key.0, key.2, key.3, key.4));
+        cache.insert(
+            0,
+            CachedIndex {
+                key,
+                index: index.clone(),
+            },
+        );
+        cache.truncate(INDEX_CACHE_SIZE);
         Ok(index)
     }
 
@@ -273,7 +289,7 @@ impl PyRobotModel {
             name: name.unwrap_or_else(|| "robot".to_string()),
             padding,
             margin: Mutex::new(0.5),
-            index_cache: Mutex::new(None),
+            index_cache: Mutex::new(Vec::new()),
             filter_cache: Mutex::new(None),
         })
     }

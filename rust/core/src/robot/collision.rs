@@ -153,6 +153,48 @@ pub fn check_configurations(
 /// Configurations on the straight joint-space segment q0 → q1 with no joint moving
 /// more than `resolution` between neighbours (both ends included).
 pub fn interpolate(q0: &[f64], q1: &[f64], resolution: f64) -> Result<Vec<Vec<f64>>> {
+    let steps = interpolate_steps(q0, q1, resolution)?;
+    Ok((0..=steps)
+        .map(|s| {
+            let t = s as f64 / steps as f64;
+            q0.iter().zip(q1).map(|(a, b)| a + t * (b - a)).collect()
+        })
+        .collect())
+}
+
+/// Is the straight motion q0 → q1 free at `resolution`? Returns the parameter t ∈ [0, 1]
+/// of a colliding configuration on it, or None. Configurations are checked ends first,
+/// then in bisection order (midpoint, quarter points, ...): a motion that collides
+/// usually does so in a stretch of its middle, which this order finds after a few
+/// checks instead of walking there from one end.
+pub fn check_motion(
+    model: &RobotModel,
+    index: &VoxelIndex,
+    q0: &[f64],
+    q1: &[f64],
+    resolution: f64,
+    params: CheckParams,
+) -> Result<Option<(f64, Contact)>> {
+    model.chain().check_configuration(q0, 0)?;
+    model.chain().check_configuration(q1, 1)?;
+    let steps = interpolate_steps(q0, q1, resolution)?;
+    let mut scratch = Scratch::new(model);
+    let mut q = vec![0.0; q0.len()];
+    for s in bisection_order(steps) {
+        let t = s as f64 / steps as f64;
+        for (j, v) in q.iter_mut().enumerate() {
+            *v = q0[j] + t * (q1[j] - q0[j]);
+        }
+        let contact = contact_of(model, index, params, &q, &mut scratch)?;
+        if !contact.is_free() {
+            return Ok(Some((t, contact)));
+        }
+    }
+    Ok(None)
+}
+
+/// Steps of `interpolate` (configurations = steps + 1).
+fn interpolate_steps(q0: &[f64], q1: &[f64], resolution: f64) -> Result<usize> {
     if !(resolution.is_finite() && resolution > 0.0) {
         return Err(Error::InvalidArgument(format!(
             "resolution must be finite and > 0, got {resolution}"
@@ -170,37 +212,39 @@ pub fn interpolate(q0: &[f64], q1: &[f64], resolution: f64) -> Result<Vec<Vec<f6
         .zip(q1)
         .map(|(a, b)| (b - a).abs())
         .fold(0.0, f64::max);
-    let steps = (largest / resolution).ceil().max(1.0) as usize;
-    Ok((0..=steps)
-        .map(|s| {
-            let t = s as f64 / steps as f64;
-            q0.iter().zip(q1).map(|(a, b)| a + t * (b - a)).collect()
-        })
-        .collect())
+    Ok((largest / resolution).ceil().max(1.0) as usize)
 }
 
-/// Is the straight motion q0 → q1 free at `resolution`? Returns the parameter t ∈ [0, 1]
-/// of the first colliding configuration along it, or None.
-pub fn check_motion(
-    model: &RobotModel,
-    index: &VoxelIndex,
-    q0: &[f64],
-    q1: &[f64],
-    resolution: f64,
-    params: CheckParams,
-) -> Result<Option<(f64, Contact)>> {
-    model.chain().check_configuration(q0, 0)?;
-    model.chain().check_configuration(q1, 1)?;
-    let path = interpolate(q0, q1, resolution)?;
-    let mut scratch = Scratch::new(model);
-    let last = (path.len() - 1) as f64;
-    for (s, q) in path.iter().enumerate() {
-        let contact = contact_of(model, index, params, q, &mut scratch)?;
-        if !contact.is_free() {
-            return Ok(Some((s as f64 / last, contact)));
+/// 0..=n with both ends first, then midpoints of ever finer halvings (each index once).
+fn bisection_order(n: usize) -> Vec<usize> {
+    let mut order = Vec::with_capacity(n + 1);
+    order.push(0);
+    if n > 0 {
+        order.push(n);
+    }
+    let mut step = n.next_power_of_two();
+    while step > 1 {
+        let half = step / 2;
+        order.extend((half..n).step_by(step));
+        step = half;
+    }
+    order
+}
+
+#[cfg(test)]
+mod tests {
+    use super::bisection_order;
+
+    #[test]
+    fn bisection_order_visits_every_index_once() {
+        assert_eq!(bisection_order(4), vec![0, 4, 2, 1, 3]);
+        assert_eq!(bisection_order(0), vec![0]);
+        for n in 1..200 {
+            let mut o = bisection_order(n);
+            o.sort_unstable();
+            assert_eq!(o, (0..=n).collect::<Vec<_>>(), "n = {n}");
         }
     }
-    Ok(None)
 }
 
 /// Robot-to-obstacle clearance per configuration: the closest body and the closest
