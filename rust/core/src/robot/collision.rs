@@ -231,22 +231,6 @@ fn bisection_order(n: usize) -> Vec<usize> {
     order
 }
 
-#[cfg(test)]
-mod tests {
-    use super::bisection_order;
-
-    #[test]
-    fn bisection_order_visits_every_index_once() {
-        assert_eq!(bisection_order(4), vec![0, 4, 2, 1, 3]);
-        assert_eq!(bisection_order(0), vec![0]);
-        for n in 1..200 {
-            let mut o = bisection_order(n);
-            o.sort_unstable();
-            assert_eq!(o, (0..=n).collect::<Vec<_>>(), "n = {n}");
-        }
-    }
-}
-
 /// Robot-to-obstacle clearance per configuration: the closest body and the closest
 /// points (None where the index has no obstacle).
 pub fn clearances(
@@ -414,4 +398,20 @@ pub fn motion_danger(
         previous = points;
     }
     Ok(total)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::bisection_order;
+
+    #[test]
+    fn bisection_order_visits_every_index_once() {
+        assert_eq!(bisection_order(4), vec![0, 4, 2, 1, 3]);
+        assert_eq!(bisection_order(0), vec![0]);
+        for n in 1..200 {
+            let mut o = bisection_order(n);
+            o.sort_unstable();
+            assert_eq!(o, (0..=n).collect::<Vec<_>>(), "n = {n}");
+        }
+    }
 }
