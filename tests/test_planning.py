@@ -3,6 +3,10 @@ danger-costed choice, obstacle tracking, risk and reflexes, the executive in the
 
 from __future__ import annotations
 
+import importlib.util
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -329,12 +333,19 @@ def test_executive_shuttles_in_the_cell(tmp_path):
     config = RunConfig(duration=14.0, snapshots=[])
     config.cell.camera_scale = 0.25
     config.cell.person.enabled = False
-    summary = run(config, tmp_path, progress=False, record=False, trips=2)
+    record = importlib.util.find_spec("rerun") is not None
+    summary = run(config, tmp_path, progress=False, record=record, trips=2)
     trips = summary["trips"]
     assert len(trips) == 2 and all(t["completed"] for t in trips)
     assert summary["planning"]["collisions"] == 0
     # Without obstacles each trip is the direct motion at the limits: A to B and back.
     assert trips[0]["path_length"] == pytest.approx(np.linalg.norm(B - A), rel=0.02)
+    if record:  # the recording shows the planned paths
+        out = subprocess.run(
+            [sys.executable, "-m", "rerun", "rrd", "print", "-v", str(tmp_path / "cell.rrd")],
+            capture_output=True, text=True, timeout=120,
+        ).stdout
+        assert "world/plan/tool_path" in out
 
 
 def test_fig7_circles_put_the_tool_on_its_circles():

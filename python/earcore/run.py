@@ -132,7 +132,8 @@ def run(
         while snapshots and cell.time >= snapshots[0]:
             written.append(str(draw_snapshot(out / f"danger_{snapshots.pop(0):05.1f}s.png", pipeline, cell)))
         if progress:
-            _progress(cell.time, config.duration, f"| perception {1e3 * report.total:.0f} ms/frame")
+            moves = f" | {len(executive.trips)}/{trips} moves" if trips is not None and executive is not None else ""
+            _progress(cell.time, config.duration, f"| perception {1e3 * report.total:.0f} ms/frame{moves}")
     if progress:
         _progress(cell.time, config.duration, "", final=True)
         if sys.stderr.isatty():

@@ -263,7 +263,8 @@ class Executive:
         if self.reflexes_on:
             t0 = time.perf_counter()
             tcp_speed = self._tool_speed()
-            report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed)
+            qd = self.command if self.config.relative_velocity else None
+            report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed, qd)
             self.log.risk.append(report)
             in_reflex = self.motion is not None and self.motion.kind in ("reflex", "backtrack")
             close = report.approaching and report.clearance < self.config.min_separation

@@ -98,7 +98,8 @@ def table2(trips: int = 15, seed: int = 0, camera_scale: float = 0.25, out: Path
         if only and name not in only:
             continue
         t0 = time.perf_counter()
-        summary = run(config, out / name.replace(". ", "").lower(), progress=False, record=False, trips=2 * trips)
+        print(f"  {name} ...", file=sys.stderr)
+        summary = run(config, out / name.replace(". ", "").lower(), progress=True, record=False, trips=2 * trips)
         moves = summary.get("trips", [])
         # A return trip is two moves (A→B, B→A).
         pairs = [moves[i : i + 2] for i in range(0, len(moves) - 1, 2)]
@@ -261,6 +262,7 @@ def fig7(repetitions: int = 20, camera_scale: float = 0.25, out: Path = Path("ou
         holder["driver"] = CirclesDriver(cell, pipeline, repetitions=repetitions)
         return holder["driver"]
 
+    print(f"  fig7: {repetitions} repetitions of the three circles (~{44.85 * repetitions:.0f} s simulated)", file=sys.stderr)
     summary = run(config, out, progress=False, record=False, driver=make)
     driver = holder["driver"]
     result = {"repetitions": repetitions, "simulated_s": summary["simulated_s"], "bands": driver.bands()}

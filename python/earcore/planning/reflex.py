@@ -8,7 +8,10 @@ Per map frame:
 2. clusters are matched to the previous frame's tracks by nearest centroid; a track's
    velocity is the least-squares slope of its centroid over the last few frames;
 3. per track, d = exact clearance between the robot's bodies and the cluster's voxel
-   boxes (`RobotModel.clearance_to_voxels`) and the risk D = |v|² / (β d) (Eq. 2);
+   boxes (`RobotModel.clearance_to_voxels`) and the risk D = |v|² / (β d) (Eq. 2), v the
+   obstacle's velocity (the paper) or, by default in the executive, its velocity
+   relative to the robot's closest point (a robot moving towards a hand closes the gap
+   as surely as the hand does);
    the reflex fires when D ≥ T (Eq. 3) for an obstacle that approaches the robot
    (moving away from it is no danger, however fast).
 
@@ -138,9 +141,15 @@ class ObstacleTracker:
         """The voxels of the last frame that are not static scene (every cluster)."""
         return self._dynamic
 
-    def update(self, time_s: float, centres: np.ndarray, q: np.ndarray, robot_speed: float = 0.0) -> RiskReport:
+    def update(
+        self, time_s: float, centres: np.ndarray, q: np.ndarray, robot_speed: float = 0.0, qd: np.ndarray | None = None
+    ) -> RiskReport:
         """One frame: the current obstacles' voxel centres, the robot's joint state and
-        its speed (m/s, for the ISO figure). Returns the frame's risk report."""
+        its speed (m/s, for the ISO figure). Returns the frame's risk report.
+
+        With the joint velocities `qd`, v in Eq. 2 is the obstacle's velocity relative to
+        the robot's closest point (the closing speed that braking distances are about;
+        the paper uses the obstacle's own velocity, which is what `qd=None` gives)."""
         t0 = time.perf_counter()
         voxels = self._dynamic = self.dynamic_voxels(centres)
         clusters: list[np.ndarray] = []
@@ -154,6 +163,8 @@ class ObstacleTracker:
             c = self.robot.clearance_to_voxels(track.voxels, self.resolution, q)
             d = float(c["distance"])
             v = track.velocity
+            if qd is not None and c["link"] >= 0:
+                v = v - _point_jacobian(self.robot, q, int(c["link"]), c["on_robot"]) @ qd
             speed = float(np.linalg.norm(v))
             towards = c["on_robot"] - c["on_obstacle"]
             approaching = float(v @ towards) > 0 if d > 0 else True

@@ -151,6 +151,9 @@ class PlanningConfig:
     reflexes: bool = True
     risk_beta: float = 1.5
     risk_threshold: float = 1.0
+    #: v in Eq. 2: the obstacle's velocity relative to the robot's closest point (true),
+    #: or the obstacle's own velocity as in the paper (false).
+    relative_velocity: bool = True
     #: Backtracking: this fraction of the executed path; else move the end-effector
     #: this far away from the closest obstacle point (m).
     backtrack_fraction: float = 0.1
