@@ -29,6 +29,7 @@ import numpy as np
 
 import earcore
 from earcore.cloud import voxel_codes
+from earcore.planning.trajectory import densify
 
 __all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_reflex", "protective_separation"]
 
@@ -244,11 +245,8 @@ def _path_free(robot, tree, path: np.ndarray, resolution: float, dynamic, voxel_
         return False
     if dynamic is None or not len(dynamic):
         return True
-    qs = [path[0]]
-    for a, b in zip(path[:-1], path[1:]):
-        n = max(1, int(np.ceil(np.abs(b - a).max() / resolution)))
-        qs.extend(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
-    d = robot.clearance_to_voxels(dynamic, voxel_size, np.asarray(qs))["distance"]
+    qs = densify(path, resolution, per_joint=True)
+    d = robot.clearance_to_voxels(dynamic, voxel_size, qs)["distance"]
     if escape:
         return bool(np.all(np.diff(d) >= -1e-3) and d[-1] > d[0])
     return bool(np.all(d > 0))

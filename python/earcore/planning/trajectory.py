@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Trajectory", "path_length", "time_parameterize"]
+__all__ = ["Trajectory", "densify", "path_length", "time_parameterize"]
 
 
 def path_length(path: np.ndarray) -> float:
@@ -68,14 +68,17 @@ class Trajectory:
         return np.vstack([self.sample(t)[None], later])
 
 
-def _resample(path: np.ndarray, step: float) -> np.ndarray:
-    """Points every `step` (or less) of Euclidean joint-space arc length, the
-    waypoints included."""
-    out = [path[0]]
+def densify(path: np.ndarray, step: float, *, per_joint: bool = False) -> np.ndarray:
+    """The polyline with points at most `step` apart, the waypoints included: in
+    Euclidean joint-space length, or with `per_joint` in the largest joint change (the
+    collision checks' resolution)."""
+    path = np.asarray(path, dtype=np.float64)
+    out = [path[:1]]
     for a, b in zip(path[:-1], path[1:]):
-        n = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
-        out.extend(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
-    return np.asarray(out)
+        span = np.abs(b - a).max() if per_joint else np.linalg.norm(b - a)
+        n = max(1, int(np.ceil(span / step)))
+        out.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    return np.vstack(out)
 
 
 def time_parameterize(
@@ -107,7 +110,7 @@ def time_parameterize(
     path = path[keep]
     if len(path) == 1:
         return Trajectory(np.zeros(1), path.copy(), np.zeros_like(path), np.zeros(1), np.zeros(1))
-    q = _resample(path, step)
+    q = densify(path, step)
     ds = np.linalg.norm(np.diff(q, axis=0), axis=1)
     s = np.r_[0.0, np.cumsum(ds)]
     # Path derivatives: one-sided on the segments, central at the knots.
