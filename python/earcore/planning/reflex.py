@@ -9,9 +9,9 @@ Per map frame:
    velocity is the least-squares slope of its centroid over the last few frames;
 3. per track, d = exact clearance between the robot's bodies and the cluster's voxel
    boxes (`RobotModel.clearance_to_voxels`) and the risk D = |v|² / (β d) (Eq. 2), v the
-   obstacle's velocity (the paper) or, by default in the executive, its velocity
-   relative to the robot's closest point (a robot moving towards a hand closes the gap
-   as surely as the hand does);
+   obstacle's velocity (the paper) or, by default in the executive, for an obstacle
+   moving towards the robot, its velocity relative to the robot's closest point (a
+   robot moving towards an approaching hand closes the gap as surely as the hand does);
    the reflex fires when D ≥ T (Eq. 3) for an obstacle that approaches the robot
    (moving away from it is no danger, however fast).
 
@@ -164,11 +164,14 @@ class ObstacleTracker:
             c = self.robot.clearance_to_voxels(track.voxels, self.resolution, q)
             d = float(c["distance"])
             v = track.velocity
-            if qd is not None and c["link"] >= 0:
+            towards = c["on_robot"] - c["on_obstacle"]
+            # Only an obstacle that itself moves towards the robot is a reflex matter (the
+            # planner keeps the robot's own path clear of still ones); its speed is then
+            # taken relative to the robot's closest point.
+            approaching = float(v @ towards) > 0 if d > 0 else True
+            if approaching and qd is not None and c["link"] >= 0:
                 v = v - _point_jacobian(self.robot, q, int(c["link"]), c["on_robot"]) @ qd
             speed = float(np.linalg.norm(v))
-            towards = c["on_robot"] - c["on_obstacle"]
-            approaching = float(v @ towards) > 0 if d > 0 else True
             risk = speed**2 / (self.beta * max(d, 1e-3)) if approaching else 0.0
             if best is None or risk > best[0] or (risk == best[0] and d < best[2]):
                 best = (risk, speed, d, c["on_robot"], c["on_obstacle"], approaching and speed > 0.05, int(c["link"]))
