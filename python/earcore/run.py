@@ -208,10 +208,14 @@ def draw_snapshot(png: Path, pipeline, cell) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(12, 5.5))
     for ax, (i, j, label) in zip(axes, [(0, 1, "top view (x, y), above the table"), (0, 2, "side view (x, z)")]):
         near = np.linalg.norm(centres - cell.model.base[:3, 3], axis=1) < pipeline.config.crop_radius
+        shown = np.ones(len(dcentres), bool)
         if j == 1:
-            near &= centres[:, 2] > 0.03
+            # From above, skip the table layer and the voxel row on it (whose cells the
+            # table's free rays and the objects' lowest points share, so they flicker).
+            near &= centres[:, 2] > pipeline.tree.resolution
+            shown = dcentres[:, 2] > pipeline.tree.resolution
         ax.scatter(centres[near, i], centres[near, j], s=5, c="0.55", marker="s", linewidths=0, label="occupied now")
-        order = np.argsort(dvalues)
+        order = np.flatnonzero(shown)[np.argsort(dvalues[shown])]
         sc = ax.scatter(
             dcentres[order, i], dcentres[order, j], s=7, c=dvalues[order], cmap="YlOrRd",
             norm=PowerNorm(gamma=6, vmin=0, vmax=1), marker="s", linewidths=0,
