@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 import earcore
+from earcore.cloud import box_voxel_centres
 from earcore.planning import PredictivePlanner
 
 A = np.array([0.0, -1.9, 1.6, -1.3, -1.57, 0.0])
@@ -26,11 +27,9 @@ def scene() -> earcore.OcTree:
     from earcore.sim.config import CellConfig
 
     tree = earcore.OcTree(0.05)
-    res = 0.05
 
     def box(lo, hi):
-        axes = [np.arange(np.floor(lo[i] / res) + 0.5, np.ceil(hi[i] / res), 1.0) * res for i in range(3)]
-        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        return box_voxel_centres(lo, hi, tree.resolution)
 
     # The simulated cell's table (clear around the robot's mount), its boxes, a pillar.
     table = box([-0.35, -0.7, -0.04], [1.25, 0.7, 0.0])

@@ -10,7 +10,7 @@ import numpy.typing as npt
 
 from earcore import _earcore
 
-__all__ = ["cluster_points", "voxel_codes", "crop", "depth_to_points", "estimate_normals", "remove_statistical_outliers", "voxel_downsample"]
+__all__ = ["box_voxel_centres", "cluster_points", "voxel_codes", "crop", "depth_to_points", "estimate_normals", "remove_statistical_outliers", "voxel_downsample"]
 
 
 def depth_to_points(
@@ -112,3 +112,11 @@ def voxel_codes(points, resolution: float) -> np.ndarray:
     axis around the origin), for set operations on voxels with numpy (`np.isin`)."""
     k = np.floor(np.asarray(points, dtype=np.float64).reshape(-1, 3) / resolution).astype(np.int64) + (1 << 20)
     return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+
+
+def box_voxel_centres(box_min, box_max, resolution: float) -> np.ndarray:
+    """Centres (M, 3) of the map voxels (cells of size `resolution`) a box
+    [box_min, box_max] overlaps, e.g. to put known geometry into a map."""
+    lo, hi = np.asarray(box_min, dtype=np.float64), np.asarray(box_max, dtype=np.float64)
+    axes = [np.arange(np.floor(lo[i] / resolution) + 0.5, np.ceil(hi[i] / resolution), 1.0) * resolution for i in range(3)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import earcore
-from earcore.cloud import voxel_codes
+from earcore.cloud import box_voxel_centres, voxel_codes
 from earcore.robots import RobotModel
 from earcore.sim.camera import Frame
 from earcore.sim.config import PerceptionConfig
@@ -101,10 +101,7 @@ class PerceptionPipeline:
         the map as occupied voxels, except within `keep_clear` metres (horizontally) of
         the robot's base, where the robot's mount is and its padded shoulder and upper arm
         dip to the table top (a UR5's do). Returns the voxels added."""
-        res = self.tree.resolution
-        lo, hi = np.asarray(box_min, dtype=np.float64), np.asarray(box_max, dtype=np.float64)
-        axes = [np.arange(np.floor(lo[i] / res) + 0.5, np.ceil(hi[i] / res), 1.0) * res for i in range(3)]
-        centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        centres = box_voxel_centres(box_min, box_max, self.tree.resolution)
         base = self.robot.base[:3, 3]
         centres = centres[np.linalg.norm(centres[:, :2] - base[:2], axis=1) > keep_clear]
         for _ in range(8):  # hits until the log-odds clamp: the table stays put

@@ -45,7 +45,7 @@ def _reaches(seed: int, duration: float, rest=(0.85, 0.5, 0.05)):
     aimed at the middle of the tool's A-B sweep, held there 2-5 s (Paper II's obstacle
     was held into the path by hand), peak speed 0.25-1.6 m/s (slow and fast reaches
     alike)."""
-    from earcore.sim.person import MINIMUM_JERK_PEAK
+    from earcore.sim.person import reach_duration
 
     rng = np.random.default_rng([seed, 7])
     starts, targets, speeds, holds = [], [], [], []
@@ -57,7 +57,7 @@ def _reaches(seed: int, duration: float, rest=(0.85, 0.5, 0.05)):
         targets.append(tuple(float(v) for v in target))
         speeds.append(float(speed))
         holds.append(float(hold))
-        go = MINIMUM_JERK_PEAK * float(np.linalg.norm(target - np.asarray(rest))) / speed
+        go = reach_duration(rest, target, speed)
         t += 2 * go + hold + rng.uniform(0.5, 3.0)
     return starts, targets, speeds, holds
 

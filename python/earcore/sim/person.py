@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ArmGeometry", "HumanArm", "Reach", "minimum_jerk"]
+__all__ = ["ArmGeometry", "HumanArm", "Reach", "minimum_jerk", "reach_duration"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,12 @@ def minimum_jerk(s: np.ndarray | float) -> np.ndarray | float:
 
 #: Peak speed of a minimum-jerk move = 1.875 × distance / duration.
 MINIMUM_JERK_PEAK = 1.875
+
+
+def reach_duration(rest, target, peak_speed: float) -> float:
+    """Seconds one way from `rest` to `target` by a minimum-jerk move peaking at
+    `peak_speed` (m/s)."""
+    return MINIMUM_JERK_PEAK * float(np.linalg.norm(np.asarray(target) - np.asarray(rest))) / peak_speed
 
 
 class HumanArm:
@@ -77,7 +83,7 @@ class HumanArm:
     def duration(self, target, speed: float | None = None) -> float:
         """Seconds one way from rest to `target` at the peak speed (the arm's own, or
         `speed`)."""
-        return MINIMUM_JERK_PEAK * float(np.linalg.norm(np.asarray(target) - self.rest)) / (speed or self.peak_speed)
+        return reach_duration(self.rest, target, speed or self.peak_speed)
 
     def hand_position(self, t: float) -> np.ndarray:
         for reach in self.reaches:
