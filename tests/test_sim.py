@@ -46,12 +46,16 @@ def test_depth_of_a_plane_back_projects_onto_it(client, name):
     pose = look_at(point + distance * normal + [0.25, -0.1, 0.0], point)
     camera = SimulatedCamera(client, name, sensor, pose, rng=np.random.default_rng(1))
     _, true_depth, _ = camera.render_true()
-    K = sensor.intrinsics
-    exact = earcore.depth_to_points(true_depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], base_from_camera=pose)
+    K, lens = sensor.intrinsics, sensor.distortion
+    exact = earcore.depth_to_points(true_depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], distortion=lens, base_from_camera=pose)
     assert len(exact) > 0.9 * sensor.width * sensor.height
-    assert np.abs((exact - point) @ normal).max() < 1e-4  # the projection is the pinhole K
+    assert np.abs((exact - point) @ normal).max() < 1e-4  # the projection is K through the lens
+    if np.any(lens):  # and the lens matters: the pinhole alone misplaces the points
+        pinhole = earcore.depth_to_points(true_depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], base_from_camera=pose)
+        assert np.linalg.norm(pinhole - exact, axis=1).max() > 1e-2
     frame = camera.capture(0.0)
-    noisy = earcore.depth_to_points(frame.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], base_from_camera=pose)
+    assert np.array_equal(frame.distortion, lens)
+    noisy = earcore.depth_to_points(frame.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], distortion=lens, base_from_camera=pose)
     offsets = (noisy - point) @ normal
     # Within the noise model: 4 σ at the farthest valid depth plus the quantisation step.
     z = frame.depth[frame.depth > 0]

@@ -35,6 +35,8 @@ from earcore.registration import (  # noqa: E402
     PlaneTarget,
     icp_point_to_plane,
     refine_camera_poses,
+    rigid_fit,
+    rigid_fit_ransac,
 )
 from earcore.cloud import (  # noqa: E402
     cluster_points,
@@ -52,6 +54,8 @@ __all__ = [
     "PlaneTarget",
     "icp_point_to_plane",
     "refine_camera_poses",
+    "rigid_fit",
+    "rigid_fit_ransac",
     "cluster_points",
     "crop",
     "depth_to_points",

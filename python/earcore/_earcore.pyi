@@ -30,6 +30,8 @@ __all__ = [
     "voxel_downsample_raw",
     "estimate_normals",
     "cluster_points",
+    "rigid_fit",
+    "rigid_fit_ransac",
     "icp_point_to_plane_raw",
     "RobotModel",
     "fit_body",
@@ -255,6 +257,10 @@ def statistical_outlier_indices(
 def voxel_downsample_raw(points: _ArrayLike, voxel_size: float, values: _ArrayLike | None = None) -> tuple[_F64, _F64 | None]: ...
 def estimate_normals(points: _ArrayLike, k: int = 20, viewpoint: _ArrayLike | None = None) -> tuple[_F64, _F64]: ...
 def cluster_points(points: _ArrayLike, cell: float) -> npt.NDArray[np.uint32]: ...
+def rigid_fit(src: _ArrayLike, dst: _ArrayLike, weights: _ArrayLike | None = None) -> _F64: ...
+def rigid_fit_ransac(
+    src: _ArrayLike, dst: _ArrayLike, threshold: float, iterations: int = 200, seed: int = 0
+) -> tuple[_F64, npt.NDArray[np.bool_], float]: ...
 def robot_cell_voxels(resolution: float = 0.05, seed: int = 0) -> _F64: ...
 
 _BodySpec = tuple[tuple[float, float, float], tuple[float, float, float], float, str]

@@ -1,4 +1,5 @@
-"""Registration: point-to-plane ICP (NOctoSLAM Eqs. 6-7) against a target with normals."""
+"""Registration: point-to-plane ICP (NOctoSLAM Eqs. 6-7) against a target with normals,
+and rigid 3D-3D fits of paired points (plain and RANSAC; calibration's eye-to-hand)."""
 
 from __future__ import annotations
 
@@ -7,9 +8,17 @@ import warnings
 import numpy as np
 import numpy.typing as npt
 
-from earcore._earcore import IcpResult, PlaneTarget, SurfaceMap, icp_point_to_plane_raw
+from earcore._earcore import IcpResult, PlaneTarget, SurfaceMap, icp_point_to_plane_raw, rigid_fit, rigid_fit_ransac
 
-__all__ = ["DegenerateAlignmentWarning", "IcpResult", "PlaneTarget", "icp_point_to_plane", "refine_camera_poses"]
+__all__ = [
+    "DegenerateAlignmentWarning",
+    "IcpResult",
+    "PlaneTarget",
+    "icp_point_to_plane",
+    "refine_camera_poses",
+    "rigid_fit",
+    "rigid_fit_ransac",
+]
 
 
 class DegenerateAlignmentWarning(UserWarning):

@@ -72,6 +72,8 @@ class PerceptionPipeline:
         self.rng = np.random.default_rng(seed)
         #: base_from_camera per camera name, as the loop believes them (calibrated).
         self.poses: dict[str, np.ndarray] = {}
+        #: (K, distortion) per camera name from a calibration; else the frame's own.
+        self.intrinsics: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._refined = not config.refine_poses
         self._last_time: float | None = None
         #: Cameras that do not move with the robot (only these are refined by ICP).
@@ -83,6 +85,22 @@ class PerceptionPipeline:
     def set_pose(self, camera: str, base_from_camera: np.ndarray) -> None:
         """The calibrated pose of a fixed camera (used instead of the frame's)."""
         self.poses[camera] = np.asarray(base_from_camera, dtype=np.float64)
+
+    def set_intrinsics(self, camera: str, K: np.ndarray, distortion) -> None:
+        """The calibrated depth-camera intrinsics of a camera (used instead of the frame's)."""
+        self.intrinsics[camera] = (np.asarray(K, dtype=np.float64), np.asarray(distortion, dtype=np.float64))
+
+    def load_calibration(self, calibration) -> None:
+        """Poses and depth intrinsics of every camera in a `earcore.calibration.Calibration`."""
+        for name, cam in calibration.cameras.items():
+            self.set_pose(name, cam.base_from_camera)
+            self.set_intrinsics(name, cam.depth_K, cam.depth_distortion)
+
+    def _points_of(self, frame: Frame, **kwargs):
+        K, distortion = self.intrinsics.get(frame.camera, (frame.K, frame.distortion))
+        return earcore.depth_to_points(
+            frame.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], distortion=distortion, max_depth=self.config.max_range, **kwargs
+        )
 
     def _pose_of(self, frame: Frame) -> np.ndarray:
         """The pose the loop believes: the calibrated one if set; for a fixed camera with
@@ -117,8 +135,7 @@ class PerceptionPipeline:
         origin = self.robot.base[:3, 3]
         clouds = []
         for f, pose in zip(fixed, poses):
-            K = f.K
-            local = earcore.depth_to_points(f.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], max_depth=self.config.max_range)
+            local = self._points_of(f)
             # Only the working volume: the far floor and walls are planes that let
             # the alignment slide.
             in_base = local @ pose[:3, :3].T + pose[:3, 3]
@@ -142,11 +159,7 @@ class PerceptionPipeline:
         t0 = time.perf_counter()
         for frame in frames:
             pose = self._pose_of(frame)
-            K = frame.K
-            pts, pixels = earcore.depth_to_points(
-                frame.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-                max_depth=c.max_range, base_from_camera=pose, return_pixels=True,
-            )
+            pts, pixels = self._points_of(frame, base_from_camera=pose, return_pixels=True)
             report.points_in += len(pts)
             t1 = time.perf_counter()
             pts, idx = earcore.crop(pts, center=origin, radius=c.crop_radius, return_index=True)

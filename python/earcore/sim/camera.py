@@ -29,6 +29,8 @@ class Frame:
     K: np.ndarray  # (3, 3)
     base_from_camera: np.ndarray  # (4, 4), the pose the frame was taken from (as far as known)
     segmentation: np.ndarray | None = None
+    #: Lens distortion of the depth image (OpenCV's k1, k2, p1, p2, k3); None = none.
+    distortion: np.ndarray | None = None
 
 
 @runtime_checkable
@@ -42,19 +44,19 @@ class Camera(Protocol):
     def capture(self, time: float) -> Frame: ...
 
 
-def opengl_projection(sensor: SensorModel, near: float = 0.05, far: float = 10.0) -> list[float]:
+def opengl_projection(K: np.ndarray, width: int, height: int, near: float = 0.05, far: float = 10.0) -> list[float]:
     """pybullet's (column-major) projection matrix reproducing the pinhole K exactly,
     with OpenCV's pixel convention (pixel (u, v) centred at (u, v), v downward).
 
     The tiny renderer samples pixel u at window x = u and row v at window y = H - 1 - v
     (measured: tilted planes back-project within 15 µm with these offsets, and half a
     pixel off without them), hence cx and cy + 1 below rather than the textbook + 0.5."""
-    w, h = sensor.width, sensor.height
+    w, h = width, height
     p = np.zeros((4, 4))
-    p[0, 0] = 2 * sensor.fx / w
-    p[0, 2] = 1 - 2 * sensor.cx / w
-    p[1, 1] = 2 * sensor.fy / h
-    p[1, 2] = 2 * (sensor.cy + 1.0) / h - 1
+    p[0, 0] = 2 * K[0, 0] / w
+    p[0, 2] = 1 - 2 * K[0, 2] / w
+    p[1, 1] = 2 * K[1, 1] / h
+    p[1, 2] = 2 * (K[1, 2] + 1.0) / h - 1
     p[2, 2] = -(far + near) / (far - near)
     p[2, 3] = -2 * far * near / (far - near)
     p[3, 2] = -1
@@ -66,6 +68,72 @@ def opengl_view(base_from_camera: np.ndarray) -> list[float]:
     gl_from_cv = np.diag([1.0, -1.0, -1.0, 1.0])
     world_from_gl = base_from_camera @ gl_from_cv
     return np.linalg.inv(world_from_gl).T.reshape(-1).tolist()
+
+
+class _Lens:
+    """Renders a distorted camera with pybullet's pinhole renderer: a pinhole image
+    wide enough to cover the distorted field of view is rendered, then each output
+    pixel samples it where its (undistorted) ray lands. The rays come from the same
+    Brown-Conrady inversion the depth back-projection uses."""
+
+    def __init__(self, K: np.ndarray, distortion, width: int, height: int) -> None:
+        from earcore.cloud import depth_to_points
+
+        self.distortion = np.asarray(distortion, dtype=np.float64)
+        self.width, self.height = width, height
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        self.render_K = K.copy()
+        self.map: tuple[np.ndarray, np.ndarray] | None = None
+        if not self.distortion.any():
+            return
+        rays, pixels = depth_to_points(
+            np.ones((height, width)), fx, fy, cx, cy, distortion=self.distortion, return_pixels=True
+        )
+        if len(pixels) != width * height:
+            raise ValueError(f"distortion {tuple(self.distortion)} cannot be inverted over the whole image")
+        x, y = rays[:, 0], rays[:, 1]
+        # Shrink the render's focal length until every ray falls inside it (with a margin).
+        spread = max(np.abs(x).max() * fx / cx, np.abs(y).max() * fy / cy, 1.0) * 1.02
+        self.render_K = np.array([[fx / spread, 0, cx], [0, fy / spread, cy], [0, 0, 1.0]])
+        self.map = ((fx / spread * x + cx).reshape(height, width), (fy / spread * y + cy).reshape(height, width))
+
+    def nearest(self, image: np.ndarray) -> np.ndarray:
+        if self.map is None:
+            return image
+        u = np.clip(np.rint(self.map[0]).astype(np.intp), 0, self.width - 1)
+        v = np.clip(np.rint(self.map[1]).astype(np.intp), 0, self.height - 1)
+        return image[v, u]
+
+    def _corners(self):
+        u = np.clip(self.map[0], 0, self.width - 1.001)
+        v = np.clip(self.map[1], 0, self.height - 1.001)
+        u0, v0 = np.floor(u).astype(np.intp), np.floor(v).astype(np.intp)
+        return u0, v0, u - u0, v - v0
+
+    def bilinear(self, image: np.ndarray) -> np.ndarray:
+        if self.map is None:
+            return image
+        u0, v0, fu, fv = self._corners()
+        fu, fv = fu[..., None], fv[..., None]
+        img = image.astype(np.float64).reshape(self.height, self.width, -1)
+        top = img[v0, u0] * (1 - fu) + img[v0, u0 + 1] * fu
+        bottom = img[v0 + 1, u0] * (1 - fu) + img[v0 + 1, u0 + 1] * fu
+        out = top * (1 - fv) + bottom * fv
+        return np.clip(np.rint(out), 0, 255).astype(image.dtype).reshape(image.shape)
+
+    def depth(self, z: np.ndarray, edge: float = 0.02) -> np.ndarray:
+        """Depth along each distorted pixel's ray: inverse depth interpolated bilinearly
+        (1/z is affine across a plane's image, so planes stay exact) where the four
+        neighbours are one surface; the nearest pixel's depth at edges and holes."""
+        if self.map is None:
+            return z
+        u0, v0, fu, fv = self._corners()
+        quad = np.stack([z[v0, u0], z[v0, u0 + 1], z[v0 + 1, u0], z[v0 + 1, u0 + 1]])
+        smooth = (quad.min(0) > 0) & (quad.max(0) - quad.min(0) < edge)
+        inv = 1.0 / np.where(quad > 0, quad, 1.0)
+        w = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv])
+        interpolated = 1.0 / (w * inv).sum(0)
+        return np.where(smooth, interpolated, self.nearest(z))
 
 
 class SimulatedCamera:
@@ -94,7 +162,13 @@ class SimulatedCamera:
         self.rng = rng
         self.world_from_base = np.eye(4) if world_from_base is None else world_from_base
         self._near, self._far = 0.05, sensor.far + 1.0
-        self._projection = opengl_projection(sensor, self._near, self._far)
+        self._lens = _Lens(sensor.intrinsics, sensor.distortion, sensor.width, sensor.height)
+        self._projection = opengl_projection(self._lens.render_K, sensor.width, sensor.height, self._near, self._far)
+        self._colour_lens: _Lens | None = None
+        if sensor.colour is not None:
+            c = sensor.colour
+            self._colour_lens = _Lens(c.intrinsics, c.distortion, c.width, c.height)
+            self._colour_projection = opengl_projection(self._colour_lens.render_K, c.width, c.height, self._near, self._far)
 
     @property
     def base_from_camera(self) -> np.ndarray:
@@ -109,29 +183,41 @@ class SimulatedCamera:
         world_from_link[:3, 3] = state[4]
         return np.linalg.inv(self.world_from_base) @ world_from_link @ link_from_camera
 
-    def render_true(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Colour (H, W, 3), true metric depth (H, W; 0 where nothing within range) and
-        segmentation (H, W; body id, -1 background)."""
+    def _render(self, base_from_camera: np.ndarray, width: int, height: int, projection: list[float], lens: _Lens):
         p = self.client
-        world_from_camera = self.world_from_base @ self.base_from_camera
+        world_from_camera = self.world_from_base @ base_from_camera
         _, _, rgba, depth_buffer, seg = p.getCameraImage(
-            self.sensor.width,
-            self.sensor.height,
-            opengl_view(world_from_camera),
-            self._projection,
-            renderer=p.ER_TINY_RENDERER,
+            width, height, opengl_view(world_from_camera), projection, renderer=p.ER_TINY_RENDERER
         )
-        h, w = self.sensor.height, self.sensor.width
-        rgba = np.reshape(np.asarray(rgba, dtype=np.uint8), (h, w, 4))
-        buf = np.reshape(np.asarray(depth_buffer, dtype=np.float64), (h, w))
+        rgba = np.reshape(np.asarray(rgba, dtype=np.uint8), (height, width, 4))
+        buf = np.reshape(np.asarray(depth_buffer, dtype=np.float64), (height, width))
         n, f = self._near, self._far
         z = f * n / (f - (f - n) * buf)
         z = np.where(buf < 1.0, z, 0.0)
-        seg = np.reshape(np.asarray(seg, dtype=np.int64), (h, w))
+        seg = np.reshape(np.asarray(seg, dtype=np.int64), (height, width))
         body = np.where(seg >= 0, seg & ((1 << 24) - 1), -1)
-        return rgba[..., :3].copy(), z, body
+        # Through the lens: depth and labels are never blended across edges.
+        return lens.bilinear(rgba[..., :3]), lens.depth(z), lens.nearest(body)
+
+    def render_true(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The depth camera's view through its lens: image (H, W, 3; the IR image of
+        a real sensor, in colour here), true metric depth (H, W; 0 where nothing within
+        range) and segmentation (H, W; body id, -1 background)."""
+        return self._render(self.base_from_camera, self.sensor.width, self.sensor.height, self._projection, self._lens)
+
+    def render_colour(self) -> np.ndarray:
+        """The colour camera's image (its own resolution, lens and pose beside the depth
+        camera); the depth camera's view when the sensor has no separate colour camera."""
+        if self.sensor.colour is None or self._colour_lens is None:
+            return self.render_true()[0]
+        c = self.sensor.colour
+        pose = self.base_from_camera @ c.depth_from_colour
+        return self._render(pose, c.width, c.height, self._colour_projection, self._colour_lens)[0]
 
     def capture(self, time: float) -> Frame:
         colour, z, body = self.render_true()
         depth = self.sensor.corrupt(z, self.rng)
-        return Frame(self.name, time, colour, depth, self.sensor.intrinsics, self.base_from_camera, body)
+        return Frame(
+            self.name, time, colour, depth, self.sensor.intrinsics, self.base_from_camera, body,
+            np.asarray(self.sensor.distortion, dtype=np.float64),
+        )

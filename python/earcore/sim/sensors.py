@@ -15,6 +15,14 @@ quantisation); the numbers are documented on each preset and checked by the test
 * RealSense F200 (coded light, 640×480, 73°×59°, 0.2-1.2 m): axial σ(z) = 0.5 + 2.5 z² mm
   (an assumption matching its datasheet's ~1 mm at 0.5 m), whole-mm depth.
 
+Lenses (the ground truth calibration has to recover; OpenCV's Brown-Conrady model k1,
+k2, p1, p2, k3): the Kinect V2's IR lens (0.09, −0.27, 0, 0, 0.09) is the typical
+factory calibration libfreenect2 reads off the device; the Kinect V1's IR lens
+(−0.10, 0.25) and colour lens (0.15, −0.35) are of the size Herrera, Kannala and
+Heikkilä (2012, "Joint depth and color camera calibration with distortion correction")
+report. Each Kinect has its colour camera beside the depth camera: 5.2 cm (V2) and
+2.5 cm (V1) along x with a fraction of a degree of misalignment (`ColourSensor`).
+
 Every model drops pixels at depth discontinuities (a neighbour more than `edge_jump`
 away) with probability `edge_dropout`, beyond `max_incidence` from the surface normal,
 and outside [near, far].
@@ -27,7 +35,51 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["SENSORS", "SensorModel"]
+__all__ = ["SENSORS", "ColourSensor", "SensorModel"]
+
+
+Distortion = tuple[float, float, float, float, float]
+NO_DISTORTION: Distortion = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def _focal(pixels: int, fov_deg: float) -> float:
+    return 0.5 * pixels / math.tan(math.radians(fov_deg) / 2)
+
+
+@dataclass(frozen=True)
+class ColourSensor:
+    """The colour camera of an RGB-D sensor: its own pinhole, lens and pose relative to
+    the depth (IR) camera (`depth_from_colour`: translation in m, then rotation as
+    x-y-z Euler angles in degrees)."""
+
+    width: int
+    height: int
+    fov_h_deg: float
+    fov_v_deg: float
+    distortion: Distortion = NO_DISTORTION
+    translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        fx, fy = _focal(self.width, self.fov_h_deg), _focal(self.height, self.fov_v_deg)
+        return np.array([[fx, 0, (self.width - 1) / 2], [0, fy, (self.height - 1) / 2], [0, 0, 1.0]])
+
+    @property
+    def depth_from_colour(self) -> np.ndarray:
+        """4×4 pose of the colour camera in the depth camera's frame."""
+        rx, ry, rz = np.radians(self.rotation_deg)
+        cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+        r_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+        r_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+        r_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+        m = np.eye(4)
+        m[:3, :3] = r_z @ r_y @ r_x
+        m[:3, 3] = self.translation
+        return m
+
+    def scaled(self, factor: float) -> ColourSensor:
+        return replace(self, width=max(8, round(self.width * factor)), height=max(8, round(self.height * factor)))
 
 
 @dataclass(frozen=True)
@@ -53,14 +105,19 @@ class SensorModel:
     edge_jump: float = 0.05
     edge_dropout: float = 0.5
     max_incidence_deg: float = 80.0
+    #: The IR/depth lens (OpenCV's k1, k2, p1, p2, k3): depth and IR images are distorted.
+    distortion: Distortion = NO_DISTORTION
+    #: The colour camera beside the depth camera; None: colour comes from the depth
+    #: camera's own view (a registered image).
+    colour: ColourSensor | None = None
 
     @property
     def fx(self) -> float:
-        return 0.5 * self.width / math.tan(math.radians(self.fov_h_deg) / 2)
+        return _focal(self.width, self.fov_h_deg)
 
     @property
     def fy(self) -> float:
-        return 0.5 * self.height / math.tan(math.radians(self.fov_v_deg) / 2)
+        return _focal(self.height, self.fov_v_deg)
 
     @property
     def cx(self) -> float:
@@ -77,7 +134,10 @@ class SensorModel:
 
     def scaled(self, factor: float) -> SensorModel:
         """The same sensor at a fraction of the resolution (for quick runs)."""
-        return replace(self, width=max(8, round(self.width * factor)), height=max(8, round(self.height * factor)))
+        colour = None if self.colour is None else self.colour.scaled(factor)
+        return replace(
+            self, width=max(8, round(self.width * factor)), height=max(8, round(self.height * factor)), colour=colour
+        )
 
     def sigma(self, z: np.ndarray, incidence: np.ndarray | float = 0.0) -> np.ndarray:
         """Axial noise standard deviation (m) at depth z (m) and incidence angle (rad)."""
@@ -150,9 +210,15 @@ def incidence_angles(depth: np.ndarray, fx: float, fy: float) -> np.ndarray:
 
 #: The paper's cameras.
 SENSORS: dict[str, SensorModel] = {
-    "kinect_v2": SensorModel("kinect_v2", 512, 424, 70.6, 60.0, 0.5, 4.5, 30.0, "tof"),
+    "kinect_v2": SensorModel(
+        "kinect_v2", 512, 424, 70.6, 60.0, 0.5, 4.5, 30.0, "tof",
+        distortion=(0.09, -0.27, 0.0, 0.0, 0.09),
+        colour=ColourSensor(1920, 1080, 84.1, 53.8, (0.03, -0.05, 0.0, 0.0, 0.0), (0.052, 0.0, 0.0), (0.3, -0.2, 0.1)),
+    ),
     "kinect_v1": SensorModel(
-        "kinect_v1", 320, 240, 57.0, 43.0, 0.4, 4.5, 30.0, "structured", baseline=0.075, disparity_focal=580.0, depth_step=0.001
+        "kinect_v1", 320, 240, 57.0, 43.0, 0.4, 4.5, 30.0, "structured", baseline=0.075, disparity_focal=580.0, depth_step=0.001,
+        distortion=(-0.10, 0.25, 0.0, 0.0, 0.0),
+        colour=ColourSensor(640, 480, 62.0, 48.6, (0.15, -0.35, 0.0, 0.0, 0.0), (0.025, 0.0, 0.0), (-0.2, 0.3, 0.0)),
     ),
     "f200": SensorModel("f200", 640, 480, 73.0, 59.0, 0.2, 1.2, 30.0, "coded"),
 }

@@ -228,3 +228,53 @@ pub fn cluster_points<'py>(
     let labels = py.detach(|| cloud::cluster_points(slice, cell)).py()?;
     Ok(vec_to_array(py, labels))
 }
+
+/// `dst_from_src` (4, 4) minimising Σ wᵢ |R srcᵢ + t − dstᵢ|² (Kabsch), for paired
+/// points (N, 3), N ≥ 3 not all on one line.
+#[pyfunction]
+#[pyo3(signature = (src, dst, weights=None))]
+pub fn rigid_fit<'py>(
+    py: Python<'py>,
+    src: &Bound<'py, PyAny>,
+    dst: &Bound<'py, PyAny>,
+    weights: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let (s, d) = (self::points(src, "src")?, self::points(dst, "dst")?);
+    let w = weights.map(|w| numbers(w, "weights")).transpose()?;
+    let (s, d) = (s.as_slice()?, d.as_slice()?);
+    let m = py.detach(|| cloud::rigid_fit(s, d, w.as_deref())).py()?;
+    Ok(matrix4_to_array(py, &m))
+}
+
+/// RANSAC rigid fit: (`dst_from_src` (4, 4), inlier mask (N,) bool, inlier RMSE m).
+#[pyfunction]
+#[pyo3(signature = (src, dst, threshold, iterations=200, seed=0))]
+pub fn rigid_fit_ransac<'py>(
+    py: Python<'py>,
+    src: &Bound<'py, PyAny>,
+    dst: &Bound<'py, PyAny>,
+    threshold: f64,
+    iterations: usize,
+    seed: u64,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>, f64)> {
+    let (s, d) = (self::points(src, "src")?, self::points(dst, "dst")?);
+    let (s, d) = (s.as_slice()?, d.as_slice()?);
+    let fit = py
+        .detach(|| cloud::rigid_fit_ransac(s, d, threshold, iterations, seed))
+        .py()?;
+    Ok((
+        matrix4_to_array(py, &fit.transform),
+        vec_to_array(py, fit.inliers),
+        fit.rmse,
+    ))
+}
+
+fn matrix4_to_array<'py>(
+    py: Python<'py>,
+    m: &earcore_core::na::Matrix4<f64>,
+) -> Bound<'py, PyArray2<f64>> {
+    numpy::IntoPyArray::into_pyarray(
+        numpy::ndarray::Array2::from_shape_fn((4, 4), |(r, c)| m[(r, c)]),
+        py,
+    )
+}

@@ -1,6 +1,6 @@
 //! Point clouds: depth images to points, cropping, statistical outlier removal,
-//! voxel-grid down-sampling, surface normals, Euclidean clusters, and the k-d tree
-//! they share.
+//! voxel-grid down-sampling, surface normals, Euclidean clusters, rigid 3D-3D fits,
+//! and the k-d tree they share.
 
 mod clusters;
 mod crop;
@@ -9,6 +9,7 @@ mod icp;
 mod kdtree;
 mod normals;
 mod outliers;
+mod rigid_fit;
 mod voxel_grid;
 
 pub use clusters::cluster_points;
@@ -18,4 +19,5 @@ pub use icp::{icp_point_to_plane, IcpParams, IcpResult, IcpTarget, PlaneTarget};
 pub use kdtree::KdTree;
 pub use normals::estimate_normals;
 pub use outliers::{statistical_outliers, OutlierParams};
+pub use rigid_fit::{rigid_fit, rigid_fit_ransac, RansacFit};
 pub use voxel_grid::voxel_downsample;
