@@ -25,7 +25,7 @@ $(VENV)/.ready: pyproject.toml | system-deps
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install $(PIP_FLAGS) --upgrade pip
 	$(PY) -m pip install $(PIP_FLAGS) "maturin>=1.8,<2" numpy
-	$(PY) -m pip install $(PIP_FLAGS) "matplotlib>=3.7" "pyoctomap>=1.2" "pybullet>=3.2" "example-robot-data>=6" "rerun-sdk>=0.41" "ompl>=2,<3"
+	$(PY) -m pip install $(PIP_FLAGS) "matplotlib>=3.7" "pyoctomap>=1.2" "pybullet>=3.2" "example-robot-data>=6" "rerun-sdk>=0.41" "ompl>=2,<3" "opencv-python-headless>=4.9,<5" "pyyaml>=6"
 	touch $@
 
 develop: $(VENV)/.ready ## build the extension (release) into .venv, editable

@@ -24,6 +24,7 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("demo", help="map demo: cameras, an obstacle passing, danger decaying (PNG + summary)", add_help=False)
     sub.add_parser("run", help="the simulated cell end to end: robot, cameras, a person, the map (PNGs + JSON)", add_help=False)
     sub.add_parser("config", help="`earcore config dump`: every option of `earcore run` as TOML", add_help=False)
+    sub.add_parser("calibrate", help="Paper I's automatic camera calibration in the simulated cell (YAML file)", add_help=False)
     sub.add_parser("experiment", help="the papers' experiments, e.g. `earcore experiment table2` (Paper II)", add_help=False)
     args, rest = parser.parse_known_args(argv)
     if args.version:
@@ -36,6 +37,10 @@ def main(argv: list[str] | None = None) -> int:
         from earcore.run import config_main
 
         return config_main(rest)
+    if args.command == "calibrate":
+        from earcore.calibration.cli import main as calibrate_main
+
+        return calibrate_main(rest)
     if args.command == "experiment":
         from earcore.planning.experiments import main as experiment_main
 

@@ -302,13 +302,17 @@ def _draw_fig7(png: Path, driver: CirclesDriver, result: dict) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="earcore experiment", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("name", choices=["table2", "fig7"], help="which experiment")
+    parser.add_argument("name", choices=["table2", "fig7", "calibration"], help="which experiment (calibration: Paper I's Tables II-III)")
     parser.add_argument("--repetitions", type=int, default=20, help="fig7: repetitions of the three circles (default 20)")
     parser.add_argument("--trips", type=int, default=15, help="A-B-A return trips per experiment (default 15)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--camera-scale", type=float, default=0.25, help="camera resolution factor (rendering dominates the run time)")
     parser.add_argument("--only", nargs="*", help="run only these experiments, e.g. 'Exp. 3' Direct")
     parser.add_argument("--out", type=Path, default=Path("out/table2"), help="output folder (fig7: out/fig7)")
+    if argv and argv[0] == "calibration":
+        from earcore.calibration.experiments import main as calibration_main
+
+        return calibration_main(argv[1:])
     args = parser.parse_args(argv)
     if args.name == "fig7":
         out = args.out if args.out != Path("out/table2") else Path("out/fig7")

@@ -136,6 +136,21 @@ class _Lens:
         return np.where(smooth, interpolated, self.nearest(z))
 
 
+def _downsample(rgba: np.ndarray, z: np.ndarray, body: np.ndarray, s: int, edge: float = 0.02):
+    """s×s blocks to one pixel: colour averaged (anti-aliasing); depth as the mean of
+    1/z (exact for a plane: 1/z is affine across its image) where the block is one
+    surface, else the sample nearest the block's centre, as are the labels."""
+    h, w = z.shape[0] // s, z.shape[1] // s
+    colour = rgba[..., :3].reshape(h, s, w, s, 3).astype(np.float64).mean(axis=(1, 3))
+    blocks = z.reshape(h, s, w, s)
+    centre = blocks[:, s // 2, :, s // 2]
+    smooth = (blocks.min(axis=(1, 3)) > 0) & (np.ptp(blocks, axis=(1, 3)) < edge)
+    inv = (1.0 / np.where(blocks > 0, blocks, 1.0)).mean(axis=(1, 3))
+    depth = np.where(smooth, 1.0 / inv, centre)
+    labels = body.reshape(h, s, w, s)[:, s // 2, :, s // 2]
+    return np.rint(colour).astype(np.uint8), depth, labels
+
+
 class SimulatedCamera:
     """A camera in the pybullet cell: renders colour, true depth and segmentation with
     the tiny renderer, then applies its sensor's noise model.
@@ -153,8 +168,14 @@ class SimulatedCamera:
         rng: np.random.Generator,
         mount: tuple[int, int, np.ndarray] | None = None,
         world_from_base: np.ndarray | None = None,
+        supersample: int = 1,
     ) -> None:
+        if supersample < 1:
+            raise ValueError(f"supersample must be >= 1, got {supersample}")
         self.client = client
+        #: Render s×s samples per pixel and average them: anti-aliased edges, for the
+        #: checkerboard's corners (the tiny renderer itself does not anti-alias).
+        self.supersample = supersample
         self.name = name
         self.sensor = sensor
         self._pose = np.asarray(base_from_camera, dtype=np.float64)
@@ -163,13 +184,22 @@ class SimulatedCamera:
         self.world_from_base = np.eye(4) if world_from_base is None else world_from_base
         self._near, self._far = 0.05, sensor.far + 1.0
         self._lens = _Lens(sensor.intrinsics, sensor.distortion, sensor.width, sensor.height)
-        self._projection = opengl_projection(self._lens.render_K, sensor.width, sensor.height, self._near, self._far)
+        self._projection = self._projection_for(self._lens.render_K, sensor.width, sensor.height)
         self._colour_lens: _Lens | None = None
         if sensor.colour is not None:
             c = sensor.colour
             self._colour_lens = _Lens(c.intrinsics, c.distortion, c.width, c.height)
-            self._colour_projection = opengl_projection(self._colour_lens.render_K, c.width, c.height, self._near, self._far)
+            self._colour_projection = self._projection_for(self._colour_lens.render_K, c.width, c.height)
 
+    def _projection_for(self, K: np.ndarray, width: int, height: int) -> list[float]:
+        """The render's projection; with supersampling, s× the pixels, each output pixel
+        (u, v) covering render pixels s·u … s·u + s − 1 (centre s·u + (s − 1)/2)."""
+        s = self.supersample
+        hi = K.copy()
+        hi[:2] *= s
+        hi[0, 2] = s * K[0, 2] + (s - 1) / 2
+        hi[1, 2] = s * K[1, 2] + (s - 1) / 2
+        return opengl_projection(hi, s * width, s * height, self._near, self._far)
     @property
     def base_from_camera(self) -> np.ndarray:
         """True pose (ground truth; the perception loop uses calibrated poses)."""
@@ -185,19 +215,28 @@ class SimulatedCamera:
 
     def _render(self, base_from_camera: np.ndarray, width: int, height: int, projection: list[float], lens: _Lens):
         p = self.client
+        s = self.supersample
         world_from_camera = self.world_from_base @ base_from_camera
         _, _, rgba, depth_buffer, seg = p.getCameraImage(
-            width, height, opengl_view(world_from_camera), projection, renderer=p.ER_TINY_RENDERER
+            s * width, s * height, opengl_view(world_from_camera), projection, renderer=p.ER_TINY_RENDERER
         )
-        rgba = np.reshape(np.asarray(rgba, dtype=np.uint8), (height, width, 4))
-        buf = np.reshape(np.asarray(depth_buffer, dtype=np.float64), (height, width))
+        rgba = np.reshape(np.asarray(rgba, dtype=np.uint8), (s * height, s * width, 4))
+        buf = np.reshape(np.asarray(depth_buffer, dtype=np.float64), (s * height, s * width))
         n, f = self._near, self._far
         z = f * n / (f - (f - n) * buf)
         z = np.where(buf < 1.0, z, 0.0)
-        seg = np.reshape(np.asarray(seg, dtype=np.int64), (height, width))
+        seg = np.reshape(np.asarray(seg, dtype=np.int64), (s * height, s * width))
         body = np.where(seg >= 0, seg & ((1 << 24) - 1), -1)
+        if s > 1:
+            rgba, z, body = _downsample(rgba, z, body, s)
         # Through the lens: depth and labels are never blended across edges.
         return lens.bilinear(rgba[..., :3]), lens.depth(z), lens.nearest(body)
+
+    def place(self, base_from_camera: np.ndarray) -> None:
+        """Move a fixed camera (someone bumped it, or it stands off its nominal place)."""
+        if self.mount is not None:
+            raise ValueError(f"camera {self.name!r} rides on the robot; it cannot be placed")
+        self._pose = np.asarray(base_from_camera, dtype=np.float64).copy()
 
     def render_true(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The depth camera's view through its lens: image (H, W, 3; the IR image of

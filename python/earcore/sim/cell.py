@@ -7,6 +7,8 @@ cell's own clock (`time_step` per step), independent of how long rendering takes
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from earcore.robots import RobotModel, load, urdf_path
@@ -163,14 +165,19 @@ class SimulatedCell:
         sensor = SENSORS[c.sensor]
         if self.config.camera_scale != 1.0:
             sensor = sensor.scaled(self.config.camera_scale)
+        if sensor.colour is not None and self.config.colour_scale != 1.0:
+            sensor = replace(sensor, colour=sensor.colour.scaled(self.config.colour_scale))
         rng = np.random.default_rng([self.config.seed, len(c.name), sum(map(ord, c.name))])
         if c.mount == "world":
-            return SimulatedCamera(self.p, c.name, sensor, look_at(c.position, c.target), rng=rng)
+            return SimulatedCamera(
+                self.p, c.name, sensor, look_at(c.position, c.target), rng=rng, supersample=self.config.supersample
+            )
         if c.mount == "end_effector":
             link_from_camera = np.eye(4)
             link_from_camera[:3, 3] = c.position
             return SimulatedCamera(
-                self.p, c.name, sensor, np.eye(4), rng=rng, mount=(self.robot_id, self._tool_link(), link_from_camera)
+                self.p, c.name, sensor, np.eye(4), rng=rng, mount=(self.robot_id, self._tool_link(), link_from_camera),
+                supersample=self.config.supersample,
             )
         raise ValueError(f"camera {c.name!r}: mount must be 'world' or 'end_effector', got {c.mount!r}")
 

@@ -12,6 +12,8 @@ from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 __all__ = [
     "CameraConfig",
     "CellConfig",
@@ -19,6 +21,7 @@ __all__ = [
     "PersonConfig",
     "PlanningConfig",
     "RunConfig",
+    "calibration_cameras",
     "dump_toml",
     "load_config",
 ]
@@ -45,6 +48,26 @@ def default_cameras() -> list[CameraConfig]:
         CameraConfig("kinect_v2_right", "kinect_v2", (1.45, -1.45, 0.9), (0.25, 0.0, 0.15)),
         CameraConfig("kinect_v1_overhead", "kinect_v1", (0.35, 0.0, 2.1), (0.3, 0.0, 0.0)),
         CameraConfig("f200_wrist", "f200", (0.0, 0.0, 0.05), mount="end_effector", rate_hz=30.0),
+    ]
+
+
+def calibration_cameras() -> list[CameraConfig]:
+    """Paper I's calibration set-up: two Kinect V2-like cameras at ±45° to the robot's
+    work area and a Kinect V1-like camera between them, facing it, each 1.05 m from the
+    area's centre (0.45, 0, 0.3): close enough that the robot carries the 21 × 15 cm
+    board over most of each image (the main cell's cameras, 2.2 m away, see it ~35 px
+    wide, too small for a lens calibration)."""
+    centre = np.array([0.45, 0.0, 0.3])
+
+    def place(azimuth: float, elevation: float, distance: float = 1.05) -> tuple[float, float, float]:
+        a, e = np.radians(azimuth), np.radians(elevation)
+        return tuple(float(v) for v in centre + distance * np.array([np.cos(a) * np.cos(e), np.sin(a) * np.cos(e), np.sin(e)]))
+
+    target = tuple(float(v) for v in centre)
+    return [
+        CameraConfig("kinect_v2_left", "kinect_v2", place(45, 25), target),
+        CameraConfig("kinect_v2_right", "kinect_v2", place(-45, 25), target),
+        CameraConfig("kinect_v1_front", "kinect_v1", place(0, 30), target),
     ]
 
 
@@ -89,6 +112,12 @@ class CellConfig:
     cameras: list[CameraConfig] = field(default_factory=default_cameras)
     #: Resolution factor for every camera (1 = the sensor's own; 0.5 renders 4× fewer pixels).
     camera_scale: float = 1.0
+    #: Further resolution factor of the separate colour cameras (a 1920×1080 frame takes
+    #: ~2 s with the tiny renderer; only calibration renders them).
+    colour_scale: float = 0.5
+    #: Render s×s samples per pixel (anti-aliasing, s² the render time); calibration
+    #: uses 2 for sharper checkerboard corners.
+    supersample: int = 1
     person: PersonConfig = field(default_factory=PersonConfig)
     #: Joint speed and acceleration limits as fractions of the maximum (Table I).
     speed_fraction: float = 0.5

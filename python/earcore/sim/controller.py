@@ -56,6 +56,22 @@ class JointTrajectoryController:
     def stop(self) -> None:
         self.waypoints = []
 
+    def brake(self, q: np.ndarray) -> None:
+        """Stop as soon as the acceleration limit allows: the path is cut at the point
+        where braking from the current speed along the current segment ends."""
+        q = np.asarray(q, dtype=np.float64)
+        if not self.waypoints or self.speed <= 0:
+            self.waypoints = []
+            return
+        delta = self.waypoints[0] - q
+        span = np.abs(delta).max()
+        if span <= self.tolerance:
+            self.waypoints = [self.waypoints[0]]
+            return
+        direction = delta / span
+        distance = min(span, self.speed**2 / (2 * self._path_accel(direction)))
+        self.waypoints = [q + direction * distance]
+
     def step(self, q: np.ndarray, dt: float) -> np.ndarray:
         """Joint velocities for the next `dt` seconds, from the current positions."""
         q = np.asarray(q, dtype=np.float64)

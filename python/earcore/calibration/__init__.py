@@ -1,0 +1,38 @@
+"""Automatic robot-camera calibration (Paper I): a robot-held checkerboard, every fixed
+camera's lenses (Zhang's method, refined with the robot as the rig), colour-depth
+offset and pose in the robot's base frame (eye-to-hand), in one YAML file the
+perception loop reads. Needs OpenCV (`pip install 'earcore[calibration]'`).
+"""
+
+from earcore.calibration.board import Detection, corner_points, detect_board
+from earcore.calibration.check import PoseCheck, check_camera
+from earcore.calibration.errors import BoardNotSeen, CalibrationError, DegeneratePoses, TooFewFrames
+from earcore.calibration.eye_to_hand import EyeToHand, fit_eye_to_hand
+from earcore.calibration.intrinsics import LensFit, calibrate_lens, calibrate_lens_on_robot, lens_displacement
+from earcore.calibration.procedure import CalibrationSettings, Calibrator, Observation, nominal_mount
+from earcore.calibration.store import Calibration, CalibrationFileError, CameraCalibration
+
+__all__ = [
+    "BoardNotSeen",
+    "Calibration",
+    "CalibrationError",
+    "CalibrationFileError",
+    "CalibrationSettings",
+    "Calibrator",
+    "CameraCalibration",
+    "DegeneratePoses",
+    "Detection",
+    "EyeToHand",
+    "LensFit",
+    "Observation",
+    "PoseCheck",
+    "TooFewFrames",
+    "calibrate_lens",
+    "calibrate_lens_on_robot",
+    "check_camera",
+    "corner_points",
+    "detect_board",
+    "fit_eye_to_hand",
+    "lens_displacement",
+    "nominal_mount",
+]

@@ -1,0 +1,28 @@
+"""Calibration errors: each names the camera and the cause."""
+
+from __future__ import annotations
+
+__all__ = ["BoardNotSeen", "CalibrationError", "DegeneratePoses", "TooFewFrames"]
+
+
+class CalibrationError(RuntimeError):
+    def __init__(self, camera: str, message: str) -> None:
+        super().__init__(f"camera {camera!r}: {message}")
+        self.camera = camera
+
+
+class BoardNotSeen(CalibrationError):
+    """The camera never detected the board (not in view, too far, occluded)."""
+
+    def __init__(self, camera: str, detail: str = "") -> None:
+        super().__init__(camera, "the checkerboard was never detected" + (f" ({detail})" if detail else ""))
+
+
+class TooFewFrames(CalibrationError):
+    def __init__(self, camera: str, got: int, needed: int, detail: str = "") -> None:
+        super().__init__(camera, f"{got} usable frames, at least {needed} needed" + (f" ({detail})" if detail else ""))
+        self.got, self.needed = got, needed
+
+
+class DegeneratePoses(CalibrationError):
+    """The frames lack the variety (rotation, field-of-view coverage) a quantity needs."""

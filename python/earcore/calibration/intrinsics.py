@@ -1,0 +1,135 @@
+"""Intrinsics (Paper I, step 7): Zhang's method for each lens (OpenCV's calibrateCamera,
+Brown-Conrady k1, k2, p1, p2, k3) and the colour camera's offset from the depth camera
+(stereoCalibrate with both lenses fixed)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from earcore.calibration.board import Detection, _cv2
+from earcore.calibration.errors import DegeneratePoses, TooFewFrames
+
+__all__ = ["LensFit", "calibrate_lens", "calibrate_lens_on_robot", "colour_offset", "lens_displacement"]
+
+
+@dataclass
+class LensFit:
+    K: np.ndarray
+    distortion: np.ndarray  # (5,): k1, k2, p1, p2, k3
+    #: RMS reprojection error (pixels) over every corner of every frame.
+    rms: float
+    frames: int
+
+
+def _object_points(board_points: np.ndarray, n: int) -> list[np.ndarray]:
+    return [board_points.astype(np.float32)] * n
+
+
+def calibrate_lens(
+    detections: list[Detection],
+    board_points: np.ndarray,
+    K_guess: np.ndarray,
+    *,
+    camera: str = "camera",
+    min_frames: int = 8,
+) -> LensFit:
+    """K and distortion from board detections in one camera's images."""
+    cv2 = _cv2()
+    if len(detections) < min_frames:
+        raise TooFewFrames(camera, len(detections), min_frames, "for the lens (Zhang's method)")
+    size = detections[0].image_size
+    image_points = [d.corners.astype(np.float32).reshape(-1, 1, 2) for d in detections]
+    # Field-of-view coverage: the corners must spread over the image, else the
+    # distortion is extrapolated.
+    allpx = np.concatenate([d.corners for d in detections])
+    cover = (np.ptp(allpx[:, 0]) / size[0], np.ptp(allpx[:, 1]) / size[1])
+    if min(cover) < 0.3:
+        raise DegeneratePoses(camera, f"the board covered only {cover[0]:.0%} × {cover[1]:.0%} of the image")
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS
+    rms, K, dist, _, _ = cv2.calibrateCamera(
+        _object_points(board_points, len(detections)), image_points, size, K_guess.astype(np.float64).copy(), None, flags=flags
+    )
+    return LensFit(K, np.asarray(dist, dtype=np.float64).reshape(-1)[:5], float(rms), len(detections))
+
+
+def colour_offset(
+    depth_detections: list[Detection],
+    colour_detections: list[Detection],
+    board_points: np.ndarray,
+    depth_lens: LensFit,
+    colour_lens: LensFit,
+) -> tuple[np.ndarray, float]:
+    """depth_from_colour (4, 4) from frames where both cameras saw the board, and the
+    stereo RMS reprojection error (pixels)."""
+    cv2 = _cv2()
+    n = len(depth_detections)
+    rms, _, _, _, _, R, T, _, _ = cv2.stereoCalibrate(
+        _object_points(board_points, n),
+        [d.corners.astype(np.float32).reshape(-1, 1, 2) for d in depth_detections],
+        [d.corners.astype(np.float32).reshape(-1, 1, 2) for d in colour_detections],
+        depth_lens.K, depth_lens.distortion, colour_lens.K, colour_lens.distortion,
+        depth_detections[0].image_size, flags=cv2.CALIB_FIX_INTRINSIC,
+    )
+    colour_from_depth = np.eye(4)
+    colour_from_depth[:3, :3] = R
+    colour_from_depth[:3, 3] = np.asarray(T).reshape(3)
+    return np.linalg.inv(colour_from_depth), float(rms)
+
+
+def lens_displacement(K_a, dist_a, K_b, dist_b, size: tuple[int, int], step: int = 8, region=None, pixels=None) -> float:
+    """Largest distance (pixels) between where two lens models put the same ray: how far
+    apart two calibrations of one camera really are (the coefficients trade off against
+    each other). Over a grid of the image, of `region` (u_min, v_min, u_max, v_max), or
+    at `pixels` (N, 2), e.g. the corners the calibration saw: beyond them a fitted lens
+    is extrapolation."""
+    cv2 = _cv2()
+    w, h = size
+    if pixels is not None:
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    else:
+        u0, v0, u1, v1 = region if region is not None else (0, 0, w - 1, h - 1)
+        u, v = np.meshgrid(np.arange(u0, u1 + 1, step), np.arange(v0, v1 + 1, step))
+        px = np.c_[u.ravel(), v.ravel()].astype(np.float64)
+    rays = cv2.undistortPoints(px.reshape(-1, 1, 2), np.asarray(K_a, float), np.asarray(dist_a, float)).reshape(-1, 2)
+    back, _ = cv2.projectPoints(np.c_[rays, np.ones(len(rays))], np.zeros(3), np.zeros(3), np.asarray(K_b, float), np.asarray(dist_b, float))
+    return float(np.linalg.norm(back.reshape(-1, 2) - px, axis=1).max())
+
+
+def calibrate_lens_on_robot(
+    points_base: np.ndarray,
+    pixels: np.ndarray,
+    image_size: tuple[int, int],
+    K_guess: np.ndarray,
+    *,
+    camera: str = "camera",
+) -> tuple[LensFit, np.ndarray]:
+    """Lens and `base_from_camera` at once, with the robot as the calibration rig.
+
+    Every frame's corners are placed in the base frame by forward kinematics and the
+    board's mount, so all frames together are one non-planar 3D target seen from one
+    camera pose. Zhang's method has to find each frame's board pose from the image,
+    which trades focal length against distance when the board is small in the image;
+    here the robot fixes the distances and the focal length follows."""
+    cv2 = _cv2()
+    points_base = np.asarray(points_base, dtype=np.float64)
+    pixels = np.asarray(pixels, dtype=np.float64)
+    if len(points_base) < 12:
+        raise TooFewFrames(camera, len(points_base) // 24, 1, "too few corners for the lens")
+    # OpenCV wants a non-planar rig's points near its own origin and the pose guessed
+    # well: start from the pinhole pose (PnP with the guessed K).
+    ok, rvec, tvec = cv2.solvePnP(points_base, pixels, K_guess, None, flags=cv2.SOLVEPNP_ITERATIVE)
+    if not ok:
+        raise DegeneratePoses(camera, "no camera pose explains the corners (PnP failed)")
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_USE_EXTRINSIC_GUESS
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+        [points_base.astype(np.float32)], [pixels.astype(np.float32).reshape(-1, 1, 2)], image_size,
+        K_guess.astype(np.float64).copy(), np.zeros(5), rvecs=(rvec,), tvecs=(tvec,), flags=flags,
+    )
+    r, _ = cv2.Rodrigues(np.asarray(rvecs[0]))
+    camera_from_base = np.eye(4)
+    camera_from_base[:3, :3] = r
+    camera_from_base[:3, 3] = np.asarray(tvecs[0]).reshape(3)
+    lens = LensFit(K, np.asarray(dist, dtype=np.float64).reshape(-1)[:5], float(rms), len(points_base) // 24)
+    return lens, np.linalg.inv(camera_from_base)

@@ -1,0 +1,536 @@
+"""Paper I's Algorithm 1 in the cell: the robot carries the checkerboard through each
+camera's view, and every camera gets its lenses, its colour-depth offset and its pose
+in the robot's base frame.
+
+Per camera, after one 360° sweep that every camera watches:
+  start pose (where the camera saw the board nearest its image centre) → initial
+  eye-to-hand → tilt limits (roll, pitch, yaw in steps both ways until detection fails)
+  → the board's mount from tilting in place → staged positions outward from the image
+  centre, re-aimed after every accepted frame with the refined eye-to-hand, then again
+  20 % farther → Zhang's method for the IR/depth and colour lenses and their offset →
+  eye-to-hand again with the corrected lenses.
+
+The robot side is forward kinematics of the joint state at capture; every motion is
+checked against a map of the cell's known geometry and unreachable or colliding poses
+are skipped. Simulated robot time is counted (`motion_time`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+import earcore
+from earcore.calibration.board import Detection, corner_points, detect_board
+from earcore.calibration.errors import BoardNotSeen, CalibrationError, TooFewFrames
+from earcore.calibration.eye_to_hand import EyeToHand, fit_eye_to_hand
+from earcore.calibration.intrinsics import calibrate_lens, calibrate_lens_on_robot
+from earcore.calibration.store import Calibration, CalibrationFileError, CameraCalibration
+from earcore.cloud import box_voxel_centres
+from earcore.planning.ik import UnreachablePose, solve_ik
+from earcore.sim.tools import Checkerboard
+
+__all__ = ["CalibrationSettings", "Calibrator", "Observation", "nominal_mount"]
+
+
+def nominal_mount(extension: float = 0.10) -> np.ndarray:
+    """flange_from_board as designed: the board's centre `extension` metres out along the
+    flange's z axis, its printed face (z) facing the same way."""
+    m = np.eye(4)
+    m[2, 3] = extension
+    return m
+
+
+def _region(detections: list[Detection]) -> tuple[int, int, int, int]:
+    """(u_min, v_min, u_max, v_max) of the corners of all detections."""
+    px = np.concatenate([d.corners for d in detections])
+    lo, hi = np.floor(px.min(axis=0)).astype(int), np.ceil(px.max(axis=0)).astype(int)
+    return int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])
+
+
+def _transform(m: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ m[:3, :3].T + m[:3, 3]
+
+
+def _axis_rotation(axis: int, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    m = np.eye(4)
+    m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
+    return m
+
+
+@dataclass
+class CalibrationSettings:
+    #: flange_from_board as designed (the true mount differs a little; step 4 finds it).
+    mount: np.ndarray = field(default_factory=nominal_mount)
+    #: Depth frames per pose for the corners' depth (Paper I: median over 5).
+    depth_frames: int = 5
+    #: "median" (Paper I: 10-pixel neighbourhood) or "plane" (a plane fitted to the
+    #: board's depth pixels, the corners' rays intersected with it).
+    corner_method: str = "plane"
+    #: Tilt limits: step (degrees), roll cap (Paper I: ±45°), pitch/yaw cap.
+    tilt_step_deg: float = 5.0
+    roll_limit_deg: float = 45.0
+    tilt_limit_deg: float = 60.0
+    #: Tilt the board along the staged trajectory (fraction of each limit); 0: no tilting.
+    tilt_fraction: float = 0.7
+    #: Stages outward from the image centre: radius (fraction of the usable half-field
+    #: of view) and positions per stage (Fig. 6).
+    stage_radii: tuple[float, ...] = (0.0, 0.45, 0.85)
+    stage_positions: tuple[int, ...] = (1, 4, 8)
+    #: Distances as multiples of the start pose's (Paper I: again 20 % farther).
+    distance_factors: tuple[float, ...] = (1.0, 1.2)
+    #: Stop a camera's trajectory after this many accepted frames (None: all).
+    max_frames: int | None = None
+    #: The initialisation sweep: board centre radius and height (m), board elevation
+    #: (degrees above horizontal; more sweeps, higher up, for cameras not yet seen).
+    sweep_radius: float = 0.5
+    sweep_height: float = 0.55
+    sweep_elevations_deg: tuple[float, ...] = (15.0, 55.0)
+    #: Seconds between the cameras' looks while the robot moves (sweep, tilt search).
+    watch_period: float = 0.1
+    #: RANSAC inlier distance for the 3D-3D fits (m).
+    ransac_threshold: float = 0.01
+    #: The final base_from_camera: "depth" (Paper I's 3D-3D fit of the depth corners,
+    #: through the refined lens) or "pixels" (the lens fit's, the robot as the rig).
+    pose_from: str = "depth"
+    #: Passes of lens-and-pose from pixels / mount from depth in step 7.
+    refinement_passes: int = 4
+    seed: int = 0
+
+
+@dataclass
+class Observation:
+    """One accepted frame of one camera."""
+
+    camera: str
+    q: np.ndarray
+    base_from_flange: np.ndarray
+    ir: Detection
+    colour: Detection | None
+    #: Depth frames (F, h, w) of the image region around the board, from pixel `origin`.
+    depth: np.ndarray
+    origin: tuple[int, int]
+    tilted: bool
+    #: Where in Algorithm 1: "start", "tilt" (a tilt limit) or "stage" (the trajectory).
+    phase: str = "stage"
+    #: For stage frames: the distance factor and the stage's radius (fraction of the
+    #: usable half-field of view).
+    distance_factor: float | None = None
+    radius: float | None = None
+
+
+class Calibrator:
+    """Runs Algorithm 1 on a `SimulatedCell` (or anything with its robot and camera
+    interface) holding the checkerboard."""
+
+    def __init__(
+        self,
+        cell,
+        settings: CalibrationSettings | None = None,
+        *,
+        board: Checkerboard = Checkerboard(),
+        progress: Callable[[str], None] | None = None,
+    ) -> None:
+        self.cell = cell
+        self.settings = settings or CalibrationSettings()
+        self.board = board
+        self.board_points = board.inner_corners()
+        self.model = cell.model
+        self.flange_link = self.model.link_names.index(self._flange_name())
+        self.progress = progress or (lambda message: None)
+        self.rng = np.random.default_rng(self.settings.seed)
+        #: Simulated seconds the robot spent moving.
+        self.motion_time = 0.0
+        #: Seconds spent in the solvers (lens and eye-to-hand fits).
+        self.solver_time = 0.0
+        self.observations: dict[str, list[Observation]] = {}
+        self.start_poses: dict[str, tuple[float, np.ndarray]] = {}
+        self.tilt_limits: dict[str, dict[str, float]] = {}
+        self.tree = self._known_geometry()
+
+    # --- set-up ---------------------------------------------------------------
+
+    def _flange_name(self) -> str:
+        for name in ("tool0", "panda_grasptarget", "panda_hand", "lbr_iiwa_link_7"):
+            if name in self.model.link_names:
+                return name
+        return self.model.link_names[-1]
+
+    def _known_geometry(self):
+        """The cell's table and boxes as an occupancy map for motion checks."""
+        tree = earcore.OcTree(0.05)
+        lo, hi = self.cell.table_box()
+        boxes = [(lo, hi)] + [(b[:3], b[3:]) for b in self.cell.config.boxes]
+        base = self.model.base[:3, 3]
+        for lo, hi in boxes:
+            centres = box_voxel_centres(lo, hi, tree.resolution)
+            centres = centres[np.linalg.norm(centres[:, :2] - base[:2], axis=1) > 0.25]  # the robot's mount
+            if len(centres):
+                tree.update_nodes(centres, occupied=True)
+        return tree
+
+    def camera(self, name: str):
+        for cam in self.cell.cameras:
+            if cam.name == name:
+                return cam
+        raise KeyError(f"no camera named {name!r}; cameras: {[c.name for c in self.cell.cameras]}")
+
+    # --- robot ----------------------------------------------------------------
+
+    def base_from_flange(self, q: np.ndarray) -> np.ndarray:
+        return self.model.fk(q)[self.flange_link]
+
+    def move_to(self, q: np.ndarray) -> bool:
+        """Drive the robot to `q` when the straight motion is free; False (and no motion)
+        when it is not."""
+        cell = self.cell
+        if self.model.check_motion(self.tree, cell.joint_positions, q, 0.02):
+            return False
+        cell.controller.follow([q])
+        steps = 0
+        while not cell.controller.done and steps < 3000:
+            cell.step()
+            steps += 1
+        self.motion_time += steps * cell.config.time_step
+        return True
+
+    def move_through(self, q: np.ndarray, watch: Callable[[np.ndarray], bool], every: float) -> bool:
+        """Drive to `q` (when the straight motion is free) calling `watch(q_now)` every
+        `every` seconds on the way (cameras capture while the robot moves, their frames
+        stamped with the joint state); when it returns False the robot brakes and stops."""
+        cell = self.cell
+        if self.model.check_motion(self.tree, cell.joint_positions, q, 0.02):
+            return False
+        cell.controller.follow([q])
+        steps, next_watch, watching = 0, 0.0, True
+        while not cell.controller.done and steps < 6000:
+            cell.step()
+            steps += 1
+            if watching and steps * cell.config.time_step >= next_watch:
+                next_watch += every
+                if not watch(cell.joint_positions):
+                    cell.controller.brake(cell.joint_positions)
+                    watching = False
+        self.motion_time += steps * cell.config.time_step
+        return True
+
+    def flange_target(self, base_from_board: np.ndarray, mount: np.ndarray) -> np.ndarray | None:
+        """A collision-free joint state putting the board (as the mount is believed) at
+        `base_from_board`, near the current one; None when there is none."""
+        target = base_from_board @ np.linalg.inv(mount)
+        try:
+            return solve_ik(
+                self.model, target, link=self.flange_link, seed_q=self.cell.joint_positions, tree=self.tree,
+                position_tolerance=0.005, orientation_tolerance=0.03, restarts=6, rng=self.rng,
+            ).q
+        except UnreachablePose:
+            return None
+
+    def reach_board_pose(self, base_from_board: np.ndarray, mount: np.ndarray) -> bool:
+        """Move so the board (as the mount is believed) sits at `base_from_board`."""
+        q = self.flange_target(base_from_board, mount)
+        return q is not None and self.move_to(q)
+
+    # --- seeing ---------------------------------------------------------------
+
+    def detect(self, name: str) -> Detection | None:
+        """The board in camera `name`'s IR image now (no depth: for searches in motion)."""
+        return detect_board(self.camera(name).render_true()[0], self.board)
+
+    def observe(self, name: str, *, tilted: bool = False, colour: bool = True) -> Observation | None:
+        """Capture camera `name` with the robot still: detect the board in the IR image
+        (and the colour image), keep `depth_frames` depth frames of the board's region."""
+        cam = self.camera(name)
+        image, true_depth, _ = cam.render_true()
+        ir = detect_board(image, self.board)
+        if ir is None:
+            return None
+        lo = np.maximum(np.floor(ir.corners.min(axis=0)).astype(int) - 40, 0)
+        hi = np.ceil(ir.corners.max(axis=0)).astype(int) + 40
+        # The board and robot are still: frames differ by the sensor's noise only.
+        depth = np.stack(
+            [cam.sensor.corrupt(true_depth, cam.rng)[lo[1] : hi[1], lo[0] : hi[0]] for _ in range(self.settings.depth_frames)]
+        ).astype(np.float32)
+        col = detect_board(cam.render_colour(), self.board) if (colour and cam.sensor.colour is not None) else None
+        q = self.cell.joint_positions
+        return Observation(name, q, self.base_from_flange(q), ir, col, depth, (int(lo[0]), int(lo[1])), tilted)
+
+    def corners_3d(self, obs: Observation, K: np.ndarray, distortion) -> np.ndarray:
+        return corner_points(
+            obs.ir, obs.depth, K, distortion, method=self.settings.corner_method, origin=obs.origin
+        )
+
+    # --- Algorithm 1 -----------------------------------------------------------
+
+    def sweep(self, names: list[str]) -> None:
+        """Step 1: the board on an upside-down "L" turns 360° about the base while every
+        camera watches; each keeps the joint state where it saw the board nearest its
+        image centre."""
+        s = self.settings
+        for elevation in s.sweep_elevations_deg:
+            if all(n in self.start_poses for n in names):
+                break
+            e = math.radians(elevation)
+            # Board at angle 0 in front of the base (+x), face outward and up.
+            z = np.array([math.cos(e), 0.0, math.sin(e)])
+            x = np.array([0.0, 1.0, 0.0])
+            board_pose = np.eye(4)
+            board_pose[:3, 0], board_pose[:3, 1], board_pose[:3, 2] = x, np.cross(z, x), z
+            board_pose[:3, 3] = [s.sweep_radius, 0.0, s.sweep_height]
+            if not self.reach_board_pose(self.model.base @ board_pose, s.mount):
+                raise CalibrationError("all", f"the sweep pose (elevation {elevation}°) is unreachable")
+            q0 = self.cell.joint_positions
+            lo, hi = self.model.joint_limits[0]
+            # One continuous turn, the way the base joint's limits allow.
+            turn = min(2 * math.pi, hi - q0[0]) if hi - q0[0] >= q0[0] - lo else -min(2 * math.pi, q0[0] - lo)
+            q1 = q0.copy()
+            q1[0] += turn
+            self.progress(f"sweep at {elevation:.0f}° elevation: turning {math.degrees(abs(turn)):.0f}° about the base")
+            before = self.motion_time
+
+            def watch(q: np.ndarray) -> bool:
+                for name in names:
+                    detection = self.detect(name)
+                    if detection is None:
+                        continue
+                    score = detection.distance_from_image_centre()
+                    if name not in self.start_poses or score < self.start_poses[name][0]:
+                        self.start_poses[name] = (score, q.copy())
+                return True
+
+            self.move_through(q1, watch, s.watch_period)
+            self.progress(f"sweep done: {self.motion_time - before:.0f} s of motion; seen by {sorted(self.start_poses)}")
+        for name in names:
+            if name not in self.start_poses:
+                raise BoardNotSeen(name, f"not during the 360° sweep at elevations {list(s.sweep_elevations_deg)}°")
+
+    def _fit(self, name: str, K, distortion, mount: np.ndarray, estimate_mount: bool, obs=None) -> EyeToHand:
+        obs = self.observations[name] if obs is None else obs
+        t = time.perf_counter()
+        try:
+            return fit_eye_to_hand(
+                [self.corners_3d(o, K, distortion) for o in obs],
+                np.array([o.base_from_flange for o in obs]),
+                self.board_points,
+                mount,
+                estimate_mount=estimate_mount,
+                threshold=self.settings.ransac_threshold,
+                camera=name,
+            )
+        finally:
+            self.solver_time += time.perf_counter() - t
+
+    def _board_in_camera(self, fit: EyeToHand, obs: Observation) -> np.ndarray:
+        return np.linalg.inv(fit.base_from_camera) @ obs.base_from_flange @ fit.flange_from_board
+
+    def _accept(self, obs: Observation | None) -> bool:
+        if obs is None:
+            return False
+        self.observations[obs.camera].append(obs)
+        return True
+
+    def _full(self, name: str) -> bool:
+        m = self.settings.max_frames
+        return m is not None and len(self.observations[name]) >= m
+
+    def calibrate_camera(self, name: str) -> CameraCalibration:
+        s = self.settings
+        cam = self.camera(name)
+        K0, d0 = cam.sensor.intrinsics, np.zeros(5)  # the datasheet's pinhole, no lens model yet
+        if name not in self.start_poses:
+            self.sweep([name])
+        self.observations[name] = []
+        motion_before = self.motion_time
+        # Steps 1-2: the start pose and a first eye-to-hand with the mount as designed.
+        if not self.move_to(self.start_poses[name][1]):
+            raise CalibrationError(name, "the start pose cannot be reached")
+        first = self.observe(name)
+        if first is None:
+            raise BoardNotSeen(name, "at its start pose")
+        first.phase = "start"
+        self._accept(first)
+        fit = self._fit(name, K0, d0, s.mount, estimate_mount=False)
+        start_board = fit.base_from_camera @ self._board_in_camera(fit, self.observations[name][0])
+        # Step 3: tilt limits, both ways about each board axis. The frame at each limit
+        # is kept: those tilted-in-place frames fix the mount (step 4).
+        limits: dict[str, float] = {}
+        start_q = self.cell.joint_positions
+        start_rotation = self.base_from_flange(start_q)[:3, :3]
+        for axis, label in ((2, "roll"), (0, "pitch"), (1, "yaw")):
+            cap = s.roll_limit_deg if label == "roll" else s.tilt_limit_deg
+            for sign in (1, -1):
+                key = f"{label}{'+' if sign > 0 else '-'}"
+                # The farthest reachable tilt toward the cap, then one continuous motion
+                # out to it, the camera looking at every step of `tilt_step_deg`.
+                goal = None
+                for angle in np.arange(cap, 0, -s.tilt_step_deg):
+                    goal = self.flange_target(start_board @ _axis_rotation(axis, sign * math.radians(angle)), fit.flange_from_board)
+                    if goal is not None:
+                        break
+                if goal is None or not self.move_to(start_q):
+                    limits[key] = 0.0
+                    continue
+                seen = {"angle": 0.0, "q": None, "next": s.tilt_step_deg}
+
+                def watch(q: np.ndarray) -> bool:
+                    r = self.base_from_flange(q)[:3, :3]
+                    angle = math.degrees(math.acos(np.clip((np.trace(start_rotation.T @ r) - 1) / 2, -1, 1)))
+                    if angle + 1e-6 < seen["next"]:
+                        return True
+                    seen["next"] = (math.floor(angle / s.tilt_step_deg) + 1) * s.tilt_step_deg
+                    if self.detect(name) is None:
+                        return False  # the first failure: stop here
+                    seen["angle"], seen["q"] = angle, q.copy()
+                    return True
+
+                self.move_through(goal, watch, self.cell.config.time_step)
+                # Back off to the last tilt that was seen, and keep a still frame there.
+                limits[key] = float(seen["angle"])
+                if seen["q"] is not None and not self._full(name) and self.move_to(seen["q"]):
+                    obs = self.observe(name, tilted=True, colour=False)
+                    if obs is not None:
+                        obs.phase = "tilt"
+                    self._accept(obs)
+        self.tilt_limits[name] = limits
+        self.progress(
+            f"{name}: tilt limits " + ", ".join(f"{k} {v:.0f}°" for k, v in limits.items())
+            + f" ({self.motion_time - motion_before:.0f} s of motion so far)"
+        )
+        fit = self._fit(name, K0, d0, fit.flange_from_board, estimate_mount=True)
+        # Step 5: staged trajectory, re-aimed after every accepted frame.
+        distance = float(np.linalg.norm((np.linalg.inv(fit.base_from_camera) @ start_board)[:3, 3]))
+        w, h = cam.sensor.width, cam.sensor.height
+        half_fov = np.array([(w / 2) / K0[0, 0], (h / 2) / K0[1, 1]])
+        board_half = np.array(self.board.size) / 2
+        tilts = [(0, 1), (1, 1), (0, -1), (1, -1), (2, 1), (2, -1)]
+        n_pos = 0
+        for factor in s.distance_factors:
+            d = distance * factor
+            # Where the board's centre may go and keep the whole board in the image.
+            usable = np.maximum(half_fov - 1.3 * board_half.max() / d, 0.02)
+            for radius, count in zip(s.stage_radii, s.stage_positions):
+                for j in range(count):
+                    if self._full(name):
+                        break
+                    phase = 2 * math.pi * j / count + (math.pi / 4 if count == 4 else 0.0)
+                    xy = radius * usable * np.array([math.cos(phase), math.sin(phase)])
+                    ray = np.array([xy[0], xy[1], 1.0])
+                    centre = d * ray / np.linalg.norm(ray)
+                    # Face the camera: board z toward it, board x along the image's x.
+                    zb = -centre / np.linalg.norm(centre)
+                    xb = np.array([1.0, 0.0, 0.0]) - zb[0] * zb
+                    xb /= np.linalg.norm(xb)
+                    cam_from_board = np.eye(4)
+                    cam_from_board[:3, 0], cam_from_board[:3, 1], cam_from_board[:3, 2] = xb, np.cross(zb, xb), zb
+                    cam_from_board[:3, 3] = centre
+                    tilted = s.tilt_fraction > 0 and n_pos % 2 == 1
+                    if tilted:
+                        axis, sign = tilts[(n_pos // 2) % len(tilts)]
+                        label = ["pitch", "yaw", "roll"][axis]
+                        lim = limits.get(f"{label}{'+' if sign > 0 else '-'}", 0.0)
+                        cam_from_board = cam_from_board @ _axis_rotation(axis, sign * math.radians(s.tilt_fraction * lim))
+                    n_pos += 1
+                    if not self.reach_board_pose(fit.base_from_camera @ cam_from_board, fit.flange_from_board):
+                        continue  # unreachable or colliding: skip (Paper I)
+                    obs = self.observe(name, tilted=tilted)
+                    if obs is not None:
+                        obs.distance_factor, obs.radius = factor, radius
+                    if self._accept(obs):
+                        fit = self._fit(name, K0, d0, fit.flange_from_board, estimate_mount=True)
+        self.progress(f"{name}: {len(self.observations[name])} frames in {self.motion_time - motion_before:.0f} s of motion")
+        # Steps 6-7: lenses, then eye-to-hand again through the corrected lenses.
+        return self.finish(name)
+
+    def finish(self, name: str, observations: list[Observation] | None = None) -> CameraCalibration:
+        """Steps 6-7 from the frames (the camera's accepted ones, or `observations`):
+        Zhang's method for each lens (Paper I), refined with the robot as the rig
+        (`calibrate_lens_on_robot`), the colour-depth offset, and eye-to-hand again
+        through the corrected lens."""
+        obs = self.observations[name] if observations is None else observations
+        cam = self.camera(name)
+        if len(obs) < 3:
+            raise TooFewFrames(name, len(obs), 3)
+        t = time.perf_counter()
+        zhang = calibrate_lens([o.ir for o in obs], self.board_points, cam.sensor.intrinsics, camera=name)
+        self.solver_time += time.perf_counter() - t
+        # The mount from the depth corners through Zhang's lens, then the rig; the lens
+        # and the mount are refined in turn (each pass: the rig's lens and pose from the
+        # pixels, the mount from the depth corners through that lens).
+        fit = self._fit(name, zhang.K, zhang.distortion, self.settings.mount, estimate_mount=True, obs=obs)
+        for _ in range(self.settings.refinement_passes):
+            t = time.perf_counter()
+            depth_lens, base_from_ir = self._lens_on_robot(name, obs, [o.ir for o in obs], fit.flange_from_board, cam.sensor.intrinsics)
+            self.solver_time += time.perf_counter() - t
+            previous = fit.flange_from_board
+            fit = self._fit(name, depth_lens.K, depth_lens.distortion, previous, estimate_mount=True, obs=obs)
+            if np.abs(fit.flange_from_board - previous).max() < 1e-5:
+                break
+        t = time.perf_counter()
+        colour_lens, offset = None, None
+        both = [o for o in obs if o.colour is not None]
+        if cam.sensor.colour is not None and len(both) >= 8:
+            colour_lens, base_from_colour = self._lens_on_robot(
+                name, both, [o.colour for o in both], fit.flange_from_board, cam.sensor.colour.intrinsics
+            )
+            offset = np.linalg.inv(base_from_ir) @ base_from_colour
+        self.solver_time += time.perf_counter() - t
+        pose = base_from_ir if self.settings.pose_from == "pixels" else fit.base_from_camera
+        return CameraCalibration(
+            name=name,
+            base_from_camera=pose,
+            depth_K=depth_lens.K,
+            depth_distortion=depth_lens.distortion,
+            depth_size=obs[0].ir.image_size,
+            colour_K=None if colour_lens is None else colour_lens.K,
+            colour_distortion=None if colour_lens is None else colour_lens.distortion,
+            colour_size=None if colour_lens is None else both[0].colour.image_size,
+            depth_from_colour=offset,
+            flange_from_board=fit.flange_from_board,
+            eye_to_hand_rmse=fit.rmse,
+            depth_reprojection_rms=depth_lens.rms,
+            colour_reprojection_rms=float("nan") if colour_lens is None else colour_lens.rms,
+            zhang_reprojection_rms=zhang.rms,
+            pose_agreement_m=float(np.linalg.norm(base_from_ir[:3, 3] - fit.base_from_camera[:3, 3])),
+            frames=len(obs),
+            corners=fit.corners,
+            depth_region=_region([o.ir for o in obs]),
+            colour_region=_region([o.colour for o in both]) if colour_lens is not None else None,
+            start_q=[float(v) for v in self.start_poses[name][1]] if name in self.start_poses else None,
+        )
+
+    def _lens_on_robot(self, name, obs, detections, mount, K_guess):
+        points = np.concatenate([_transform(o.base_from_flange @ mount, self.board_points) for o in obs])
+        pixels = np.concatenate([d.corners for d in detections])
+        return calibrate_lens_on_robot(points, pixels, detections[0].image_size, K_guess, camera=name)
+
+    def run(self, names: list[str] | None = None) -> dict[str, CameraCalibration]:
+        """Calibrate the named fixed cameras (default: every fixed camera)."""
+        names = names or [c.name for c in self.cell.cameras if c.mount is None]
+        self.sweep(names)
+        out = {}
+        for name in names:
+            self.progress(f"calibrating {name}")
+            out[name] = self.calibrate_camera(name)
+        return out
+
+    def run_to_file(self, path, names: list[str] | None = None) -> dict[str, CameraCalibration]:
+        """`run`, then merge the cameras into the calibration file at `path` (the other
+        cameras keep their entries). Nothing is written unless every camera succeeded: a
+        `CalibrationError` leaves the file as it was."""
+        from pathlib import Path
+
+        path = Path(path)
+        results = self.run(names)
+        try:
+            existing = Calibration.load(path) if path.exists() else Calibration()
+        except CalibrationFileError as exc:
+            self.progress(f"{exc}: writing a new file")
+            existing = Calibration()
+        existing.merged(results).save(path)
+        return results

@@ -1,0 +1,142 @@
+"""The calibration file (YAML): every camera's lenses, colour-depth offset and
+`base_from_camera`, with residuals and frame counts. Written atomically, and a camera
+that failed never replaces a good entry (a partial calibration merges into the file)."""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Calibration", "CameraCalibration", "CalibrationFileError"]
+
+
+class CalibrationFileError(ValueError):
+    """The file is missing, not YAML, or lacks what a camera entry needs."""
+
+
+def _yaml():
+    try:
+        import yaml
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise ImportError("calibration files need PyYAML: pip install 'earcore[calibration]'") from exc
+    return yaml
+
+
+_MATRICES = {"base_from_camera": (4, 4), "depth_K": (3, 3), "colour_K": (3, 3), "depth_from_colour": (4, 4), "flange_from_board": (4, 4)}
+_VECTORS = {"depth_distortion": 5, "colour_distortion": 5}
+
+
+@dataclass
+class CameraCalibration:
+    name: str
+    base_from_camera: np.ndarray
+    depth_K: np.ndarray
+    depth_distortion: np.ndarray
+    depth_size: tuple[int, int]
+    colour_K: np.ndarray | None = None
+    colour_distortion: np.ndarray | None = None
+    colour_size: tuple[int, int] | None = None
+    depth_from_colour: np.ndarray | None = None
+    flange_from_board: np.ndarray | None = None
+    #: RMS 3D distance (m) between the camera's and the robot's corners.
+    eye_to_hand_rmse: float = math.nan
+    #: RMS reprojection errors (pixels) of the final lens fits.
+    depth_reprojection_rms: float = math.nan
+    colour_reprojection_rms: float = math.nan
+    #: Zhang's method alone (Paper I), before the robot-rig refinement.
+    zhang_reprojection_rms: float = math.nan
+    #: Distance (m) between the pose from pixels and the pose from depth (a check).
+    pose_agreement_m: float = math.nan
+    frames: int = 0
+    corners: int = 0
+    #: Where the board was seen in the depth image (u_min, v_min, u_max, v_max): the
+    #: lens is measured there and extrapolated beyond.
+    depth_region: tuple[int, int, int, int] | None = None
+    colour_region: tuple[int, int, int, int] | None = None
+    #: The joint state where this camera saw the board best (re-checks start there).
+    start_q: list[float] | None = None
+
+    def to_dict(self) -> dict:
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray):
+                v = np.round(v.astype(float), 12).tolist()
+            elif isinstance(v, tuple):
+                v = [int(x) for x in v]
+            elif isinstance(v, list):
+                v = [float(x) for x in v]
+            elif isinstance(v, float) and math.isnan(v):
+                v = None
+            out[f.name] = v
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str) -> CameraCalibration:
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise CalibrationFileError(f"{where}: unknown keys {sorted(unknown)}")
+        for key in ("name", "base_from_camera", "depth_K", "depth_distortion", "depth_size"):
+            if data.get(key) is None:
+                raise CalibrationFileError(f"{where}: missing {key!r}")
+        kwargs = {}
+        for key, value in data.items():
+            if value is None:
+                continue
+            if key in _MATRICES or key in _VECTORS:
+                arr = np.asarray(value, dtype=np.float64)
+                shape = _MATRICES.get(key) or (_VECTORS[key],)
+                if arr.shape != shape or not np.isfinite(arr).all():
+                    raise CalibrationFileError(f"{where}: {key} must be finite numbers of shape {shape}, got {arr.shape}")
+                value = arr
+            elif key in ("depth_size", "colour_size", "depth_region", "colour_region"):
+                value = tuple(int(v) for v in value)
+            kwargs[key] = value
+        return cls(**kwargs)
+
+
+@dataclass
+class Calibration:
+    cameras: dict[str, CameraCalibration] = field(default_factory=dict)
+
+    def save(self, path: str | Path) -> None:
+        """Write atomically (a crash mid-write leaves the old file)."""
+        yaml = _yaml()
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        text = "# earcore calibration (Paper I): lenses, colour-depth offsets, base_from_camera\n"
+        text += yaml.safe_dump({"version": 1, "cameras": [c.to_dict() for c in self.cameras.values()]}, sort_keys=False)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Calibration:
+        yaml = _yaml()
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except FileNotFoundError as exc:
+            raise CalibrationFileError(f"{path}: no such calibration file") from exc
+        except yaml.YAMLError as exc:
+            raise CalibrationFileError(f"{path} is not valid YAML: {exc}") from exc
+        if not isinstance(data, dict) or data.get("version") != 1 or not isinstance(data.get("cameras"), list):
+            raise CalibrationFileError(f"{path}: not an earcore calibration file (version 1 with a list of cameras)")
+        cams = {}
+        for i, entry in enumerate(data["cameras"]):
+            if not isinstance(entry, dict):
+                raise CalibrationFileError(f"{path}: cameras[{i}] is not a mapping")
+            cam = CameraCalibration.from_dict(entry, f"{path}: cameras[{i}]")
+            cams[cam.name] = cam
+        return cls(cams)
+
+    def merged(self, new: dict[str, CameraCalibration]) -> Calibration:
+        """This calibration with the given cameras replaced or added."""
+        return Calibration({**self.cameras, **new})

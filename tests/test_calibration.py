@@ -1,0 +1,371 @@
+"""Calibration (Paper I): the board finder against rendered boards projected through
+the true lens, corner depth against the true plane, the rigid and eye-to-hand fits and
+both lens fits against synthetic data with known answers, the calibration file, bad
+input, and the whole procedure in the cell against the simulation's ground truth
+(including a bumped camera being noticed)."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+import earcore
+from earcore.calibration import (
+    BoardNotSeen,
+    Calibration,
+    CalibrationFileError,
+    CalibrationSettings,
+    Calibrator,
+    CameraCalibration,
+    DegeneratePoses,
+    TooFewFrames,
+    calibrate_lens,
+    calibrate_lens_on_robot,
+    check_camera,
+    corner_points,
+    detect_board,
+    fit_eye_to_hand,
+    lens_displacement,
+)
+from earcore.calibration.board import Detection
+from earcore.calibration.simulate import calibration_cell, calibration_cell_config, evaluate
+from earcore.perception.pipeline import perturb_pose
+from earcore.sim.tools import Checkerboard
+from earcore.synthetic import look_at
+
+BOARD = Checkerboard()
+
+
+def _rotation(vector) -> np.ndarray:
+    r, _ = cv2.Rodrigues(np.asarray(vector, dtype=np.float64))
+    return r
+
+
+def _pose(rotation_vector, translation) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = _rotation(rotation_vector)
+    m[:3, 3] = translation
+    return m
+
+
+def _apply(m, p):
+    return p @ m[:3, :3].T + m[:3, 3]
+
+
+def _angle_deg(a, b) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2, -1, 1))))
+
+
+def _project(points_cam, K, dist):
+    px, _ = cv2.projectPoints(points_cam, np.zeros(3), np.zeros(3), K, np.asarray(dist, dtype=np.float64))
+    return px.reshape(-1, 2)
+
+
+# --- rigid fits -------------------------------------------------------------------
+
+
+def test_rigid_fit_matches_the_svd_reference_and_ransac_drops_outliers():
+    rng = np.random.default_rng(0)
+    truth = _pose(rng.normal(size=3), rng.normal(size=3))
+    src = rng.uniform(-0.5, 0.5, (50, 3))
+    dst = _apply(truth, src) + rng.normal(scale=1e-3, size=(50, 3))
+    # Reference: Kabsch written out with numpy's SVD.
+    cs, cd = src.mean(0), dst.mean(0)
+    u, _, vt = np.linalg.svd((src - cs).T @ (dst - cd))
+    d = np.diag([1, 1, np.sign(np.linalg.det(vt.T @ u.T))])
+    r = vt.T @ d @ u.T
+    fit = earcore.rigid_fit(src, dst)
+    assert np.allclose(fit[:3, :3], r, atol=1e-10)
+    assert np.allclose(fit[:3, 3], cd - r @ cs, atol=1e-10)
+    dst[::5] += [0.0, 0.0, 0.2]  # 10 gross outliers
+    m, inliers, rmse = earcore.rigid_fit_ransac(src, dst, 0.01, 200, 3)
+    assert inliers.sum() == 40 and not inliers[::5].any()
+    assert np.abs(m - truth).max() < 2e-3 and rmse < 3e-3
+
+
+@pytest.mark.parametrize(
+    "src, dst, error",
+    [
+        (np.zeros((2, 3)), np.zeros((2, 3)), "at least 3"),
+        (np.eye(3), np.eye(4)[:, :3], "pair up"),
+        (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2.0]]), np.zeros((3, 3)), "collinear"),
+        (np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0.0]]), np.eye(3), "not finite"),
+    ],
+)
+def test_rigid_fit_rejects_bad_input(src, dst, error):
+    with pytest.raises(ValueError, match=error):
+        earcore.rigid_fit(src, dst)
+
+
+# --- eye-to-hand ------------------------------------------------------------------
+
+
+def _synthetic_frames(rng, x, z, count=30, tilt=0.4, noise=0.001):
+    flanges = [_pose(rng.normal(size=3) * tilt, [0.45, 0.2, 0.4] + rng.normal(size=3) * 0.1) for _ in range(count)]
+    corners = BOARD.inner_corners()
+    cams = [_apply(np.linalg.inv(x) @ f @ z, corners) + rng.normal(scale=noise, size=corners.shape) for f in flanges]
+    return cams, np.array(flanges), corners
+
+
+def test_eye_to_hand_recovers_camera_and_mount():
+    rng = np.random.default_rng(1)
+    x = look_at([1.2, 1.0, 0.9], [0.3, 0.0, 0.2])
+    z = _pose([0.02, -0.015, 0.01], [0.004, -0.003, 0.103])
+    cams, flanges, corners = _synthetic_frames(rng, x, z)
+    cams[3][5] += 0.05  # a corner with a wrong depth
+    cams[7][:] = np.nan  # a frame without depth
+    designed = _pose([0, 0, 0], [0, 0, 0.1])
+    fit = fit_eye_to_hand(cams, flanges, corners, designed)
+    assert np.abs(fit.base_from_camera[:3, 3] - x[:3, 3]).max() < 1e-3
+    assert np.abs(fit.flange_from_board[:3, 3] - z[:3, 3]).max() < 1e-3
+    assert _angle_deg(fit.flange_from_board, z) < 0.2 and _angle_deg(fit.base_from_camera, x) < 0.2
+    assert fit.frames == 29 and fit.corners == 29 * 24 - 1
+    # With the designed mount taken as true, the mount's error lands in the camera pose.
+    fixed = fit_eye_to_hand(cams, flanges, corners, designed, estimate_mount=False)
+    assert np.linalg.norm(fixed.base_from_camera[:3, 3] - x[:3, 3]) > 2e-3
+
+
+def test_eye_to_hand_reports_degenerate_and_too_few_frames():
+    rng = np.random.default_rng(2)
+    x = look_at([1.2, 1.0, 0.9], [0.3, 0.0, 0.2])
+    z = _pose([0, 0, 0], [0, 0, 0.1])
+    cams, flanges, corners = _synthetic_frames(rng, x, z, count=10, tilt=0.0)
+    flanges[:, :3, :3] = np.eye(3)  # translation only: the mount cannot be told apart
+    cams = [_apply(np.linalg.inv(x) @ f @ z, corners) for f in flanges]
+    with pytest.raises(DegeneratePoses, match="cam_a.*turned"):
+        fit_eye_to_hand(cams, flanges, corners, z, camera="cam_a")
+    with pytest.raises(TooFewFrames, match="cam_b.*0 usable frames"):
+        fit_eye_to_hand([], np.zeros((0, 4, 4)), corners, z, camera="cam_b")
+
+
+# --- lenses ------------------------------------------------------------------------
+
+K_TRUE = np.array([[361.6, 0.0, 255.5], [0.0, 367.2, 211.5], [0.0, 0.0, 1.0]])
+D_TRUE = np.array([0.09, -0.27, 0.0, 0.0, 0.09])
+
+
+def _views(rng, count, distance=(0.45, 0.8)):
+    """Board poses in front of the camera, tilted up to ~35°, over the image."""
+    views = []
+    while len(views) < count:
+        d = rng.uniform(*distance)
+        centre = np.array([rng.uniform(-0.45, 0.45) * d, rng.uniform(-0.35, 0.35) * d, d])
+        pose = _pose([math.pi + rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5)], centre)
+        px = _project(_apply(pose, BOARD.inner_corners()), K_TRUE, D_TRUE)
+        if (px > 2).all() and (px[:, 0] < 509).all() and (px[:, 1] < 421).all():
+            views.append((pose, px))
+    return views
+
+
+def test_zhang_recovers_the_lens_from_clean_views():
+    rng = np.random.default_rng(3)
+    views = _views(rng, 40)
+    detections = [Detection(px + rng.normal(scale=0.05, size=px.shape), (512, 424)) for _, px in views]
+    fit = calibrate_lens(detections, BOARD.inner_corners(), np.array([[340.0, 0, 250], [0, 340.0, 205], [0, 0, 1]]))
+    assert fit.rms < 0.1
+    seen = np.concatenate([d.corners for d in detections])
+    region = (*np.ceil(seen.min(0)).astype(int), *np.floor(seen.max(0)).astype(int))
+    # Zhang's method trades focal length against each board's distance a little: ~0.2 %.
+    assert np.abs(fit.K - K_TRUE).max() < 1.0
+    assert lens_displacement(fit.K, fit.distortion, K_TRUE, D_TRUE, (512, 424), region=region) < 1.5
+
+
+def test_lens_on_robot_recovers_lens_and_pose():
+    """All frames' corners in the base frame: one 3D rig seen from one pose."""
+    rng = np.random.default_rng(4)
+    base_from_camera = look_at([1.1, 0.8, 0.8], [0.4, 0.0, 0.3])
+    views = _views(rng, 30, distance=(0.7, 1.0))
+    points = np.concatenate([_apply(base_from_camera @ pose, BOARD.inner_corners()) for pose, _ in views])
+    pixels = np.concatenate([px for _, px in views]) + rng.normal(scale=0.1, size=(len(points), 2))
+    lens, pose = calibrate_lens_on_robot(points, pixels, (512, 424), np.array([[350.0, 0, 250], [0, 350.0, 210], [0, 0, 1]]))
+    assert abs(lens.K[0, 0] - K_TRUE[0, 0]) < 1.0 and abs(lens.K[1, 2] - K_TRUE[1, 2]) < 1.0
+    assert np.linalg.norm(pose[:3, 3] - base_from_camera[:3, 3]) < 2e-3
+    assert lens.rms == pytest.approx(0.1 * math.sqrt(2), rel=0.15)  # 0.1 px per axis
+
+
+def test_zhang_needs_frames_and_coverage():
+    rng = np.random.default_rng(5)
+    views = _views(rng, 10)
+    with pytest.raises(TooFewFrames, match="cam_c"):
+        calibrate_lens([Detection(px, (512, 424)) for _, px in views[:3]], BOARD.inner_corners(), K_TRUE, camera="cam_c")
+    same = [Detection(views[0][1], (512, 424))] * 10  # the board in one spot only
+    with pytest.raises(DegeneratePoses, match="covered only"):
+        calibrate_lens(same, BOARD.inner_corners(), K_TRUE)
+
+
+# --- the board in rendered images --------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def board_scene():
+    pybullet = pytest.importorskip("pybullet")
+    from pybullet_utils.bullet_client import BulletClient
+
+    from earcore.sim.camera import SimulatedCamera
+    from earcore.sim.cell import _quaternion
+    from earcore.sim.sensors import SENSORS
+
+    client = BulletClient(pybullet.DIRECT)
+    shape, texture = BOARD.visual_shape(client)
+    body = client.createMultiBody(0, -1, shape, [0, 0, 0])
+    client.changeVisualShape(body, -1, textureUniqueId=texture)
+    sensor = SENSORS["kinect_v2"]
+    camera_pose = look_at([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], up=(0, -1, 0))
+    camera = SimulatedCamera(client, "cam", sensor, camera_pose, rng=np.random.default_rng(0), supersample=2)
+
+    def place(base_from_board):
+        w, x, y, z = _quaternion(base_from_board[:3, :3])
+        client.resetBasePositionAndOrientation(body, base_from_board[:3, 3].tolist(), [x, y, z, w])
+
+    yield camera, place
+    client.disconnect()
+
+
+@pytest.mark.parametrize("roll_deg", [0, 90, 180, 270])
+def test_board_corners_and_orientation_against_the_true_lens(board_scene, roll_deg):
+    """Each corner lands within 0.35 px of the true corner projected through the true
+    lens, in the board's own order whichever way the board is turned."""
+    camera, place = board_scene
+    pose = _pose([math.pi, 0.0, 0.0], [0.12, -0.05, 0.75]) @ _pose([0.3, -0.25, math.radians(roll_deg)], [0, 0, 0])
+    place(pose)
+    image, depth, _ = camera.render_true()
+    detection = detect_board(image, BOARD)
+    assert detection is not None
+    truth = _project(_apply(pose, BOARD.inner_corners()), camera.sensor.intrinsics, camera.sensor.distortion)
+    assert np.abs(detection.corners - truth).max() < 0.35
+    # Corner depth: both methods against the true corners (1 m, Kinect V2 noise ~1.5 mm).
+    frames = np.stack([camera.sensor.corrupt(depth, np.random.default_rng(i)) for i in range(5)])
+    for method, bound in (("median", 0.004), ("plane", 0.002)):
+        points = corner_points(detection, frames, camera.sensor.intrinsics, camera.sensor.distortion, method=method)
+        assert np.linalg.norm(points - _apply(pose, BOARD.inner_corners()), axis=1).max() < bound, method
+
+
+def test_board_out_of_view_or_cut_is_not_detected(board_scene):
+    camera, place = board_scene
+    place(_pose([math.pi, 0.0, 0.0], [0.0, 0.0, -1.0]))  # behind the camera
+    assert detect_board(camera.render_true()[0], BOARD) is None
+    place(_pose([math.pi, 0.0, 0.0], [0.72, 0.0, 1.0]))  # half out of the image
+    assert detect_board(camera.render_true()[0], BOARD) is None
+
+
+# --- the calibration file -----------------------------------------------------------
+
+
+def _entry(name="cam"):
+    return CameraCalibration(
+        name=name, base_from_camera=look_at([1, 1, 1], [0, 0, 0]), depth_K=K_TRUE, depth_distortion=D_TRUE,
+        depth_size=(512, 424), frames=30, corners=700, start_q=[0.1, -1.0, 1.0, 0.0, 1.5, 0.0],
+    )
+
+
+def test_calibration_file_round_trip_and_merge(tmp_path):
+    path = tmp_path / "cal.yaml"
+    Calibration({"a": _entry("a"), "b": _entry("b")}).save(path)
+    loaded = Calibration.load(path)
+    assert set(loaded.cameras) == {"a", "b"}
+    a = loaded.cameras["a"]
+    assert np.allclose(a.base_from_camera, _entry().base_from_camera) and a.depth_size == (512, 424)
+    assert a.colour_K is None and math.isnan(a.eye_to_hand_rmse) and a.start_q == pytest.approx(_entry().start_q)
+    moved = _entry("b")
+    moved.base_from_camera = np.eye(4)
+    merged = loaded.merged({"b": moved})
+    assert np.allclose(merged.cameras["b"].base_from_camera, np.eye(4))
+    assert np.allclose(merged.cameras["a"].base_from_camera, a.base_from_camera)
+
+
+@pytest.mark.parametrize(
+    "text, error",
+    [
+        ("{not yaml: [", "not valid YAML"),
+        ("version: 1\ncameras: 3\n", "not an earcore calibration"),
+        ("version: 1\ncameras:\n- name: a\n", "missing 'base_from_camera'"),
+        ("version: 1\ncameras:\n- {name: a, base_from_camera: [[1, 0], [0, 1]], depth_K: [], depth_distortion: [], depth_size: [1, 1]}\n", "shape"),
+    ],
+)
+def test_corrupt_calibration_files_are_clear_errors(tmp_path, text, error):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(CalibrationFileError, match=error):
+        Calibration.load(path)
+    with pytest.raises(CalibrationFileError, match="no such"):
+        Calibration.load(tmp_path / "missing.yaml")
+
+
+def test_perception_uses_the_calibrated_lens_and_pose():
+    from earcore.perception.pipeline import PerceptionPipeline
+    from earcore.sim.camera import Frame
+    from earcore.sim.config import PerceptionConfig
+
+    pipeline = PerceptionPipeline(PerceptionConfig(), earcore.robots.load("ur5"))
+    entry = _entry("cam")
+    pipeline.load_calibration(Calibration({"cam": entry}))
+    depth = np.full((424, 512), 1.5)
+    frame = Frame("cam", 0.0, np.zeros((424, 512, 3), np.uint8), depth, np.eye(3), np.eye(4))
+    points = pipeline._points_of(frame, base_from_camera=pipeline._pose_of(frame))
+    expected = earcore.depth_to_points(depth, *K_TRUE[[0, 1, 0, 1], [0, 1, 2, 2]], distortion=D_TRUE, base_from_camera=entry.base_from_camera)
+    assert np.allclose(points, expected)
+
+
+# --- Algorithm 1 in the cell ---------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def calibrated_v1():
+    """The Kinect V1-like camera (320×240: quick renders) calibrated with a short
+    trajectory: 28 frames."""
+    config = calibration_cell_config(seed=3)
+    config.cameras = [c for c in config.cameras if c.name == "kinect_v1_front"]
+    cell, mount = calibration_cell(config, seed=3)
+    settings = CalibrationSettings(max_frames=28, seed=3)
+    calibrator = Calibrator(cell, settings)
+    result = calibrator.run()["kinect_v1_front"]
+    yield cell, mount, calibrator, result
+    cell.close()
+
+
+@pytest.mark.slow
+def test_algorithm_1_finds_the_camera_the_lens_and_the_mount(calibrated_v1):
+    cell, mount, calibrator, result = calibrated_v1
+    errors = evaluate(cell, result, mount, calibrator.observations[result.name])
+    assert result.frames <= 28
+    assert errors.translation < 0.008 and errors.rotation_deg < 0.5, errors
+    assert errors.mount_translation < 0.003
+    assert result.depth_reprojection_rms < 0.5
+    # 28 frames of a 320×240 image pin the principal point to ~1 px (the full trajectory: better).
+    assert errors.depth_lens_px < 2.5 and errors.colour_lens_px < 3.0, errors
+    assert errors.offset_translation < 0.003 and errors.offset_rotation_deg < 0.5, errors
+    assert calibrator.motion_time < 75.0  # one camera of three in 3 minutes
+
+
+@pytest.mark.slow
+def test_a_bumped_camera_is_noticed(calibrated_v1):
+    cell, mount, calibrator, result = calibrated_v1
+    ok = check_camera(calibrator, result)
+    assert ok.seen and not ok.moved and ok.residual < 0.005, ok
+    cam = cell.cameras[0]
+    original = cam.base_from_camera
+    try:
+        cam.place(perturb_pose(original, 0.10, math.radians(10.0), np.random.default_rng(0)))
+        bumped = check_camera(calibrator, result)
+        assert bumped.moved and "MOVED" in str(bumped)
+    finally:
+        cam.place(original)
+
+
+def test_a_camera_that_never_sees_the_board_names_itself_and_writes_nothing(tmp_path):
+    from earcore.sim.config import CameraConfig
+
+    config = calibration_cell_config(seed=0, camera_scale=0.5)
+    config.cameras = [CameraConfig("looks_at_the_floor", "kinect_v1", (2.5, 2.5, 1.0), (3.5, 3.5, -0.75))]
+    cell, _ = calibration_cell(config, pose_error=(0.0, 0.0))
+    path = tmp_path / "cal.yaml"
+    Calibration({"kept": _entry("kept")}).save(path)
+    before = path.read_bytes()
+    calibrator = Calibrator(cell, CalibrationSettings(sweep_elevations_deg=(15.0,)))
+    with pytest.raises(BoardNotSeen, match="looks_at_the_floor"):
+        calibrator.run_to_file(path)
+    assert path.read_bytes() == before
+    cell.close()
