@@ -68,6 +68,14 @@ def run(
     fixed = {c.name for c in config.cell.cameras if c.mount == "world"}
     pipeline = PerceptionPipeline(config.perception, cell.model, seed=config.cell.seed, fixed_cameras=fixed)
     pipeline.track_body = cell.robot_id
+    if config.perception.calibration:
+        from earcore.calibration.store import Calibration
+
+        calibration = Calibration.load(config.perception.calibration)
+        unknown = sorted(set(calibration.cameras) - fixed)
+        if unknown:
+            raise ValueError(f"{config.perception.calibration}: cameras {unknown} are not fixed cameras of this cell ({sorted(fixed)})")
+        pipeline.load_calibration(calibration)
     if config.perception.min_height is not None:
         pipeline.add_support(*cell.table_box())
     waypoints = [np.asarray(w, float) for w in config.waypoints] or default_waypoints(config.cell.robot)

@@ -9,7 +9,7 @@ from earcore.calibration.check import PoseCheck, check_camera
 from earcore.calibration.errors import BoardNotSeen, CalibrationError, DegeneratePoses, TooFewFrames
 from earcore.calibration.eye_to_hand import EyeToHand, fit_eye_to_hand
 from earcore.calibration.intrinsics import LensFit, calibrate_lens, calibrate_lens_on_robot, lens_displacement
-from earcore.calibration.procedure import CalibrationSettings, Calibrator, Observation, nominal_mount
+from earcore.calibration.procedure import CalibrationSettings, Calibrator, Observation, full_trajectory, nominal_mount
 from earcore.calibration.store import Calibration, CalibrationFileError, CameraCalibration
 
 __all__ = [
@@ -33,6 +33,7 @@ __all__ = [
     "corner_points",
     "detect_board",
     "fit_eye_to_hand",
+    "full_trajectory",
     "lens_displacement",
     "nominal_mount",
 ]

@@ -1,15 +1,17 @@
 """Paper I's Tables II-III in the simulated cell: how the calibration's accuracy depends
 on the frames used, tilting, overlap and field-of-view coverage.
 
-One full run of Algorithm 1 per camera (three cameras: two Kinect V2-like, one Kinect
+One full run of Algorithm 1 per camera (the dense trajectory, `full_trajectory`) (three cameras: two Kinect V2-like, one Kinect
 V1-like, each moved 5 cm / 5° off its nominal place) collects every frame; each row
 then re-solves steps 6-7 (lenses, offset, eye-to-hand) from a subset of those frames
 and compares the result with the simulation's truth:
 
-  overlap   the same image positions again 20 % farther (yes) or one distance (no);
+  overlap   every position of each stage's ring (neighbouring boards overlap in the
+            image) or every other one (they do not);
   tilting   the tilted frames kept (yes) or only the board facing the camera (no);
   field     the whole staged trajectory (full) or its inner stages (centre);
-  frames    the first N frames in the order Algorithm 1 took them.
+  frames    N frames spread evenly over the trajectory (a sparser trajectory over the
+            same field of view; the start and tilt-limit frames always count).
 
     earcore experiment calibration [--seed 0] [--out out/calibration]
 """
@@ -24,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from earcore.calibration.errors import CalibrationError
-from earcore.calibration.procedure import CalibrationSettings, Calibrator, Observation
+from earcore.calibration.procedure import CalibrationSettings, Calibrator, Observation, full_trajectory
 from earcore.calibration.simulate import calibration_cell, calibration_cell_config, evaluate
 
 __all__ = ["ROWS", "Row", "calibration_table", "format_table", "select"]
@@ -43,7 +45,7 @@ class Row:
 ROWS = [
     Row("all frames"),
     Row("no overlap", overlap=False),
-    Row("no overlap, 30 frames", overlap=False, frames=30),
+    Row("no overlap, 20 frames", overlap=False, frames=20),
     Row("30 frames", frames=30),
     Row("20 frames", frames=20),
     Row("15 frames", frames=15),
@@ -57,24 +59,30 @@ ROWS = [
 def select(observations: list[Observation], row: Row) -> list[Observation]:
     """The frames a row re-solves from (start and tilt-limit frames are always kept:
     without them there is no mount; `tilting=False` drops the tilted stage frames)."""
-    kept = []
+    fixed, stage = [], []
     for o in observations:
-        if o.phase == "stage":
-            if not row.overlap and o.distance_factor is not None and o.distance_factor != 1.0:
-                continue
-            if not row.tilting and o.tilted:
-                continue
-            if row.field == "centre" and o.radius is not None and o.radius > 0.5:
-                continue
-        kept.append(o)
-    return kept[: row.frames] if row.frames else kept
+        if o.phase != "stage":
+            fixed.append(o)
+            continue
+        if not row.overlap and o.slot is not None and o.slot % 2 == 1:
+            continue
+        if not row.tilting and o.tilted:
+            continue
+        if row.field == "centre" and o.radius is not None and o.radius > 0.5:
+            continue
+        stage.append(o)
+    if row.frames is not None and len(fixed) + len(stage) > row.frames:
+        keep = max(row.frames - len(fixed), 0)
+        picks = np.unique(np.round(np.linspace(0, len(stage) - 1, keep)).astype(int)) if keep else np.zeros(0, int)
+        stage = [stage[int(i)] for i in picks]
+    return (fixed + stage)[: row.frames] if row.frames else fixed + stage
 
 
 def calibration_table(seed: int = 0, camera_scale: float = 1.0, out: Path | None = None, progress=print) -> dict:
     """Run the experiment; returns {"rows": [...], "run": {...}}."""
     config = calibration_cell_config(seed, camera_scale)
     cell, mount = calibration_cell(config, seed=seed)
-    calibrator = Calibrator(cell, CalibrationSettings(seed=seed), progress=progress)
+    calibrator = Calibrator(cell, full_trajectory(CalibrationSettings(seed=seed)), progress=progress)
     started = time.perf_counter()
     full = calibrator.run()
     run = {

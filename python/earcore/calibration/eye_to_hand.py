@@ -92,12 +92,21 @@ def fit_eye_to_hand(
     for it in range(iterations if estimate_mount else 1):
         robot = np.einsum("kij,kj->ki", flanges[frame], np.c_[_apply(z, board), np.ones(len(board))])[:, :3]
         x, inliers, rmse = rigid_fit_ransac(cam, robot, threshold, 200, it)
+        if inliers.sum() < 12:
+            raise DegeneratePoses(
+                camera,
+                f"only {inliers.sum()} of {len(cam)} corners agree within {1000 * threshold:.0f} mm: the corners, the "
+                "lens or the mount are too far off for a rigid fit",
+            )
         if not estimate_mount:
             break
         # The camera's corners carried into the flange frame, fitted to the board's.
         seen = _apply(x, cam)
         local = np.einsum("kij,kj->ki", np.linalg.inv(flanges)[frame], np.c_[seen, np.ones(len(seen))])[:, :3]
-        z_new = rigid_fit(board[inliers], local[inliers])
+        try:
+            z_new = rigid_fit(board[inliers], local[inliers])
+        except ValueError as exc:
+            raise DegeneratePoses(camera, f"the board's mount cannot be fitted: {exc}") from exc
         step = np.abs(z_new - z).max()
         z = z_new
         if step < 1e-9:

@@ -23,6 +23,25 @@ class LensFit:
     frames: int
 
 
+def _lens_flags(model: str) -> int:
+    cv2 = _cv2()
+    return {
+        "full": 0,  # k1, k2, p1, p2, k3
+        "radial": cv2.CALIB_ZERO_TANGENT_DIST,  # k1, k2, k3
+        "radial2": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,  # k1, k2
+    }[model]
+
+
+class _Flags(dict):
+    def __missing__(self, model: str) -> int:
+        if model not in ("full", "radial", "radial2"):
+            raise ValueError(f"lens_model must be 'full', 'radial' or 'radial2', got {model!r}")
+        return _lens_flags(model)
+
+
+_LENS_FLAGS = _Flags()
+
+
 def _object_points(board_points: np.ndarray, n: int) -> list[np.ndarray]:
     return [board_points.astype(np.float32)] * n
 
@@ -34,8 +53,12 @@ def calibrate_lens(
     *,
     camera: str = "camera",
     min_frames: int = 8,
+    lens_model: str = "radial",
 ) -> LensFit:
-    """K and distortion from board detections in one camera's images."""
+    """K and distortion from board detections in one camera's images. `lens_model`:
+    "radial" (k1, k2, k3; the default: these sensors' tangential terms are negligible
+    and fitting them lets the principal point wander), "radial2" (k1, k2) or "full"
+    (k1, k2, p1, p2, k3)."""
     cv2 = _cv2()
     if len(detections) < min_frames:
         raise TooFewFrames(camera, len(detections), min_frames, "for the lens (Zhang's method)")
@@ -47,7 +70,7 @@ def calibrate_lens(
     cover = (np.ptp(allpx[:, 0]) / size[0], np.ptp(allpx[:, 1]) / size[1])
     if min(cover) < 0.3:
         raise DegeneratePoses(camera, f"the board covered only {cover[0]:.0%} × {cover[1]:.0%} of the image")
-    flags = cv2.CALIB_USE_INTRINSIC_GUESS
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS | _LENS_FLAGS[lens_model]
     rms, K, dist, _, _ = cv2.calibrateCamera(
         _object_points(board_points, len(detections)), image_points, size, K_guess.astype(np.float64).copy(), None, flags=flags
     )
@@ -102,8 +125,10 @@ def calibrate_lens_on_robot(
     pixels: np.ndarray,
     image_size: tuple[int, int],
     K_guess: np.ndarray,
+    dist_guess=None,
     *,
     camera: str = "camera",
+    lens_model: str = "radial",
 ) -> tuple[LensFit, np.ndarray]:
     """Lens and `base_from_camera` at once, with the robot as the calibration rig.
 
@@ -111,7 +136,9 @@ def calibrate_lens_on_robot(
     board's mount, so all frames together are one non-planar 3D target seen from one
     camera pose. Zhang's method has to find each frame's board pose from the image,
     which trades focal length against distance when the board is small in the image;
-    here the robot fixes the distances and the focal length follows."""
+    here the robot fixes the distances and the focal length follows. Starts from
+    `K_guess` and `dist_guess` (e.g. Zhang's result; zero distortion when None);
+    `lens_model` as in `calibrate_lens`."""
     cv2 = _cv2()
     points_base = np.asarray(points_base, dtype=np.float64)
     pixels = np.asarray(pixels, dtype=np.float64)
@@ -119,13 +146,14 @@ def calibrate_lens_on_robot(
         raise TooFewFrames(camera, len(points_base) // 24, 1, "too few corners for the lens")
     # OpenCV wants a non-planar rig's points near its own origin and the pose guessed
     # well: start from the pinhole pose (PnP with the guessed K).
-    ok, rvec, tvec = cv2.solvePnP(points_base, pixels, K_guess, None, flags=cv2.SOLVEPNP_ITERATIVE)
+    dist0 = np.zeros(5) if dist_guess is None else np.asarray(dist_guess, dtype=np.float64).reshape(-1)[:5].copy()
+    ok, rvec, tvec = cv2.solvePnP(points_base, pixels, K_guess, dist0, flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok:
         raise DegeneratePoses(camera, "no camera pose explains the corners (PnP failed)")
-    flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_USE_EXTRINSIC_GUESS
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_USE_EXTRINSIC_GUESS | _LENS_FLAGS[lens_model]
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
         [points_base.astype(np.float32)], [pixels.astype(np.float32).reshape(-1, 1, 2)], image_size,
-        K_guess.astype(np.float64).copy(), np.zeros(5), rvecs=(rvec,), tvecs=(tvec,), flags=flags,
+        K_guess.astype(np.float64).copy(), dist0, rvecs=(rvec,), tvecs=(tvec,), flags=flags,
     )
     r, _ = cv2.Rodrigues(np.asarray(rvecs[0]))
     camera_from_base = np.eye(4)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -34,7 +34,7 @@ from earcore.cloud import box_voxel_centres
 from earcore.planning.ik import UnreachablePose, solve_ik
 from earcore.sim.tools import Checkerboard
 
-__all__ = ["CalibrationSettings", "Calibrator", "Observation", "nominal_mount"]
+__all__ = ["CalibrationSettings", "Calibrator", "Observation", "full_trajectory", "nominal_mount"]
 
 
 def nominal_mount(extension: float = 0.10) -> np.ndarray:
@@ -94,14 +94,28 @@ class CalibrationSettings:
     sweep_elevations_deg: tuple[float, ...] = (15.0, 55.0)
     #: Seconds between the cameras' looks while the robot moves (sweep, tilt search).
     watch_period: float = 0.1
-    #: RANSAC inlier distance for the 3D-3D fits (m).
+    #: RANSAC inlier distance for the 3D-3D fits (m); while the lens is still unknown
+    #: (during the trajectory) corners near the image's edge are off by centimetres, so
+    #: those fits take the looser one.
     ransac_threshold: float = 0.01
+    ransac_threshold_uncorrected: float = 0.03
     #: The final base_from_camera: "depth" (Paper I's 3D-3D fit of the depth corners,
     #: through the refined lens) or "pixels" (the lens fit's, the robot as the rig).
     pose_from: str = "depth"
+    #: Lens model: "radial" (k1, k2, k3), "radial2" (k1, k2) or "full" (+ p1, p2). On
+    #: the simulated Kinects, fitting the tangential terms too moves the principal point
+    #: by pixels and the pose by millimetres (NOTES.md).
+    lens_model: str = "radial"
     #: Passes of lens-and-pose from pixels / mount from depth in step 7.
     refinement_passes: int = 4
     seed: int = 0
+
+
+def full_trajectory(settings: CalibrationSettings) -> CalibrationSettings:
+    """The dense staged trajectory (more stages, more positions per stage: overlapping
+    views, like Paper I's long runs) and no frame limit; the default trajectory is the
+    sparse one that covers the field of view in ~30 frames."""
+    return replace(settings, stage_radii=(0.0, 0.3, 0.55, 0.8), stage_positions=(1, 6, 8, 12), max_frames=None)
 
 
 @dataclass
@@ -123,6 +137,31 @@ class Observation:
     #: usable half-field of view).
     distance_factor: float | None = None
     radius: float | None = None
+    #: For stage frames: the position's index on its stage's ring.
+    slot: int | None = None
+
+
+class _TiltSearch:
+    """Watches one camera while the board tilts away from its start orientation: at
+    every `step` degrees of tilt the camera looks; the first miss stops the motion."""
+
+    def __init__(self, calibrator: Calibrator, camera: str, start_rotation: np.ndarray, step: float) -> None:
+        self.calibrator, self.camera, self.start, self.step = calibrator, camera, start_rotation, step
+        self.next = step
+        #: The largest tilt (degrees) at which the board was still seen, and where.
+        self.angle = 0.0
+        self.q: np.ndarray | None = None
+
+    def watch(self, q: np.ndarray) -> bool:
+        r = self.calibrator.base_from_flange(q)[:3, :3]
+        angle = math.degrees(math.acos(float(np.clip((np.trace(self.start.T @ r) - 1) / 2, -1, 1))))
+        if angle + 1e-6 < self.next:
+            return True
+        self.next = (math.floor(angle / self.step) + 1) * self.step
+        if self.calibrator.detect(self.camera) is None:
+            return False  # the first failure: stop here
+        self.angle, self.q = angle, q.copy()
+        return True
 
 
 class Calibrator:
@@ -186,9 +225,27 @@ class Calibrator:
     def base_from_flange(self, q: np.ndarray) -> np.ndarray:
         return self.model.fk(q)[self.flange_link]
 
+    def nearest_equivalent(self, q: np.ndarray) -> np.ndarray:
+        """`q` with each revolute joint turned by whole turns (where its limits allow) to
+        lie closest to the current state: the same pose, reached with the least motion
+        (a UR's joints span ±2π, and IK or a 360° sweep may land a turn away)."""
+        q = np.asarray(q, dtype=np.float64).copy()
+        now = self.cell.joint_positions
+        lo, hi = self.model.joint_limits[:, 0], self.model.joint_limits[:, 1]
+        for j in range(len(q)):
+            if hi[j] - lo[j] <= 2 * math.pi:
+                continue
+            turns = np.round((now[j] - q[j]) / (2 * math.pi))
+            for k in (turns, turns - 1, turns + 1):
+                c = q[j] + 2 * math.pi * k
+                if lo[j] <= c <= hi[j] and abs(c - now[j]) < abs(q[j] - now[j]):
+                    q[j] = c
+        return q
+
     def move_to(self, q: np.ndarray) -> bool:
-        """Drive the robot to `q` when the straight motion is free; False (and no motion)
-        when it is not."""
+        """Drive the robot to `q` (or the same pose a whole turn nearer, per joint) when
+        the straight motion is free; False (and no motion) when it is not."""
+        q = self.nearest_equivalent(q)
         cell = self.cell
         if self.model.check_motion(self.tree, cell.joint_positions, q, 0.02):
             return False
@@ -200,10 +257,13 @@ class Calibrator:
         self.motion_time += steps * cell.config.time_step
         return True
 
-    def move_through(self, q: np.ndarray, watch: Callable[[np.ndarray], bool], every: float) -> bool:
+    def move_through(self, q: np.ndarray, watch: Callable[[np.ndarray], bool], every: float, *, shortest: bool = True) -> bool:
         """Drive to `q` (when the straight motion is free) calling `watch(q_now)` every
         `every` seconds on the way (cameras capture while the robot moves, their frames
-        stamped with the joint state); when it returns False the robot brakes and stops."""
+        stamped with the joint state); when it returns False the robot brakes and stops.
+        `shortest`: go to the nearest equivalent of `q` (not for a deliberate full turn)."""
+        if shortest:
+            q = self.nearest_equivalent(q)
         cell = self.cell
         if self.model.check_motion(self.tree, cell.joint_positions, q, 0.02):
             return False
@@ -227,7 +287,7 @@ class Calibrator:
         try:
             return solve_ik(
                 self.model, target, link=self.flange_link, seed_q=self.cell.joint_positions, tree=self.tree,
-                position_tolerance=0.005, orientation_tolerance=0.03, restarts=6, rng=self.rng,
+                position_tolerance=0.02, orientation_tolerance=0.08, restarts=6, iterations=150, rng=self.rng,
             ).q
         except UnreachablePose:
             return None
@@ -304,13 +364,13 @@ class Calibrator:
                         self.start_poses[name] = (score, q.copy())
                 return True
 
-            self.move_through(q1, watch, s.watch_period)
+            self.move_through(q1, watch, s.watch_period, shortest=False)
             self.progress(f"sweep done: {self.motion_time - before:.0f} s of motion; seen by {sorted(self.start_poses)}")
         for name in names:
             if name not in self.start_poses:
                 raise BoardNotSeen(name, f"not during the 360° sweep at elevations {list(s.sweep_elevations_deg)}°")
 
-    def _fit(self, name: str, K, distortion, mount: np.ndarray, estimate_mount: bool, obs=None) -> EyeToHand:
+    def _fit(self, name: str, K, distortion, mount: np.ndarray, estimate_mount: bool, obs=None, threshold=None) -> EyeToHand:
         obs = self.observations[name] if obs is None else obs
         t = time.perf_counter()
         try:
@@ -320,7 +380,7 @@ class Calibrator:
                 self.board_points,
                 mount,
                 estimate_mount=estimate_mount,
-                threshold=self.settings.ransac_threshold,
+                threshold=self.settings.ransac_threshold if threshold is None else threshold,
                 camera=name,
             )
         finally:
@@ -355,7 +415,8 @@ class Calibrator:
             raise BoardNotSeen(name, "at its start pose")
         first.phase = "start"
         self._accept(first)
-        fit = self._fit(name, K0, d0, s.mount, estimate_mount=False)
+        loose = s.ransac_threshold_uncorrected
+        fit = self._fit(name, K0, d0, s.mount, estimate_mount=False, threshold=loose)
         start_board = fit.base_from_camera @ self._board_in_camera(fit, self.observations[name][0])
         # Step 3: tilt limits, both ways about each board axis. The frame at each limit
         # is kept: those tilted-in-place frames fix the mount (step 4).
@@ -376,23 +437,11 @@ class Calibrator:
                 if goal is None or not self.move_to(start_q):
                     limits[key] = 0.0
                     continue
-                seen = {"angle": 0.0, "q": None, "next": s.tilt_step_deg}
-
-                def watch(q: np.ndarray) -> bool:
-                    r = self.base_from_flange(q)[:3, :3]
-                    angle = math.degrees(math.acos(np.clip((np.trace(start_rotation.T @ r) - 1) / 2, -1, 1)))
-                    if angle + 1e-6 < seen["next"]:
-                        return True
-                    seen["next"] = (math.floor(angle / s.tilt_step_deg) + 1) * s.tilt_step_deg
-                    if self.detect(name) is None:
-                        return False  # the first failure: stop here
-                    seen["angle"], seen["q"] = angle, q.copy()
-                    return True
-
-                self.move_through(goal, watch, self.cell.config.time_step)
+                search = _TiltSearch(self, name, start_rotation, s.tilt_step_deg)
+                self.move_through(goal, search.watch, self.cell.config.time_step)
                 # Back off to the last tilt that was seen, and keep a still frame there.
-                limits[key] = float(seen["angle"])
-                if seen["q"] is not None and not self._full(name) and self.move_to(seen["q"]):
+                limits[key] = float(min(search.angle, cap))
+                if search.q is not None and not self._full(name) and self.move_to(search.q):
                     obs = self.observe(name, tilted=True, colour=False)
                     if obs is not None:
                         obs.phase = "tilt"
@@ -402,7 +451,7 @@ class Calibrator:
             f"{name}: tilt limits " + ", ".join(f"{k} {v:.0f}°" for k, v in limits.items())
             + f" ({self.motion_time - motion_before:.0f} s of motion so far)"
         )
-        fit = self._fit(name, K0, d0, fit.flange_from_board, estimate_mount=True)
+        fit = self._fit(name, K0, d0, fit.flange_from_board, estimate_mount=True, threshold=loose)
         # Step 5: staged trajectory, re-aimed after every accepted frame.
         distance = float(np.linalg.norm((np.linalg.inv(fit.base_from_camera) @ start_board)[:3, 3]))
         w, h = cam.sensor.width, cam.sensor.height
@@ -440,9 +489,9 @@ class Calibrator:
                         continue  # unreachable or colliding: skip (Paper I)
                     obs = self.observe(name, tilted=tilted)
                     if obs is not None:
-                        obs.distance_factor, obs.radius = factor, radius
+                        obs.distance_factor, obs.radius, obs.slot = factor, radius, j
                     if self._accept(obs):
-                        fit = self._fit(name, K0, d0, fit.flange_from_board, estimate_mount=True)
+                        fit = self._fit(name, K0, d0, fit.flange_from_board, estimate_mount=True, threshold=loose)
         self.progress(f"{name}: {len(self.observations[name])} frames in {self.motion_time - motion_before:.0f} s of motion")
         # Steps 6-7: lenses, then eye-to-hand again through the corrected lenses.
         return self.finish(name)
@@ -457,15 +506,23 @@ class Calibrator:
         if len(obs) < 3:
             raise TooFewFrames(name, len(obs), 3)
         t = time.perf_counter()
-        zhang = calibrate_lens([o.ir for o in obs], self.board_points, cam.sensor.intrinsics, camera=name)
+        zhang = calibrate_lens(
+            [o.ir for o in obs], self.board_points, cam.sensor.intrinsics, camera=name, lens_model=self.settings.lens_model
+        )
         self.solver_time += time.perf_counter() - t
         # The mount from the depth corners through Zhang's lens, then the rig; the lens
         # and the mount are refined in turn (each pass: the rig's lens and pose from the
         # pixels, the mount from the depth corners through that lens).
-        fit = self._fit(name, zhang.K, zhang.distortion, self.settings.mount, estimate_mount=True, obs=obs)
+        fit = self._fit(
+            name, zhang.K, zhang.distortion, self.settings.mount, estimate_mount=True, obs=obs,
+            threshold=self.settings.ransac_threshold_uncorrected,
+        )
+        depth_lens = zhang
         for _ in range(self.settings.refinement_passes):
             t = time.perf_counter()
-            depth_lens, base_from_ir = self._lens_on_robot(name, obs, [o.ir for o in obs], fit.flange_from_board, cam.sensor.intrinsics)
+            depth_lens, base_from_ir = self._lens_on_robot(
+                name, obs, [o.ir for o in obs], fit.flange_from_board, depth_lens.K, depth_lens.distortion
+            )
             self.solver_time += time.perf_counter() - t
             previous = fit.flange_from_board
             fit = self._fit(name, depth_lens.K, depth_lens.distortion, previous, estimate_mount=True, obs=obs)
@@ -474,9 +531,14 @@ class Calibrator:
         t = time.perf_counter()
         colour_lens, offset = None, None
         both = [o for o in obs if o.colour is not None]
+        colour_detections = [o.colour for o in both if o.colour is not None]
         if cam.sensor.colour is not None and len(both) >= 8:
+            colour_zhang = calibrate_lens(
+                colour_detections, self.board_points, cam.sensor.colour.intrinsics, camera=name,
+                lens_model=self.settings.lens_model,
+            )
             colour_lens, base_from_colour = self._lens_on_robot(
-                name, both, [o.colour for o in both], fit.flange_from_board, cam.sensor.colour.intrinsics
+                name, both, colour_detections, fit.flange_from_board, colour_zhang.K, colour_zhang.distortion
             )
             offset = np.linalg.inv(base_from_ir) @ base_from_colour
         self.solver_time += time.perf_counter() - t
@@ -489,7 +551,7 @@ class Calibrator:
             depth_size=obs[0].ir.image_size,
             colour_K=None if colour_lens is None else colour_lens.K,
             colour_distortion=None if colour_lens is None else colour_lens.distortion,
-            colour_size=None if colour_lens is None else both[0].colour.image_size,
+            colour_size=None if colour_lens is None else colour_detections[0].image_size,
             depth_from_colour=offset,
             flange_from_board=fit.flange_from_board,
             eye_to_hand_rmse=fit.rmse,
@@ -500,14 +562,16 @@ class Calibrator:
             frames=len(obs),
             corners=fit.corners,
             depth_region=_region([o.ir for o in obs]),
-            colour_region=_region([o.colour for o in both]) if colour_lens is not None else None,
+            colour_region=_region(colour_detections) if colour_lens is not None else None,
             start_q=[float(v) for v in self.start_poses[name][1]] if name in self.start_poses else None,
         )
 
-    def _lens_on_robot(self, name, obs, detections, mount, K_guess):
+    def _lens_on_robot(self, name, obs, detections, mount, K_guess, dist_guess):
         points = np.concatenate([_transform(o.base_from_flange @ mount, self.board_points) for o in obs])
         pixels = np.concatenate([d.corners for d in detections])
-        return calibrate_lens_on_robot(points, pixels, detections[0].image_size, K_guess, camera=name)
+        return calibrate_lens_on_robot(
+            points, pixels, detections[0].image_size, K_guess, dist_guess, camera=name, lens_model=self.settings.lens_model
+        )
 
     def run(self, names: list[str] | None = None) -> dict[str, CameraCalibration]:
         """Calibrate the named fixed cameras (default: every fixed camera)."""

@@ -93,7 +93,7 @@ def evaluate(cell, calibration: CameraCalibration, true_mount: np.ndarray | None
         c = sensor.colour
         colour_px = lens_displacement(
             calibration.colour_K, calibration.colour_distortion, c.intrinsics, c.distortion,
-            calibration.colour_size, region=calibration.colour_region, pixels=colour_px_seen,
+            calibration.colour_size or (c.width, c.height), region=calibration.colour_region, pixels=colour_px_seen,
         )
         if calibration.depth_from_colour is not None:
             offset_t = float(np.linalg.norm(calibration.depth_from_colour[:3, 3] - c.depth_from_colour[:3, 3]))
@@ -102,6 +102,6 @@ def evaluate(cell, calibration: CameraCalibration, true_mount: np.ndarray | None
     if true_mount is not None and calibration.flange_from_board is not None:
         mount_t = float(np.linalg.norm(calibration.flange_from_board[:3, 3] - true_mount[:3, 3]))
     return CalibrationErrors(
-        calibration.name, tuple(float(v) for v in local), float(np.linalg.norm(local)), _angle_deg(est, truth),
+        calibration.name, (float(local[0]), float(local[1]), float(local[2])), float(np.linalg.norm(local)), _angle_deg(est, truth),
         depth_px, colour_px, offset_t, offset_r, mount_t,
     )

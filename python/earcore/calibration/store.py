@@ -21,7 +21,7 @@ class CalibrationFileError(ValueError):
 
 def _yaml():
     try:
-        import yaml
+        import yaml  # type: ignore[import-untyped]
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise ImportError("calibration files need PyYAML: pip install 'earcore[calibration]'") from exc
     return yaml

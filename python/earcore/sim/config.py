@@ -152,6 +152,9 @@ class PerceptionConfig:
     #: sensor noise: with the Kinect V1's 1.1-1.3 cm depth steps at 2 m, Paper II's 5 mm
     #: alone leaves ~0.9 % of the robot's points in the map.
     self_filter_margin: float = 0.01
+    #: A calibration file (`earcore calibrate`): the cameras it names use its poses and
+    #: depth lenses instead of the simulation's ground truth. Empty: ground truth.
+    calibration: str = ""
     #: Refine the camera poses once with ICP against each other (Paper II).
     refine_poses: bool = False
     #: Perturb the ground-truth camera poses by this much (m, rad) before use, to
