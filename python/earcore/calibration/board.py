@@ -62,10 +62,14 @@ def _apply_h(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return p[:, :2] / p[:, 2:]
 
 
-def detect_board(image: np.ndarray, board: Checkerboard = Checkerboard(), *, border: int = 3) -> Detection | None:
+def detect_board(
+    image: np.ndarray, board: Checkerboard = Checkerboard(), *, border: int = 3, max_residual: float = 2.0
+) -> Detection | None:
     """The board's inner corners in `image` (grey or colour, uint8), or None when the
-    board is not seen whole, its orientation cannot be told, or it is within `border`
-    pixels of the image's edge."""
+    board is not seen whole, its orientation cannot be told, it is within `border`
+    pixels of the image's edge, or the corners are not one flat grid: a homography
+    from the board leaves a corner more than `max_residual` pixels off (a lens bends
+    a board's image by far less; a corner found in the wrong place does not)."""
     cv2 = _cv2()
     grey = _grey(image)
     pattern = (board.cols - 1, board.rows - 1)
@@ -111,6 +115,9 @@ def detect_board(image: np.ndarray, board: Checkerboard = Checkerboard(), *, bor
         if best is None or light > best[0]:
             best = (light, candidate)
     if best is None or best[0] < 40:  # no clear hollow square: orientation unknown
+        return None
+    hom = _homography(grid, best[1])
+    if np.linalg.norm(_apply_h(hom, grid) - best[1], axis=1).max() > max_residual:
         return None
     return Detection(best[1], (w, h))
 

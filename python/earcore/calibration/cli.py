@@ -1,6 +1,6 @@
 """`earcore calibrate`: Paper I's automatic calibration in the simulated cell.
 
-    earcore calibrate [--out calibration.yaml] [--camera NAME ...] [--seed 0]
+    earcore calibrate [--out calibration.yaml] [--camera NAME ...] [--seed 0] [--full]
     earcore calibrate --check [--bump NAME]        # has a camera moved?
     earcore calibrate --camera NAME [--bump NAME]  # recalibrate only that camera
 
@@ -41,7 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bump", nargs="*", default=[], help="simulation: move these cameras 10 cm / 10° first")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--camera-scale", type=float, default=1.0, help="camera resolution factor (1 = the sensors' own)")
-    parser.add_argument("--max-frames", type=int, default=30, help="frames per camera (default 30, Paper I's trade-off)")
+    parser.add_argument("--max-frames", type=int, default=20,
+                        help="frames per camera (default 20: three cameras in under 3 minutes of motion; Paper I: ~30)")
     parser.add_argument("--full", action="store_true", help="the whole trajectory (both distances, every position)")
     parser.add_argument("--no-tilt", action="store_true", help="no tilting along the trajectory")
     args = parser.parse_args(argv)

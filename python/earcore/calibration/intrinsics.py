@@ -11,7 +11,7 @@ import numpy as np
 from earcore.calibration.board import Detection, _cv2
 from earcore.calibration.errors import DegeneratePoses, TooFewFrames
 
-__all__ = ["LensFit", "calibrate_lens", "calibrate_lens_on_robot", "colour_offset", "lens_displacement"]
+__all__ = ["LensFit", "calibrate_lens", "calibrate_lens_on_robot", "colour_offset", "lens_displacement", "reprojection_errors"]
 
 
 @dataclass
@@ -161,3 +161,15 @@ def calibrate_lens_on_robot(
     camera_from_base[:3, 3] = np.asarray(tvecs[0]).reshape(3)
     lens = LensFit(K, np.asarray(dist, dtype=np.float64).reshape(-1)[:5], float(rms), len(points_base) // 24)
     return lens, np.linalg.inv(camera_from_base)
+
+
+def reprojection_errors(points_base, pixels, K, distortion, base_from_camera) -> np.ndarray:
+    """Distance (pixels) between each corner's pixel (N, 2) and its base-frame point (N, 3)
+    projected through the camera."""
+    cv2 = _cv2()
+    camera_from_base = np.linalg.inv(base_from_camera)
+    rvec, _ = cv2.Rodrigues(camera_from_base[:3, :3])
+    projected, _ = cv2.projectPoints(
+        np.asarray(points_base, dtype=np.float64), rvec, camera_from_base[:3, 3], np.asarray(K, float), np.asarray(distortion, float)
+    )
+    return np.linalg.norm(projected.reshape(-1, 2) - np.asarray(pixels, dtype=np.float64), axis=1)

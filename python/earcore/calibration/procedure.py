@@ -26,12 +26,14 @@ import numpy as np
 
 import earcore
 from earcore.calibration.board import Detection, corner_points, detect_board
-from earcore.calibration.errors import BoardNotSeen, CalibrationError, TooFewFrames
+from earcore.calibration.errors import BoardNotSeen, CalibrationError, DegeneratePoses, TooFewFrames
 from earcore.calibration.eye_to_hand import EyeToHand, fit_eye_to_hand
-from earcore.calibration.intrinsics import calibrate_lens, calibrate_lens_on_robot
+from earcore.calibration.intrinsics import calibrate_lens, calibrate_lens_on_robot, reprojection_errors
 from earcore.calibration.store import Calibration, CalibrationFileError, CameraCalibration
 from earcore.cloud import box_voxel_centres
+from earcore.planning.errors import PlanningError
 from earcore.planning.ik import UnreachablePose, solve_ik
+from earcore.planning.rrt import JointSpacePlanner
 from earcore.sim.tools import Checkerboard
 
 __all__ = ["CalibrationSettings", "Calibrator", "Observation", "full_trajectory", "nominal_mount"]
@@ -77,6 +79,8 @@ class CalibrationSettings:
     tilt_step_deg: float = 5.0
     roll_limit_deg: float = 45.0
     tilt_limit_deg: float = 60.0
+    #: The tilt search drives through waypoints this far apart (degrees).
+    tilt_waypoint_deg: float = 15.0
     #: Tilt the board along the staged trajectory (fraction of each limit); 0: no tilting.
     tilt_fraction: float = 0.7
     #: Stages outward from the image centre: radius (fraction of the usable half-field
@@ -94,6 +98,8 @@ class CalibrationSettings:
     sweep_elevations_deg: tuple[float, ...] = (15.0, 55.0)
     #: Seconds between the cameras' looks while the robot moves (sweep, tilt search).
     watch_period: float = 0.1
+    #: RRT-Connect time limit (s) for a motion whose straight path is blocked.
+    plan_time: float = 0.5
     #: RANSAC inlier distance for the 3D-3D fits (m); while the lens is still unknown
     #: (during the trajectory) corners near the image's edge are off by centimetres, so
     #: those fits take the looser one.
@@ -106,6 +112,8 @@ class CalibrationSettings:
     #: the simulated Kinects, fitting the tangential terms too moves the principal point
     #: by pixels and the pose by millimetres (NOTES.md).
     lens_model: str = "radial"
+    #: A calibration whose corners reproject worse than this (pixels rms) is refused.
+    max_reprojection_px: float = 1.0
     #: Passes of lens-and-pose from pixels / mount from depth in step 7.
     refinement_passes: int = 4
     seed: int = 0
@@ -142,23 +150,42 @@ class Observation:
 
 
 class _TiltSearch:
-    """Watches one camera while the board tilts away from its start orientation: at
-    every `step` degrees of tilt the camera looks; the first miss stops the motion."""
+    """Watches one camera while the board tilts about one of its axes: at every `step`
+    degrees of tilt in the searched direction (the board's rotation since the start,
+    as a rotation vector, along that axis) the camera looks; the first miss stops the
+    motion. Tilt the other way (on the way over from the previous search) is ignored."""
 
-    def __init__(self, calibrator: Calibrator, camera: str, start_rotation: np.ndarray, step: float) -> None:
-        self.calibrator, self.camera, self.start, self.step = calibrator, camera, start_rotation, step
+    def __init__(
+        self, calibrator: Calibrator, camera: str, start_flange: np.ndarray, mount: np.ndarray, axis: int, sign: int, step: float
+    ) -> None:
+        self.calibrator, self.camera, self.step = calibrator, camera, step
+        self.start, self.mount = start_flange[:3, :3], mount[:3, :3]
+        self.axis, self.sign = axis, sign
         self.next = step
+        #: True once the camera lost the board (the motion was stopped).
+        self.stopped = False
         #: The largest tilt (degrees) at which the board was still seen, and where.
         self.angle = 0.0
         self.q: np.ndarray | None = None
 
+    def tilt(self, q: np.ndarray) -> float:
+        """Signed tilt (degrees) of the board about the searched axis since the start."""
+        turn = self.start.T @ self.calibrator.base_from_flange(q)[:3, :3]
+        in_board = self.mount.T @ turn @ self.mount
+        angle = math.acos(float(np.clip((np.trace(in_board) - 1) / 2, -1, 1)))
+        if angle < 1e-9:
+            return 0.0
+        axis = np.array([in_board[2, 1] - in_board[1, 2], in_board[0, 2] - in_board[2, 0], in_board[1, 0] - in_board[0, 1]])
+        axis /= 2 * math.sin(angle) if math.sin(angle) > 1e-9 else 1.0
+        return math.degrees(angle * axis[self.axis]) * self.sign
+
     def watch(self, q: np.ndarray) -> bool:
-        r = self.calibrator.base_from_flange(q)[:3, :3]
-        angle = math.degrees(math.acos(float(np.clip((np.trace(self.start.T @ r) - 1) / 2, -1, 1))))
+        angle = self.tilt(q)
         if angle + 1e-6 < self.next:
             return True
         self.next = (math.floor(angle / self.step) + 1) * self.step
         if self.calibrator.detect(self.camera) is None:
+            self.stopped = True
             return False  # the first failure: stop here
         self.angle, self.q = angle, q.copy()
         return True
@@ -192,6 +219,7 @@ class Calibrator:
         self.start_poses: dict[str, tuple[float, np.ndarray]] = {}
         self.tilt_limits: dict[str, dict[str, float]] = {}
         self.tree = self._known_geometry()
+        self._planner: JointSpacePlanner | None = None
 
     # --- set-up ---------------------------------------------------------------
 
@@ -242,14 +270,38 @@ class Calibrator:
                     q[j] = c
         return q
 
+    def _path_to(self, q: np.ndarray) -> list[np.ndarray] | None:
+        """Waypoints from the current state to `q`: the straight motion when it is free,
+        else an RRT-Connect path (OMPL, against the cell's known geometry) cut short
+        wherever a straight motion skips waypoints; None when there is none."""
+        now = self.cell.joint_positions
+        if not self.model.check_motion(self.tree, now, q, 0.02):
+            return [q]
+        if self._planner is None:
+            self._planner = JointSpacePlanner(self.model, self.tree, seed=self.settings.seed)
+        try:
+            path = self._planner.plan(now, q, time_limit=self.settings.plan_time, simplify=False)[0].waypoints
+        except PlanningError:
+            return None
+        out, i = [], 0
+        while i < len(path) - 1:
+            j = len(path) - 1
+            while j > i + 1 and self.model.check_motion(self.tree, path[i], path[j], 0.02):
+                j -= 1
+            out.append(path[j])
+            i = j
+        return out
+
     def move_to(self, q: np.ndarray) -> bool:
-        """Drive the robot to `q` (or the same pose a whole turn nearer, per joint) when
-        the straight motion is free; False (and no motion) when it is not."""
+        """Drive the robot to `q` (or the same pose a whole turn nearer, per joint), by
+        a planned path when the straight motion is blocked; False (and no motion) when
+        no path is found."""
         q = self.nearest_equivalent(q)
         cell = self.cell
-        if self.model.check_motion(self.tree, cell.joint_positions, q, 0.02):
+        path = self._path_to(q)
+        if path is None:
             return False
-        cell.controller.follow([q])
+        cell.controller.follow(path)
         steps = 0
         while not cell.controller.done and steps < 3000:
             cell.step()
@@ -280,22 +332,36 @@ class Calibrator:
         self.motion_time += steps * cell.config.time_step
         return True
 
-    def flange_target(self, base_from_board: np.ndarray, mount: np.ndarray) -> np.ndarray | None:
-        """A collision-free joint state putting the board (as the mount is believed) at
-        `base_from_board`, near the current one; None when there is none."""
+    def flange_targets(self, base_from_board: np.ndarray, mount: np.ndarray, near: np.ndarray | None = None):
+        """Collision-free joint states putting the board (as the mount is believed) at
+        `base_from_board`: first ones near `near` (default: the current state; short
+        motions), then one from anywhere."""
         target = base_from_board @ np.linalg.inv(mount)
-        try:
-            return solve_ik(
-                self.model, target, link=self.flange_link, seed_q=self.cell.joint_positions, tree=self.tree,
-                position_tolerance=0.02, orientation_tolerance=0.08, restarts=6, iterations=150, rng=self.rng,
-            ).q
-        except UnreachablePose:
-            return None
+        now = self.cell.joint_positions if near is None else np.asarray(near, dtype=np.float64)
+        seeds = [now] + [now + self.rng.normal(scale=0.3, size=now.shape) for _ in range(3)] + [None]
+        for seed in seeds:
+            try:
+                yield solve_ik(
+                    self.model, target, link=self.flange_link, seed_q=seed, tree=self.tree,
+                    position_tolerance=0.02, orientation_tolerance=0.08, restarts=1 if seed is not None else 6,
+                    iterations=150, rng=self.rng,
+                ).q
+            except UnreachablePose:
+                continue
+
+    def flange_target(self, base_from_board: np.ndarray, mount: np.ndarray, near: np.ndarray | None = None) -> np.ndarray | None:
+        """The first of `flange_targets`, or None when the pose cannot be reached."""
+        return next(self.flange_targets(base_from_board, mount, near), None)
 
     def reach_board_pose(self, base_from_board: np.ndarray, mount: np.ndarray) -> bool:
-        """Move so the board (as the mount is believed) sits at `base_from_board`."""
-        q = self.flange_target(base_from_board, mount)
-        return q is not None and self.move_to(q)
+        """Move so the board (as the mount is believed) sits at `base_from_board`, by the
+        first joint state whose straight motion from here is free."""
+        for i, q in enumerate(self.flange_targets(base_from_board, mount)):
+            if i >= 3:
+                break
+            if self.move_to(q):
+                return True
+        return False
 
     # --- seeing ---------------------------------------------------------------
 
@@ -422,27 +488,34 @@ class Calibrator:
         # is kept: those tilted-in-place frames fix the mount (step 4).
         limits: dict[str, float] = {}
         start_q = self.cell.joint_positions
-        start_rotation = self.base_from_flange(start_q)[:3, :3]
+        start_flange = self.base_from_flange(start_q)
         for axis, label in ((2, "roll"), (0, "pitch"), (1, "yaw")):
             cap = s.roll_limit_deg if label == "roll" else s.tilt_limit_deg
             for sign in (1, -1):
                 key = f"{label}{'+' if sign > 0 else '-'}"
-                # The farthest reachable tilt toward the cap, then one continuous motion
-                # out to it, the camera looking at every step of `tilt_step_deg`.
-                goal = None
-                for angle in np.arange(cap, 0, -s.tilt_step_deg):
-                    goal = self.flange_target(start_board @ _axis_rotation(axis, sign * math.radians(angle)), fit.flange_from_board)
-                    if goal is not None:
-                        break
-                if goal is None or not self.move_to(start_q):
+                # Waypoints every `tilt_waypoint_deg` out to the cap (each solved from the
+                # last, so the joints move little and the board tilts about its axis
+                # only), driven through while the camera looks every `tilt_step_deg`.
+                waypoints, seed_q = [], start_q
+                for angle in np.arange(s.tilt_waypoint_deg, cap + 1e-9, s.tilt_waypoint_deg):
+                    pose = start_board @ _axis_rotation(axis, sign * math.radians(min(angle, cap)))
+                    q = self.flange_target(pose, fit.flange_from_board, near=seed_q)
+                    if q is None or np.abs(q - seed_q).max() > 1.0:
+                        break  # unreachable, or only by swinging the arm around
+                    waypoints.append(q)
+                    seed_q = q
+                if not waypoints or not self.move_to(start_q):
+                    self.progress(f"{name}: no tilt search {key}: " + ("unreachable" if not waypoints else "no way back to the start"))
                     limits[key] = 0.0
                     continue
-                search = _TiltSearch(self, name, start_rotation, s.tilt_step_deg)
-                self.move_through(goal, search.watch, self.cell.config.time_step)
+                search = _TiltSearch(self, name, start_flange, fit.flange_from_board, axis, sign, s.tilt_step_deg)
+                for q in waypoints:
+                    if not self.move_through(q, search.watch, self.cell.config.time_step) or search.stopped:
+                        break
                 # Back off to the last tilt that was seen, and keep a still frame there.
                 limits[key] = float(min(search.angle, cap))
                 if search.q is not None and not self._full(name) and self.move_to(search.q):
-                    obs = self.observe(name, tilted=True, colour=False)
+                    obs = self.observe(name, tilted=True)
                     if obs is not None:
                         obs.phase = "tilt"
                     self._accept(obs)
@@ -459,14 +532,25 @@ class Calibrator:
         board_half = np.array(self.board.size) / 2
         tilts = [(0, 1), (1, 1), (0, -1), (1, -1), (2, 1), (2, -1)]
         n_pos = 0
-        for factor in s.distance_factors:
-            d = distance * factor
-            # Where the board's centre may go and keep the whole board in the image.
-            usable = np.maximum(half_fov - 1.3 * board_half.max() / d, 0.02)
-            for radius, count in zip(s.stage_radii, s.stage_positions):
-                for j in range(count):
+        # Each position is visited at every distance in turn (Paper I runs the whole
+        # trajectory again 20 % farther; interleaved, a run cut short by `max_frames`
+        # still has both distances, which fix the focal length).
+        for radius, count in zip(s.stage_radii, s.stage_positions):
+            for j in range(count):
+                tilted = s.tilt_fraction > 0 and n_pos % 2 == 1
+                tilt = np.eye(4)
+                if tilted:
+                    axis, sign = tilts[(n_pos // 2) % len(tilts)]
+                    label = ["pitch", "yaw", "roll"][axis]
+                    lim = limits.get(f"{label}{'+' if sign > 0 else '-'}", 0.0)
+                    tilt = _axis_rotation(axis, sign * math.radians(s.tilt_fraction * lim))
+                n_pos += 1
+                for factor in s.distance_factors:
                     if self._full(name):
                         break
+                    d = distance * factor
+                    # Where the board's centre may go and keep the whole board in the image.
+                    usable = np.maximum(half_fov - 1.3 * board_half.max() / d, 0.02)
                     phase = 2 * math.pi * j / count + (math.pi / 4 if count == 4 else 0.0)
                     xy = radius * usable * np.array([math.cos(phase), math.sin(phase)])
                     ray = np.array([xy[0], xy[1], 1.0])
@@ -478,13 +562,7 @@ class Calibrator:
                     cam_from_board = np.eye(4)
                     cam_from_board[:3, 0], cam_from_board[:3, 1], cam_from_board[:3, 2] = xb, np.cross(zb, xb), zb
                     cam_from_board[:3, 3] = centre
-                    tilted = s.tilt_fraction > 0 and n_pos % 2 == 1
-                    if tilted:
-                        axis, sign = tilts[(n_pos // 2) % len(tilts)]
-                        label = ["pitch", "yaw", "roll"][axis]
-                        lim = limits.get(f"{label}{'+' if sign > 0 else '-'}", 0.0)
-                        cam_from_board = cam_from_board @ _axis_rotation(axis, sign * math.radians(s.tilt_fraction * lim))
-                    n_pos += 1
+                    cam_from_board = cam_from_board @ tilt
                     if not self.reach_board_pose(fit.base_from_camera @ cam_from_board, fit.flange_from_board):
                         continue  # unreachable or colliding: skip (Paper I)
                     obs = self.observe(name, tilted=tilted)
@@ -496,7 +574,7 @@ class Calibrator:
         # Steps 6-7: lenses, then eye-to-hand again through the corrected lenses.
         return self.finish(name)
 
-    def finish(self, name: str, observations: list[Observation] | None = None) -> CameraCalibration:
+    def finish(self, name: str, observations: list[Observation] | None = None, *, screened: bool = False) -> CameraCalibration:
         """Steps 6-7 from the frames (the camera's accepted ones, or `observations`):
         Zhang's method for each lens (Paper I), refined with the robot as the rig
         (`calibrate_lens_on_robot`), the colour-depth offset, and eye-to-hand again
@@ -524,10 +602,24 @@ class Calibrator:
                 name, obs, [o.ir for o in obs], fit.flange_from_board, depth_lens.K, depth_lens.distortion
             )
             self.solver_time += time.perf_counter() - t
+            if not screened:
+                # A frame the lens and pose cannot explain (a corner found in the wrong
+                # place) is dropped once, and everything is solved again without it.
+                good = self._explained(obs, [o.ir for o in obs], fit.flange_from_board, depth_lens, base_from_ir)
+                if not good.all():
+                    self.progress(f"{name}: {int((~good).sum())} frame(s) the lens and pose cannot explain dropped")
+                    return self.finish(name, [o for o, g in zip(obs, good) if g], screened=True)
+                screened = True
             previous = fit.flange_from_board
             fit = self._fit(name, depth_lens.K, depth_lens.distortion, previous, estimate_mount=True, obs=obs)
             if np.abs(fit.flange_from_board - previous).max() < 1e-5:
                 break
+        if depth_lens.rms > self.settings.max_reprojection_px:
+            raise DegeneratePoses(
+                name,
+                f"the lens and pose explain the corners only to {depth_lens.rms:.1f} px rms "
+                f"(> {self.settings.max_reprojection_px} px): too few or too similar frames",
+            )
         t = time.perf_counter()
         colour_lens, offset = None, None
         both = [o for o in obs if o.colour is not None]
@@ -540,6 +632,13 @@ class Calibrator:
             colour_lens, base_from_colour = self._lens_on_robot(
                 name, both, colour_detections, fit.flange_from_board, colour_zhang.K, colour_zhang.distortion
             )
+            good = self._explained(both, colour_detections, fit.flange_from_board, colour_lens, base_from_colour)
+            if not good.all() and good.sum() >= 8:
+                both = [o for o, g in zip(both, good) if g]
+                colour_detections = [d for d, g in zip(colour_detections, good) if g]
+                colour_lens, base_from_colour = self._lens_on_robot(
+                    name, both, colour_detections, fit.flange_from_board, colour_lens.K, colour_lens.distortion
+                )
             offset = np.linalg.inv(base_from_ir) @ base_from_colour
         self.solver_time += time.perf_counter() - t
         pose = base_from_ir if self.settings.pose_from == "pixels" else fit.base_from_camera
@@ -565,6 +664,16 @@ class Calibrator:
             colour_region=_region(colour_detections) if colour_lens is not None else None,
             start_q=[float(v) for v in self.start_poses[name][1]] if name in self.start_poses else None,
         )
+
+    def _explained(self, obs, detections, mount, lens, base_from_camera) -> np.ndarray:
+        """Per frame: do the lens and pose reproject its corners within max(1 px, 4× the
+        median frame's rms)?"""
+        errors = reprojection_errors(
+            np.concatenate([_transform(o.base_from_flange @ mount, self.board_points) for o in obs]),
+            np.concatenate([d.corners for d in detections]), lens.K, lens.distortion, base_from_camera,
+        ).reshape(len(obs), -1)
+        per_frame = np.sqrt((errors**2).mean(axis=1))
+        return per_frame <= max(1.0, 4 * float(np.median(per_frame)))
 
     def _lens_on_robot(self, name, obs, detections, mount, K_guess, dist_guess):
         points = np.concatenate([_transform(o.base_from_flange @ mount, self.board_points) for o in obs])
