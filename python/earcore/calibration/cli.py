@@ -84,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
             if result.moved:
                 moved.append(name)
         if moved:
-            _say(f"recalibrate with: earcore calibrate --out {args.out} --camera {' '.join(moved)}")
+            bump = f" --bump {' '.join(args.bump)}" if args.bump else ""  # the simulation is rebuilt each run
+            _say(f"recalibrate with: earcore calibrate --out {args.out} --camera {' '.join(moved)}{bump}")
         return 1 if moved else 0
 
     started = time.perf_counter()

@@ -80,7 +80,7 @@ class CalibrationSettings:
     roll_limit_deg: float = 45.0
     tilt_limit_deg: float = 60.0
     #: The tilt search drives through waypoints this far apart (degrees).
-    tilt_waypoint_deg: float = 15.0
+    tilt_waypoint_deg: float = 22.5
     #: Tilt the board along the staged trajectory (fraction of each limit); 0: no tilting.
     tilt_fraction: float = 0.7
     #: Stages outward from the image centre: radius (fraction of the usable half-field
@@ -497,8 +497,8 @@ class Calibrator:
                 # last, so the joints move little and the board tilts about its axis
                 # only), driven through while the camera looks every `tilt_step_deg`.
                 waypoints, seed_q = [], start_q
-                for angle in np.arange(s.tilt_waypoint_deg, cap + 1e-9, s.tilt_waypoint_deg):
-                    pose = start_board @ _axis_rotation(axis, sign * math.radians(min(angle, cap)))
+                for angle in [*np.arange(s.tilt_waypoint_deg, cap - 1e-9, s.tilt_waypoint_deg), cap]:
+                    pose = start_board @ _axis_rotation(axis, sign * math.radians(angle))
                     q = self.flange_target(pose, fit.flange_from_board, near=seed_q)
                     if q is None or np.abs(q - seed_q).max() > 1.0:
                         break  # unreachable, or only by swinging the arm around
