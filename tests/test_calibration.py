@@ -377,3 +377,24 @@ def test_calibrate_command_rejects_unknown_cameras_and_missing_files(tmp_path, c
     assert "no_such_camera" in capsys.readouterr().err
     assert main(["calibrate", "--check", "--out", str(tmp_path / "missing.yaml")]) == 2
     assert "no such calibration file" in capsys.readouterr().err
+
+
+def test_table_rows_select_the_frames_they_describe():
+    from earcore.calibration.experiments import ROWS, Row, select
+    from earcore.calibration.procedure import Observation
+
+    def frame(phase, tilted=False, factor=None, radius=None, slot=None):
+        return Observation("c", np.zeros(6), np.eye(4), Detection(np.zeros((24, 2)), (8, 8)), None, np.zeros((1, 1, 1)),
+                           (0, 0), tilted, phase, factor, radius, slot)
+
+    frames = [frame("start")] + [frame("tilt", True) for _ in range(6)]
+    frames += [frame("stage", j % 2 == 1, f, r, j) for r, n in ((0.0, 1), (0.3, 6), (0.8, 12)) for j in range(n) for f in (1.0, 1.2)]
+    assert len(select(frames, ROWS[0])) == len(frames) == 45
+    no_overlap = select(frames, Row("x", overlap=False))
+    assert all(o.slot is None or o.slot % 2 == 0 for o in no_overlap) and len(no_overlap) == 7 + 2 * (1 + 3 + 6)
+    assert not any(o.tilted for o in select(frames, Row("x", tilting=False)) if o.phase == "stage")
+    assert all(o.radius is None or o.radius <= 0.5 for o in select(frames, Row("x", field="centre")))
+    twenty = select(frames, Row("x", frames=20))
+    assert len(twenty) == 20 and sum(o.phase != "stage" for o in twenty) == 7
+    radii = {o.radius for o in twenty if o.phase == "stage"}
+    assert radii == {0.0, 0.3, 0.8}  # spread over the trajectory, not its first frames

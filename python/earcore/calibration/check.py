@@ -36,7 +36,7 @@ def check_camera(calibrator: Calibrator, calibration: CameraCalibration, *, thre
     if calibration.start_q is None or calibration.flange_from_board is None:
         raise ValueError(f"camera {name!r}: the calibration has no start pose or board mount to check against")
     q = np.asarray(calibration.start_q, dtype=np.float64)
-    if not calibrator.move_to(q):
+    if not calibrator.go_to(q):
         raise RuntimeError(f"camera {name!r}: its start pose cannot be reached from here")
     obs = calibrator.observe(name, colour=False)
     if obs is None:

@@ -220,6 +220,8 @@ class Calibrator:
         self.tilt_limits: dict[str, dict[str, float]] = {}
         self.tree = self._known_geometry()
         self._planner: JointSpacePlanner | None = None
+        #: The sweep's "L" pose: open space to pass through between cameras.
+        self._home: np.ndarray | None = None
 
     # --- set-up ---------------------------------------------------------------
 
@@ -253,6 +255,13 @@ class Calibrator:
     def base_from_flange(self, q: np.ndarray) -> np.ndarray:
         return self.model.fk(q)[self.flange_link]
 
+    def go_to(self, q: np.ndarray) -> bool:
+        """`move_to` with more planning time, or by way of the sweep's open "L" pose when
+        no path is found from here (e.g. from deep in the previous camera's trajectory)."""
+        if self.move_to(q, plan_time=3.0):
+            return True
+        return self._home is not None and self.move_to(self._home, plan_time=3.0) and self.move_to(q, plan_time=3.0)
+
     def nearest_equivalent(self, q: np.ndarray) -> np.ndarray:
         """`q` with each revolute joint turned by whole turns (where its limits allow) to
         lie closest to the current state: the same pose, reached with the least motion
@@ -270,7 +279,7 @@ class Calibrator:
                     q[j] = c
         return q
 
-    def _path_to(self, q: np.ndarray) -> list[np.ndarray] | None:
+    def _path_to(self, q: np.ndarray, plan_time: float | None = None) -> list[np.ndarray] | None:
         """Waypoints from the current state to `q`: the straight motion when it is free,
         else an RRT-Connect path (OMPL, against the cell's known geometry) cut short
         wherever a straight motion skips waypoints; None when there is none."""
@@ -280,7 +289,8 @@ class Calibrator:
         if self._planner is None:
             self._planner = JointSpacePlanner(self.model, self.tree, seed=self.settings.seed)
         try:
-            path = self._planner.plan(now, q, time_limit=self.settings.plan_time, simplify=False)[0].waypoints
+            limit = self.settings.plan_time if plan_time is None else plan_time
+            path = self._planner.plan(now, q, time_limit=limit, simplify=False)[0].waypoints
         except PlanningError:
             return None
         out, i = [], 0
@@ -292,13 +302,17 @@ class Calibrator:
             i = j
         return out
 
-    def move_to(self, q: np.ndarray) -> bool:
+    def move_to(self, q: np.ndarray, plan_time: float | None = None) -> bool:
         """Drive the robot to `q` (or the same pose a whole turn nearer, per joint), by
         a planned path when the straight motion is blocked; False (and no motion) when
         no path is found."""
-        q = self.nearest_equivalent(q)
         cell = self.cell
-        path = self._path_to(q)
+        path = None
+        # The nearest turn of each joint first; the pose as given when that one has no path.
+        for candidate in (self.nearest_equivalent(q), np.asarray(q, dtype=np.float64)):
+            path = self._path_to(candidate, plan_time)
+            if path is not None:
+                break
         if path is None:
             return False
         cell.controller.follow(path)
@@ -412,6 +426,7 @@ class Calibrator:
             if not self.reach_board_pose(self.model.base @ board_pose, s.mount):
                 raise CalibrationError("all", f"the sweep pose (elevation {elevation}°) is unreachable")
             q0 = self.cell.joint_positions
+            self._home = q0.copy()
             lo, hi = self.model.joint_limits[0]
             # One continuous turn, the way the base joint's limits allow.
             turn = min(2 * math.pi, hi - q0[0]) if hi - q0[0] >= q0[0] - lo else -min(2 * math.pi, q0[0] - lo)
@@ -474,7 +489,7 @@ class Calibrator:
         self.observations[name] = []
         motion_before = self.motion_time
         # Steps 1-2: the start pose and a first eye-to-hand with the mount as designed.
-        if not self.move_to(self.start_poses[name][1]):
+        if not self.go_to(self.start_poses[name][1]):
             raise CalibrationError(name, "the start pose cannot be reached")
         first = self.observe(name)
         if first is None:

@@ -15,6 +15,8 @@ type PointsAndIndex<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>
 type IndexAndValues<'py> = (Bound<'py, PyArray1<u32>>, Bound<'py, PyArray1<f64>>);
 /// A vector and a float per point.
 type VectorsAndValues<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>);
+/// A transform, an inlier mask and the inlier RMSE.
+type TransformInliersRmse<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>, f64);
 /// Centroids and optional per-voxel means.
 type Centroids<'py> = (Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyArray2<f64>>>);
 
@@ -256,7 +258,7 @@ pub fn rigid_fit_ransac<'py>(
     threshold: f64,
     iterations: usize,
     seed: u64,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>, f64)> {
+) -> PyResult<TransformInliersRmse<'py>> {
     let (s, d) = (self::points(src, "src")?, self::points(dst, "dst")?);
     let (s, d) = (s.as_slice()?, d.as_slice()?);
     let fit = py

@@ -162,7 +162,7 @@ fn fit_subset(
 ) -> Result<Matrix4<f64>> {
     let w = |i: usize| weights.map_or(1.0, |w| w[i]);
     let total: f64 = idx.iter().map(|&i| w(i)).sum();
-    if !(total > 0.0) {
+    if total.is_nan() || total <= 0.0 {
         return Err(Error::InvalidArgument("the weights sum to zero".into()));
     }
     let mut cs = Vector3::zeros();
@@ -188,7 +188,7 @@ fn fit_subset(
         eig.iter().cloned().fold(0.0, f64::max),
     );
     let middle = eig.sum() - lo - hi;
-    if !(hi > 0.0) || middle <= 1e-12 * hi {
+    if hi.is_nan() || hi <= 0.0 || middle <= 1e-12 * hi {
         return Err(Error::InvalidArgument(
             "the source points are (nearly) collinear: the rotation about their line is undetermined".into(),
         ));
