@@ -2,6 +2,8 @@
 //! distortion (OpenCV's model and pixel convention: pixel (u, v) has its centre at
 //! (u, v); depth is the z coordinate in the camera frame, in metres).
 
+use std::sync::{Arc, Mutex, OnceLock};
+
 use crate::error::{Error, Result};
 use crate::na::Matrix4;
 
@@ -113,7 +115,10 @@ pub fn depth_to_points(
     if let Some(pose) = base_from_camera {
         crate::geometry::check_rigid(pose, "base_from_camera")?;
     }
-    let distortion = distortion.filter(|d| !d.is_zero());
+    // A lens's undistorted rays are the same every frame: inverted once per lens.
+    let rays = distortion
+        .filter(|d| !d.is_zero())
+        .map(|d| ray_table(k, d, frame.width, frame.height));
     let mut points = Vec::with_capacity(frame.depth.len());
     let mut pixels = Vec::with_capacity(frame.depth.len());
     for v in 0..frame.height {
@@ -124,10 +129,12 @@ pub fn depth_to_points(
             if !(z > 0.0 && z >= min_depth && z <= max_depth) {
                 continue; // also drops NaN
             }
-            let xd = (u as f64 - k.cx) / k.fx;
-            let (x, y) = match distortion {
-                Some(d) => d.undistort(xd, yd),
-                None => (xd, yd),
+            let (x, y) = match &rays {
+                Some(table) => {
+                    let r = table[v * frame.width + u];
+                    (r[0], r[1])
+                }
+                None => ((u as f64 - k.cx) / k.fx, yd),
             };
             points.push([x * z, y * z, z]);
             pixels.push((v * frame.width + u) as u32);
@@ -137,4 +144,103 @@ pub fn depth_to_points(
         crate::geometry::transform_points(pose, &mut points);
     }
     Ok((points, pixels))
+}
+
+type LensKey = [u64; 11];
+/// Per-pixel undistorted rays of one lens.
+type RayTable = Arc<Vec<[f64; 2]>>;
+
+/// The undistorted normalised ray (x, y) of every pixel of a `width × height` image
+/// through `k` and `d`, computed once per lens and kept for the next calls (the last
+/// eight lenses: one per camera of a cell).
+fn ray_table(k: &Intrinsics, d: &BrownConrady, width: usize, height: usize) -> RayTable {
+    static CACHE: OnceLock<Mutex<Vec<(LensKey, RayTable)>>> = OnceLock::new();
+    let key: LensKey = [
+        width as u64,
+        height as u64,
+        k.fx.to_bits(),
+        k.fy.to_bits(),
+        k.cx.to_bits(),
+        k.cy.to_bits(),
+        d.k1.to_bits(),
+        d.k2.to_bits(),
+        d.p1.to_bits(),
+        d.p2.to_bits(),
+        d.k3.to_bits(),
+    ];
+    let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
+    // A panic elsewhere while holding the lock leaves the cache usable.
+    if let Some((_, table)) = cache
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .iter()
+        .find(|(k2, _)| *k2 == key)
+    {
+        return Arc::clone(table);
+    }
+    let mut table = Vec::with_capacity(width * height);
+    for v in 0..height {
+        let yd = (v as f64 - k.cy) / k.fy;
+        for u in 0..width {
+            let (x, y) = d.undistort((u as f64 - k.cx) / k.fx, yd);
+            table.push([x, y]);
+        }
+    }
+    let table = Arc::new(table);
+    let mut entries = cache.lock().unwrap_or_else(|e| e.into_inner());
+    entries.insert(0, (key, Arc::clone(&table)));
+    entries.truncate(8);
+    table
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points through the cached ray tables equal the per-pixel inversion, for two
+    /// lenses used in turn (the cache must not mix them up).
+    #[test]
+    fn cached_rays_match_the_direct_inversion() {
+        let (w, h) = (40, 30);
+        let depth: Vec<f32> = (0..w * h).map(|i| 0.5 + (i % 7) as f32 * 0.1).collect();
+        let frame = DepthFrame {
+            depth: &depth,
+            width: w,
+            height: h,
+            scale: 1.0,
+        };
+        let k = Intrinsics {
+            fx: 30.0,
+            fy: 31.0,
+            cx: 19.5,
+            cy: 14.5,
+        };
+        let lenses = [
+            BrownConrady {
+                k1: 0.09,
+                k2: -0.27,
+                p1: 0.001,
+                p2: -0.002,
+                k3: 0.09,
+            },
+            BrownConrady {
+                k1: -0.1,
+                k2: 0.25,
+                ..Default::default()
+            },
+        ];
+        for round in 0..2 {
+            for d in &lenses {
+                let (points, pixels) =
+                    depth_to_points(&frame, &k, Some(d), 0.0, 10.0, None).unwrap();
+                assert_eq!(points.len(), w * h, "round {round}");
+                for (p, &i) in points.iter().zip(&pixels) {
+                    let (u, v) = (i as usize % w, i as usize / w);
+                    let (x, y) = d.undistort((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy);
+                    let z = f64::from(depth[i as usize]);
+                    assert_eq!(*p, [x * z, y * z, z]);
+                }
+            }
+        }
+    }
 }
