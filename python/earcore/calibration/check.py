@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from earcore.calibration.board import corner_points
+from earcore.calibration.eye_to_hand import apply_pose
 from earcore.calibration.procedure import Calibrator
 from earcore.calibration.store import CameraCalibration
 
@@ -45,11 +46,8 @@ def check_camera(calibrator: Calibrator, calibration: CameraCalibration, *, thre
         obs.ir, obs.depth, calibration.depth_K, calibration.depth_distortion,
         method=calibrator.settings.corner_method, origin=obs.origin,
     )
-    board = calibrator.board_points
-    in_base = board @ (obs.base_from_flange @ calibration.flange_from_board)[:3, :3].T
-    in_base += (obs.base_from_flange @ calibration.flange_from_board)[:3, 3]
-    camera_from_base = np.linalg.inv(calibration.base_from_camera)
-    predicted = in_base @ camera_from_base[:3, :3].T + camera_from_base[:3, 3]
+    camera_from_board = np.linalg.inv(calibration.base_from_camera) @ obs.base_from_flange @ calibration.flange_from_board
+    predicted = apply_pose(camera_from_board, calibrator.board_points)
     ok = np.isfinite(measured).all(axis=1)
     residual = float(np.linalg.norm(measured[ok] - predicted[ok], axis=1).mean()) if ok.any() else float("nan")
     return PoseCheck(name, True, residual, not (residual <= threshold))

@@ -18,7 +18,7 @@ import numpy as np
 from earcore.calibration.errors import DegeneratePoses, TooFewFrames
 from earcore.registration import rigid_fit, rigid_fit_ransac
 
-__all__ = ["EyeToHand", "fit_eye_to_hand", "rotation_spread_deg"]
+__all__ = ["EyeToHand", "apply_pose", "fit_eye_to_hand", "rotation_spread_deg"]
 
 
 @dataclass
@@ -39,8 +39,9 @@ def rotation_spread_deg(poses: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max())
 
 
-def _apply(m: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return p @ m[:3, :3].T + m[:3, 3]
+def apply_pose(m: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points (N, 3) carried by the 4×4 transform `m`."""
+    return points @ m[:3, :3].T + m[:3, 3]
 
 
 def fit_eye_to_hand(
@@ -90,7 +91,7 @@ def fit_eye_to_hand(
     inliers = np.ones(len(cam), bool)
     x = np.eye(4)
     for it in range(iterations if estimate_mount else 1):
-        robot = np.einsum("kij,kj->ki", flanges[frame], np.c_[_apply(z, board), np.ones(len(board))])[:, :3]
+        robot = np.einsum("kij,kj->ki", flanges[frame], np.c_[apply_pose(z, board), np.ones(len(board))])[:, :3]
         x, inliers, rmse = rigid_fit_ransac(cam, robot, threshold, 200, it)
         if inliers.sum() < 12:
             raise DegeneratePoses(
@@ -101,7 +102,7 @@ def fit_eye_to_hand(
         if not estimate_mount:
             break
         # The camera's corners carried into the flange frame, fitted to the board's.
-        seen = _apply(x, cam)
+        seen = apply_pose(x, cam)
         local = np.einsum("kij,kj->ki", np.linalg.inv(flanges)[frame], np.c_[seen, np.ones(len(seen))])[:, :3]
         try:
             z_new = rigid_fit(board[inliers], local[inliers])
@@ -111,6 +112,6 @@ def fit_eye_to_hand(
         z = z_new
         if step < 1e-9:
             break
-    robot = np.einsum("kij,kj->ki", flanges[frame], np.c_[_apply(z, board), np.ones(len(board))])[:, :3]
-    residual = np.linalg.norm(_apply(x, cam) - robot, axis=1)[inliers]
+    robot = np.einsum("kij,kj->ki", flanges[frame], np.c_[apply_pose(z, board), np.ones(len(board))])[:, :3]
+    residual = np.linalg.norm(apply_pose(x, cam) - robot, axis=1)[inliers]
     return EyeToHand(x, z, float(np.sqrt(np.mean(residual**2))), len(np.unique(frame[inliers])), int(inliers.sum()))

@@ -24,22 +24,16 @@ class LensFit:
 
 
 def _lens_flags(model: str) -> int:
+    """OpenCV's calibration flags for a lens model."""
     cv2 = _cv2()
-    return {
+    flags = {
         "full": 0,  # k1, k2, p1, p2, k3
         "radial": cv2.CALIB_ZERO_TANGENT_DIST,  # k1, k2, k3
         "radial2": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,  # k1, k2
-    }[model]
-
-
-class _Flags(dict):
-    def __missing__(self, model: str) -> int:
-        if model not in ("full", "radial", "radial2"):
-            raise ValueError(f"lens_model must be 'full', 'radial' or 'radial2', got {model!r}")
-        return _lens_flags(model)
-
-
-_LENS_FLAGS = _Flags()
+    }
+    if model not in flags:
+        raise ValueError(f"lens_model must be one of {sorted(flags)}, got {model!r}")
+    return flags[model]
 
 
 def _object_points(board_points: np.ndarray, n: int) -> list[np.ndarray]:
@@ -70,7 +64,7 @@ def calibrate_lens(
     cover = (np.ptp(allpx[:, 0]) / size[0], np.ptp(allpx[:, 1]) / size[1])
     if min(cover) < 0.3:
         raise DegeneratePoses(camera, f"the board covered only {cover[0]:.0%} × {cover[1]:.0%} of the image")
-    flags = cv2.CALIB_USE_INTRINSIC_GUESS | _LENS_FLAGS[lens_model]
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS | _lens_flags(lens_model)
     rms, K, dist, _, _ = cv2.calibrateCamera(
         _object_points(board_points, len(detections)), image_points, size, K_guess.astype(np.float64).copy(), None, flags=flags
     )
@@ -150,7 +144,7 @@ def calibrate_lens_on_robot(
     ok, rvec, tvec = cv2.solvePnP(points_base, pixels, K_guess, dist0, flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok:
         raise DegeneratePoses(camera, "no camera pose explains the corners (PnP failed)")
-    flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_USE_EXTRINSIC_GUESS | _LENS_FLAGS[lens_model]
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_USE_EXTRINSIC_GUESS | _lens_flags(lens_model)
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
         [points_base.astype(np.float32)], [pixels.astype(np.float32).reshape(-1, 1, 2)], image_size,
         K_guess.astype(np.float64).copy(), dist0, rvecs=(rvec,), tvecs=(tvec,), flags=flags,

@@ -27,12 +27,12 @@ import numpy as np
 import earcore
 from earcore.calibration.board import Detection, corner_points, detect_board
 from earcore.calibration.errors import BoardNotSeen, CalibrationError, DegeneratePoses, TooFewFrames
-from earcore.calibration.eye_to_hand import EyeToHand, fit_eye_to_hand
+from earcore.calibration.eye_to_hand import EyeToHand, apply_pose, fit_eye_to_hand
 from earcore.calibration.intrinsics import calibrate_lens, calibrate_lens_on_robot, reprojection_errors
 from earcore.calibration.store import Calibration, CalibrationFileError, CameraCalibration
 from earcore.cloud import box_voxel_centres
 from earcore.planning.errors import PlanningError
-from earcore.planning.ik import UnreachablePose, solve_ik
+from earcore.planning.ik import UnreachablePose, rotation_vector, solve_ik
 from earcore.planning.rrt import JointSpacePlanner
 from earcore.sim.tools import Checkerboard
 
@@ -52,10 +52,6 @@ def _region(detections: list[Detection]) -> tuple[int, int, int, int]:
     px = np.concatenate([d.corners for d in detections])
     lo, hi = np.floor(px.min(axis=0)).astype(int), np.ceil(px.max(axis=0)).astype(int)
     return int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])
-
-
-def _transform(m: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return points @ m[:3, :3].T + m[:3, 3]
 
 
 def _axis_rotation(axis: int, angle: float) -> np.ndarray:
@@ -171,13 +167,7 @@ class _TiltSearch:
     def tilt(self, q: np.ndarray) -> float:
         """Signed tilt (degrees) of the board about the searched axis since the start."""
         turn = self.start.T @ self.calibrator.base_from_flange(q)[:3, :3]
-        in_board = self.mount.T @ turn @ self.mount
-        angle = math.acos(float(np.clip((np.trace(in_board) - 1) / 2, -1, 1)))
-        if angle < 1e-9:
-            return 0.0
-        axis = np.array([in_board[2, 1] - in_board[1, 2], in_board[0, 2] - in_board[2, 0], in_board[1, 0] - in_board[0, 1]])
-        axis /= 2 * math.sin(angle) if math.sin(angle) > 1e-9 else 1.0
-        return math.degrees(angle * axis[self.axis]) * self.sign
+        return math.degrees(rotation_vector(self.mount.T @ turn @ self.mount)[self.axis]) * self.sign
 
     def watch(self, q: np.ndarray) -> bool:
         angle = self.tilt(q)
@@ -680,21 +670,24 @@ class Calibrator:
             start_q=[float(v) for v in self.start_poses[name][1]] if name in self.start_poses else None,
         )
 
+    def _corners_in_base(self, obs: list[Observation], mount: np.ndarray) -> np.ndarray:
+        """Every frame's board corners placed in the base frame by forward kinematics."""
+        return np.concatenate([apply_pose(o.base_from_flange @ mount, self.board_points) for o in obs])
+
     def _explained(self, obs, detections, mount, lens, base_from_camera) -> np.ndarray:
         """Per frame: do the lens and pose reproject its corners within max(1 px, 4× the
         median frame's rms)?"""
         errors = reprojection_errors(
-            np.concatenate([_transform(o.base_from_flange @ mount, self.board_points) for o in obs]),
+            self._corners_in_base(obs, mount),
             np.concatenate([d.corners for d in detections]), lens.K, lens.distortion, base_from_camera,
         ).reshape(len(obs), -1)
         per_frame = np.sqrt((errors**2).mean(axis=1))
         return per_frame <= max(1.0, 4 * float(np.median(per_frame)))
 
     def _lens_on_robot(self, name, obs, detections, mount, K_guess, dist_guess):
-        points = np.concatenate([_transform(o.base_from_flange @ mount, self.board_points) for o in obs])
         pixels = np.concatenate([d.corners for d in detections])
         return calibrate_lens_on_robot(
-            points, pixels, detections[0].image_size, K_guess, dist_guess, camera=name, lens_model=self.settings.lens_model
+            self._corners_in_base(obs, mount), pixels, detections[0].image_size, K_guess, dist_guess, camera=name, lens_model=self.settings.lens_model
         )
 
     def run(self, names: list[str] | None = None) -> dict[str, CameraCalibration]:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from earcore.calibration.eye_to_hand import rotation_spread_deg
 from earcore.calibration.intrinsics import lens_displacement
 from earcore.calibration.procedure import nominal_mount
 from earcore.calibration.store import CameraCalibration
@@ -49,8 +50,8 @@ def calibration_cell(
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    """Angle (degrees) of the rotation between two poses."""
+    return rotation_spread_deg(np.stack([a, b]))
 
 
 @dataclass

@@ -27,7 +27,7 @@ class IkResult:
     iterations: int
 
 
-def _rotation_vector(r: np.ndarray) -> np.ndarray:
+def rotation_vector(r: np.ndarray) -> np.ndarray:
     """Axis × angle of a rotation matrix."""
     cos = np.clip((np.trace(r) - 1) / 2, -1.0, 1.0)
     angle = np.arccos(cos)
@@ -43,7 +43,7 @@ def _rotation_vector(r: np.ndarray) -> np.ndarray:
 
 
 def _pose_error(current: np.ndarray, target: np.ndarray) -> np.ndarray:
-    return np.r_[target[:3, 3] - current[:3, 3], _rotation_vector(target[:3, :3] @ current[:3, :3].T)]
+    return np.r_[target[:3, 3] - current[:3, 3], rotation_vector(target[:3, :3] @ current[:3, :3].T)]
 
 
 def solve_ik(

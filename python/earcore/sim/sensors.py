@@ -46,6 +46,13 @@ def _focal(pixels: int, fov_deg: float) -> float:
     return 0.5 * pixels / math.tan(math.radians(fov_deg) / 2)
 
 
+def _pinhole(width: int, height: int, fov_h_deg: float, fov_v_deg: float) -> np.ndarray:
+    """K (OpenCV convention: pixel (u, v) centred at (u, v)) of a camera with these
+    image size and fields of view."""
+    fx, fy = _focal(width, fov_h_deg), _focal(height, fov_v_deg)
+    return np.array([[fx, 0, (width - 1) / 2], [0, fy, (height - 1) / 2], [0, 0, 1.0]])
+
+
 @dataclass(frozen=True)
 class ColourSensor:
     """The colour camera of an RGB-D sensor: its own pinhole, lens and pose relative to
@@ -62,8 +69,7 @@ class ColourSensor:
 
     @property
     def intrinsics(self) -> np.ndarray:
-        fx, fy = _focal(self.width, self.fov_h_deg), _focal(self.height, self.fov_v_deg)
-        return np.array([[fx, 0, (self.width - 1) / 2], [0, fy, (self.height - 1) / 2], [0, 0, 1.0]])
+        return _pinhole(self.width, self.height, self.fov_h_deg, self.fov_v_deg)
 
     @property
     def depth_from_colour(self) -> np.ndarray:
@@ -130,7 +136,7 @@ class SensorModel:
     @property
     def intrinsics(self) -> np.ndarray:
         """The 3×3 camera matrix K (OpenCV convention: pixel (u, v) centred at (u, v))."""
-        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+        return _pinhole(self.width, self.height, self.fov_h_deg, self.fov_v_deg)
 
     def scaled(self, factor: float) -> SensorModel:
         """The same sensor at a fraction of the resolution (for quick runs)."""
