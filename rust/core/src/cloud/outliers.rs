@@ -4,6 +4,7 @@
 
 use super::kdtree::KdTree;
 use crate::error::{Error, Result};
+use crate::floor::cell_of;
 use crate::threads;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -134,7 +135,7 @@ struct Grid {
 impl Grid {
     fn new(points: &[[f64; 3]], cell: f64) -> Self {
         let inv = 1.0 / cell;
-        let key = |p: &[f64; 3]| p.map(|c| (c * inv).floor() as i64);
+        let key = |p: &[f64; 3]| cell_of(p, inv);
         let mut keyed: Vec<([i64; 3], u32)> = points
             .iter()
             .enumerate()

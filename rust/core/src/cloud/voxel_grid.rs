@@ -5,6 +5,7 @@
 use rustc_hash::FxHashMap;
 
 use crate::error::{Error, Result};
+use crate::floor::cell_of;
 
 /// Returns the centroids (in order of each voxel's first point) and, when `values`
 /// (`stride` numbers per point) are given, their per-voxel means.
@@ -38,9 +39,8 @@ pub fn voxel_downsample(
                 "point {i} {p:?} is not finite"
             )));
         }
-        let key = p.map(|c| (c * inv).floor() as i64);
         let next = sums.len() as u32;
-        let slot = *slot_of.entry(key).or_insert(next) as usize;
+        let slot = *slot_of.entry(cell_of(p, inv)).or_insert(next) as usize;
         if slot == sums.len() {
             sums.push([0.0; 3]);
             counts.push(0);

@@ -4,6 +4,8 @@
 //! `double`; the conversions below keep those precisions so that a point lands in
 //! the same cell here as in OctoMap, bit for bit.
 
+use crate::floor::fast_floor;
+
 /// Tree depth; OctoMap's `OcTree` is fixed at 16 levels.
 pub const TREE_DEPTH: u32 = 16;
 /// Key of the cell whose lower corner is the origin (OctoMap's `tree_max_val`).
@@ -87,22 +89,6 @@ fn compact(code: u64) -> u16 {
     x = (x | (x >> 8)) & 0x0000_ff00_00ff;
     x = (x | (x >> 16)) & 0xffff;
     x as u16
-}
-
-/// `x.floor()` without a libm call (baseline x86-64 has no rounding instruction):
-/// exact for |x| < 2^52, and NaN or huge values stay out of the key range.
-#[inline(always)]
-fn fast_floor(x: f64) -> f64 {
-    if x.abs() < 4_503_599_627_370_496.0 {
-        let t = x as i64 as f64; // truncates toward zero, exactly
-        if t > x {
-            t - 1.0
-        } else {
-            t
-        }
-    } else {
-        x
-    }
 }
 
 /// Conversions between metric coordinates and keys for one resolution.
@@ -241,35 +227,6 @@ mod tests {
         assert_eq!(c.coord_to_key_axis_checked(1638.39), Some(65535));
         assert_eq!(c.coord_to_key_axis_checked(1638.4), None);
         assert_eq!(c.coord_to_key_axis_checked(-1638.4), Some(0));
-    }
-
-    #[test]
-    fn fast_floor_is_floor() {
-        for x in [
-            0.0,
-            -0.0,
-            0.5,
-            -0.5,
-            1.0,
-            -1.0,
-            32767.999,
-            -32768.0001,
-            1e300,
-            -1e300,
-            4.6e15,
-            -4.6e15,
-            1e-320,
-        ] {
-            assert_eq!(fast_floor(x), x.floor(), "{x}");
-        }
-        assert!(fast_floor(f64::NAN).is_nan());
-        let mut v = 1e-3f64;
-        while v < 1e6 {
-            for x in [v, -v, v.next_up(), -v.next_up()] {
-                assert_eq!(fast_floor(x), x.floor(), "{x}");
-            }
-            v *= 1.0001;
-        }
     }
 
     #[test]

@@ -9,6 +9,7 @@
 //! answer is exact; the distance field only makes it fast.
 
 use crate::error::{Error, Result};
+use crate::floor::fast_floor;
 use crate::octree::{OcTree, OcTreeKey, TREE_DEPTH};
 use crate::robot::body::Body;
 use crate::robot::capsule::segment_box_closest;
@@ -246,7 +247,7 @@ impl VoxelIndex {
         let mut c = [0usize; 3];
         let mut centre = [0.0; 3];
         for a in 0..3 {
-            let g = (p[a] / self.resolution).floor();
+            let g = fast_floor(p[a] / self.resolution);
             let local = g as i64 - self.origin[a];
             if !(g.is_finite() && local >= 0 && (local as usize) < self.dims[a]) {
                 return None;
