@@ -16,7 +16,7 @@ from earcore.sim.camera import SimulatedCamera  # noqa: E402
 from earcore.sim.config import CameraConfig, RunConfig, dump_toml, load_config  # noqa: E402
 from earcore.sim.controller import JointTrajectoryController  # noqa: E402
 from earcore.sim.person import MINIMUM_JERK_PEAK, HumanArm, Reach  # noqa: E402
-from earcore.sim.sensors import SENSORS  # noqa: E402
+from earcore.sim.sensors import SENSORS, DepthBias, radius2_grid  # noqa: E402
 from earcore.synthetic import look_at  # noqa: E402
 
 
@@ -38,7 +38,7 @@ def plane_scene(client, normal_angles=(0.35, 0.2)):
     return normal, np.array([0, 0, 0.3]) + 0.001 * normal
 
 
-@pytest.mark.parametrize("name", sorted(SENSORS))
+@pytest.mark.parametrize("name", sorted(n for n, s in SENSORS.items() if s.has_depth))
 def test_depth_of_a_plane_back_projects_onto_it(client, name):
     sensor = SENSORS[name]
     normal, point = plane_scene(client)
@@ -60,14 +60,17 @@ def test_depth_of_a_plane_back_projects_onto_it(client, name):
     # Within the noise model: 4 σ at the farthest valid depth plus the quantisation step.
     z = frame.depth[frame.depth > 0]
     step = z.max() ** 2 / (8 * 580.0 * 0.075) if sensor.baseline else sensor.depth_step
-    bound = 4 * sensor.sigma(z.max(), np.radians(sensor.max_incidence_deg)) + step
+    rho2 = radius2_grid(K, sensor.width, sensor.height)
+    bias = np.abs(sensor.depth_bias.error(frame.depth, rho2))[frame.depth > 0].max()
+    bound = 4 * sensor.sigma(z.max(), np.radians(sensor.max_incidence_deg)) + step + bias
     assert np.abs(offsets).max() < bound
 
 
 @pytest.mark.parametrize("name", ["kinect_v2", "f200"])
 def test_noise_statistics_match_the_documented_model(client, name):
-    """Fronto-parallel plane at several distances: bias ≈ 0 and the spread equals
-    √(σ(z)² + step²/12) (noise plus rounding to whole millimetres) within 10 %."""
+    """Fronto-parallel plane at several distances: the mean error is the documented
+    systematic error (`DepthBias`) and the spread around it √(σ(z)² + step²/12) (noise
+    plus rounding to whole millimetres) within 10 %."""
     sensor = SENSORS[name].scaled(0.5)
     visual = client.createVisualShape(pybullet.GEOM_BOX, halfExtents=[5, 5, 0.001])
     client.createMultiBody(0, -1, visual, [0, 0, -0.001])
@@ -77,10 +80,38 @@ def test_noise_statistics_match_the_documented_model(client, name):
         _, true_depth, _ = camera.render_true()
         measured = sensor.corrupt(true_depth, np.random.default_rng(3))
         valid = (measured > 0) & (true_depth > 0)
-        err = measured[valid] - true_depth[valid]
+        rho2 = radius2_grid(sensor.intrinsics, sensor.width, sensor.height)
+        err = (measured - true_depth - sensor.depth_bias.error(true_depth, rho2))[valid]
         expected = np.sqrt(sensor.sigma(z) ** 2 + sensor.depth_step**2 / 12)
         assert abs(err.mean()) < 0.1 * expected + 1e-4
         assert err.std() == pytest.approx(expected, rel=0.1)
+
+
+def test_a_colour_only_camera_has_an_image_and_no_depth(client):
+    sensor = SENSORS["webcam"]
+    normal, point = plane_scene(client)
+    camera = SimulatedCamera(client, "webcam", sensor, look_at(point + 0.8 * normal, point), rng=np.random.default_rng(1))
+    frame = camera.capture(0.0)
+    assert not sensor.has_depth and frame.colour.shape == (480, 640, 3)
+    assert (frame.segmentation >= 0).mean() > 0.9  # it sees the plane
+    assert not frame.depth.any()
+
+
+def test_depth_bias_is_the_documented_systematic_error(client):
+    """The mean depth error over a fronto-parallel plane, per image region, is the
+    documented offset + scale·z + radial·ρ²·z² (Kinect V2: +3 mm, +6 mm radial)."""
+    sensor = SENSORS["kinect_v2"].scaled(0.5)
+    assert sensor.depth_bias == DepthBias(offset=0.003, radial=0.006)
+    visual = client.createVisualShape(pybullet.GEOM_BOX, halfExtents=[5, 5, 0.001])
+    client.createMultiBody(0, -1, visual, [0, 0, -0.001])
+    camera = SimulatedCamera(client, "v2", sensor, look_at([0, 0, 1.2], [0, 0, 0], up=(0, 1, 0)), rng=np.random.default_rng(2))
+    _, true_depth, _ = camera.render_true()
+    measured = np.mean([sensor.corrupt(true_depth, np.random.default_rng(i)) - true_depth for i in range(20)], axis=0)
+    rho2 = radius2_grid(sensor.intrinsics, sensor.width, sensor.height)
+    centre, corner = rho2 < 0.02, rho2 > 0.6
+    assert measured[centre].mean() == pytest.approx(0.003 + 0.006 * rho2[centre].mean() * 1.2**2, abs=2e-4)
+    assert measured[corner].mean() == pytest.approx(0.003 + 0.006 * rho2[corner].mean() * 1.2**2, abs=2e-4)
+    assert measured[corner].mean() - measured[centre].mean() > 0.004  # the corners read deeper
 
 
 def test_structured_light_quantisation_grows_with_distance():

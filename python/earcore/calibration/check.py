@@ -1,6 +1,7 @@
 """Has a camera moved since it was calibrated? The robot shows the board where the
 camera saw it best; the corners the camera measures (depth, through its calibrated
-lens) are compared with where the calibration says they are."""
+lens; for a colour-only camera, the board's pose from its image) are compared with where
+the calibration says they are."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from earcore.calibration.board import corner_points
 from earcore.calibration.eye_to_hand import apply_pose
 from earcore.calibration.procedure import Calibrator
 from earcore.calibration.store import CameraCalibration
@@ -42,10 +42,13 @@ def check_camera(calibrator: Calibrator, calibration: CameraCalibration, *, thre
     obs = calibrator.observe(name, colour=False)
     if obs is None:
         return PoseCheck(name, False, float("nan"), True)
-    measured = corner_points(
-        obs.ir, obs.depth, calibration.depth_K, calibration.depth_distortion,
-        method=calibrator.settings.corner_method, origin=obs.origin,
-    )
+    if calibration.depth_K is not None:
+        measured = calibrator.corners_3d(obs, calibration.depth_K, calibration.depth_distortion, calibration.depth_bias)
+    elif calibration.colour_K is not None:  # a colour-only camera: where the board's pose from its image puts them
+        pose = calibrator.board_poses([obs], calibration.colour_K, calibration.colour_distortion)[0]
+        measured = apply_pose(pose, calibrator.board_points)
+    else:
+        raise ValueError(f"camera {name!r}: the calibration has no lens to measure the board with")
     camera_from_board = np.linalg.inv(calibration.base_from_camera) @ obs.base_from_flange @ calibration.flange_from_board
     predicted = apply_pose(camera_from_board, calibrator.board_points)
     ok = np.isfinite(measured).all(axis=1)

@@ -99,10 +99,16 @@ def main(argv: list[str] | None = None) -> int:
     for name, cal in results.items():
         err = evaluate(cell, cal, true_mount, calibrator.observations[name])
         ex, ey, ez = (1000 * v for v in err.translation_xyz)
-        _say(f"  {name}: {cal.frames} frames, lens {cal.depth_reprojection_rms:.2f} px rms; against the simulation's truth: "
-             f"{1000 * err.translation:.1f} mm (x {ex:+.1f}, y {ey:+.1f}, z {ez:+.1f}), {err.rotation_deg:.2f}°, "
-             f"lens within {err.depth_lens_px:.2f} px where seen, colour-depth offset {1000 * err.offset_translation:.1f} mm / "
-             f"{err.offset_rotation_deg:.2f}°")
+        rms, lens = (cal.depth_reprojection_rms, err.depth_lens_px) if cal.has_depth else (cal.colour_reprojection_rms, err.colour_lens_px)
+        line = (f"  {name}: {cal.frames} frames, lens {rms:.2f} px rms; against the simulation's truth: "
+                f"{1000 * err.translation:.1f} mm (x {ex:+.1f}, y {ey:+.1f}, z {ez:+.1f}), {err.rotation_deg:.2f}°, "
+                f"lens within {lens:.2f} px where seen")
+        if cal.has_depth:
+            line += (f", depth error left {1000 * err.depth_error_rms:.1f} mm rms, colour-depth offset "
+                     f"{1000 * err.offset_translation:.1f} mm / {err.offset_rotation_deg:.2f}°")
+        else:
+            line += " (colour only: AX = ZB)"
+        _say(line)
     return 0
 
 

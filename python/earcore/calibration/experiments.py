@@ -11,7 +11,8 @@ and compares the result with the simulation's truth:
   tilting   the tilted frames kept (yes) or only the board facing the camera (no);
   field     the whole staged trajectory (full) or its inner stages (centre);
   frames    N frames spread evenly over the trajectory (a sparser trajectory over the
-            same field of view; the start and tilt-limit frames always count).
+            same field of view; the start and tilt-limit frames always count);
+  depth     the depth error fitted and taken out (step 7's depth distortion) or not.
 
     earcore experiment calibration [--seed 0] [--out out/calibration]
 """
@@ -39,6 +40,7 @@ class Row:
     tilting: bool = True
     field: str = "full"
     frames: int | None = None
+    depth_correction: bool = True
 
 
 #: The table's rows, from everything down to a handful of frames.
@@ -53,6 +55,7 @@ ROWS = [
     Row("centre only", field="centre"),
     Row("centre only, no tilting", tilting=False, field="centre"),
     Row("10 frames", frames=10),
+    Row("no depth correction", depth_correction=False),
 ]
 
 
@@ -92,10 +95,12 @@ def calibration_table(seed: int = 0, camera_scale: float = 1.0, out: Path | None
         "frames": {name: cal.frames for name, cal in full.items()},
     }
     rows = []
+    terms = calibrator.settings.depth_error_terms
     for row in ROWS:
         entry = {"row": asdict(row), "cameras": {}}
         for name in full:
             subset = select(calibrator.observations[name], row)
+            calibrator.settings.depth_error_terms = terms if row.depth_correction else ()
             try:
                 cal = calibrator.finish(name, subset)
             except CalibrationError as exc:
@@ -112,6 +117,7 @@ def calibration_table(seed: int = 0, camera_scale: float = 1.0, out: Path | None
                 "reprojection_px": cal.depth_reprojection_rms,
                 "zhang_px": cal.zhang_reprojection_rms,
                 "lens_px": err.depth_lens_px,
+                "depth_mm": 1000 * err.depth_error_rms,
             }
         rows.append(entry)
     cell.close()
@@ -127,7 +133,7 @@ def format_table(result: dict) -> str:
     short = {n: n.replace("kinect_", "").replace("_", " ") for n in names}
     head = (f"{'experiment':<26} {'overlap':>7} {'tilt':>4} {'field':>6} | "
             + " ".join(f"{'frames ' + short[n]:>15}" for n in names)
-            + f" | {'x mm':>5} {'y mm':>5} {'z mm':>5} {'rot °':>6} {'repr px':>7} {'lens px':>7}")
+            + f" | {'x mm':>5} {'y mm':>5} {'z mm':>5} {'rot °':>6} {'repr px':>7} {'lens px':>7} {'depth mm':>8}")
     lines = [head, "-" * len(head)]
     for entry in result["rows"]:
         row = entry["row"]
@@ -141,7 +147,7 @@ def format_table(result: dict) -> str:
         lines.append(
             f"{row['label']:<26} {'yes' if row['overlap'] else 'no':>7} {'yes' if row['tilting'] else 'no':>4} {row['field']:>6} | "
             f"{frames} | {mean('x_mm'):5.2f} {mean('y_mm'):5.2f} {mean('z_mm'):5.2f} {mean('rotation_deg'):6.3f} "
-            f"{mean('reprojection_px'):7.3f} {mean('lens_px'):7.2f}"
+            f"{mean('reprojection_px'):7.3f} {mean('lens_px'):7.2f} {mean('depth_mm'):8.2f}"
             + ("" if len(ok) == len(cams) else f"  ({len(cams) - len(ok)} failed)")
         )
     run = result["run"]

@@ -7,6 +7,10 @@ With Z known, X is one rigid 3D-3D fit over all frames (RANSAC drops bad corners
 X known, Z is one too (the observed corners carried into the flange frame). Alternating
 the two converges to the joint least-squares solution; Z is only fixed when the flange
 turned between frames (Paper I tilts the board in place for it).
+
+A camera without depth sees each frame's board pose A_i = camera_from_board (PnP) instead:
+A_i · Z⁻¹ = X⁻¹ · F_i, the AX = ZB problem, solved in closed form by OpenCV's
+robot-world/hand-eye calibration (`fit_eye_to_hand_from_poses`).
 """
 
 from __future__ import annotations
@@ -18,7 +22,15 @@ import numpy as np
 from earcore.calibration.errors import DegeneratePoses, TooFewFrames
 from earcore.registration import rigid_fit, rigid_fit_ransac
 
-__all__ = ["EyeToHand", "apply_pose", "fit_eye_to_hand", "rotation_spread_deg"]
+__all__ = [
+    "EyeToHand",
+    "apply_pose",
+    "fit_eye_to_hand",
+    "fit_eye_to_hand_from_poses",
+    "mean_pose",
+    "refine_by_reprojection",
+    "rotation_spread_deg",
+]
 
 
 @dataclass
@@ -81,12 +93,8 @@ def fit_eye_to_hand(
     frame = np.concatenate(frame_of)
     if len(cam) < 3:
         raise TooFewFrames(camera, len(flanges), min_frames, "fewer than 3 corners with depth")
-    if estimate_mount and rotation_spread_deg(flanges) < min_rotation_deg:
-        raise DegeneratePoses(
-            camera,
-            f"the flange turned by at most {rotation_spread_deg(flanges):.1f}° between frames "
-            f"(< {min_rotation_deg}°): the board's mount cannot be told from the camera's pose",
-        )
+    if estimate_mount:
+        _check_rotation_variety(flanges, camera, min_rotation_deg)
     z = np.asarray(flange_from_board, dtype=np.float64)
     inliers = np.ones(len(cam), bool)
     x = np.eye(4)
@@ -115,3 +123,147 @@ def fit_eye_to_hand(
     robot = np.einsum("kij,kj->ki", flanges[frame], np.c_[apply_pose(z, board), np.ones(len(board))])[:, :3]
     residual = np.linalg.norm(apply_pose(x, cam) - robot, axis=1)[inliers]
     return EyeToHand(x, z, float(np.sqrt(np.mean(residual**2))), len(np.unique(frame[inliers])), int(inliers.sum()))
+
+
+def _check_rotation_variety(flanges: np.ndarray, camera: str, min_rotation_deg: float) -> None:
+    spread = rotation_spread_deg(flanges)
+    if spread < min_rotation_deg:
+        raise DegeneratePoses(
+            camera,
+            f"the flange turned by at most {spread:.1f}° between frames (< {min_rotation_deg}°): the board's mount "
+            "cannot be told from the camera's pose",
+        )
+
+
+def fit_eye_to_hand_from_poses(
+    camera_from_board: np.ndarray,
+    base_from_flange: np.ndarray,
+    board_points: np.ndarray,
+    *,
+    camera: str = "camera",
+    min_frames: int = 3,
+    min_rotation_deg: float = 10.0,
+    method: str = "shah",
+) -> EyeToHand:
+    """X = base_from_camera and Z = flange_from_board from the board's pose in every
+    frame (F, 4, 4; e.g. PnP in a colour-only camera) and the flange's: the AX = ZB
+    problem, A_i = camera_from_board_i, B_i = base_from_flange_i, solved by OpenCV's
+    `calibrateRobotWorldHandEye` ("shah" or "li"). In OpenCV's names the board is the
+    "world", the robot base the "gripper" and the flange the "base". The rmse is the
+    RMS distance between the corners where each frame's pose and where the robot put
+    them (it includes PnP's error along the view)."""
+    from earcore.calibration.board import _cv2
+
+    cv2 = _cv2()
+    methods = {"shah": cv2.CALIB_ROBOT_WORLD_HAND_EYE_SHAH, "li": cv2.CALIB_ROBOT_WORLD_HAND_EYE_LI}
+    if method not in methods:
+        raise ValueError(f"method must be one of {sorted(methods)}, got {method!r}")
+    A = np.asarray(camera_from_board, dtype=np.float64).reshape(-1, 4, 4)
+    F = np.asarray(base_from_flange, dtype=np.float64).reshape(-1, 4, 4)
+    if len(A) != len(F):
+        raise ValueError(f"{camera}: {len(A)} board poses but {len(F)} flange poses")
+    if not (np.isfinite(A).all() and np.isfinite(F).all()):
+        raise ValueError(f"{camera}: the poses must be finite")
+    if len(A) < min_frames:
+        raise TooFewFrames(camera, len(A), min_frames, "for AX = ZB")
+    _check_rotation_variety(F, camera, min_rotation_deg)
+    r_board_from_flange, t_board_from_flange, r_camera_from_base, t_camera_from_base = cv2.calibrateRobotWorldHandEye(
+        [a[:3, :3] for a in A], [a[:3, 3].reshape(3, 1) for a in A],
+        [f[:3, :3] for f in F], [f[:3, 3].reshape(3, 1) for f in F], method=methods[method],
+    )
+    board_from_flange, camera_from_base = np.eye(4), np.eye(4)
+    board_from_flange[:3, :3], board_from_flange[:3, 3] = r_board_from_flange, np.ravel(t_board_from_flange)
+    camera_from_base[:3, :3], camera_from_base[:3, 3] = r_camera_from_base, np.ravel(t_camera_from_base)
+    x, z = np.linalg.inv(camera_from_base), np.linalg.inv(board_from_flange)
+    if not (np.isfinite(x).all() and np.isfinite(z).all()):
+        raise DegeneratePoses(camera, "AX = ZB has no solution for these poses")
+    seen = np.concatenate([apply_pose(x @ a, board_points) for a in A])
+    robot = np.concatenate([apply_pose(f @ z, board_points) for f in F])
+    rmse = float(np.sqrt(np.mean(np.sum((seen - robot) ** 2, axis=1))))
+    return EyeToHand(x, z, rmse, len(A), len(seen))
+
+
+def mean_pose(poses: np.ndarray) -> np.ndarray:
+    """The pose (4, 4) closest to all of `poses` (K, 4, 4): mean translation and the
+    rotation nearest the mean rotation matrix (the chordal L2 mean)."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    u, _, vt = np.linalg.svd(poses[:, :3, :3].mean(axis=0))
+    r = u @ vt
+    if np.linalg.det(r) < 0:
+        r = u @ np.diag([1.0, 1.0, -1.0]) @ vt
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = r, poses[:, :3, 3].mean(axis=0)
+    return out
+
+
+def _small_pose(v: np.ndarray) -> np.ndarray:
+    """The pose of a 6-vector (translation, rotation vector)."""
+    from earcore.calibration.board import _cv2
+
+    m = np.eye(4)
+    m[:3, :3] = _cv2().Rodrigues(np.asarray(v[3:], dtype=np.float64))[0]
+    m[:3, 3] = v[:3]
+    return m
+
+
+def refine_by_reprojection(
+    pixels: list[np.ndarray],
+    base_from_flange: np.ndarray,
+    board_points: np.ndarray,
+    K: np.ndarray,
+    distortion,
+    base_from_camera: np.ndarray,
+    flange_from_board: np.ndarray,
+    *,
+    iterations: int = 30,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The camera pose X and the mount Z that minimise the corners' reprojection error
+    through a fixed lens (every frame's corners placed by forward kinematics): damped
+    Gauss-Newton on small corrections X·δX, Z·δZ, Jacobian by central differences.
+    Returns (X, Z, rms pixels). For a colour-only camera, whose frames carry no depth."""
+    from earcore.calibration.board import _cv2
+
+    cv2 = _cv2()
+    F = np.asarray(base_from_flange, dtype=np.float64).reshape(-1, 4, 4)
+    observed = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in pixels]).ravel()
+    counts = [len(np.asarray(p).reshape(-1, 2)) for p in pixels]
+    frame = np.repeat(np.arange(len(F)), counts)
+    corner = np.concatenate([np.arange(c) for c in counts])
+    K, dist = np.asarray(K, dtype=np.float64), np.asarray(distortion, dtype=np.float64)
+
+    def residual(x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        camera_from_flange = np.linalg.inv(x) @ F  # (F, 4, 4)
+        on_flange = apply_pose(z, board_points)[corner]
+        pts = np.einsum("kij,kj->ki", camera_from_flange[frame], np.c_[on_flange, np.ones(len(on_flange))])[:, :3]
+        projected, _ = cv2.projectPoints(np.ascontiguousarray(pts), np.zeros(3), np.zeros(3), K, dist)
+        return projected.reshape(-1) - observed
+
+    def at(x0, z0, d):
+        return x0 @ _small_pose(d[:6]), z0 @ _small_pose(d[6:])
+
+    x, z = np.asarray(base_from_camera, dtype=np.float64), np.asarray(flange_from_board, dtype=np.float64)
+    r = residual(x, z)
+    cost, damping, h = float(r @ r), 1e-3, 1e-6
+    for _ in range(iterations):
+        J = np.empty((len(r), 12))
+        for j in range(12):
+            e = np.zeros(12)
+            e[j] = h
+            J[:, j] = (residual(*at(x, z, e)) - residual(*at(x, z, -e))) / (2 * h)
+        A, g = J.T @ J, J.T @ r
+        while True:
+            step = np.linalg.solve(A + damping * np.diag(np.diag(A) + 1e-12), -g)
+            nx, nz = at(x, z, step)
+            nr = residual(nx, nz)
+            if float(nr @ nr) < cost:
+                x, z, r, damping = nx, nz, nr, max(damping / 10, 1e-9)
+                improvement = cost - float(nr @ nr)
+                cost = float(nr @ nr)
+                break
+            damping *= 10
+            if damping > 1e6:
+                improvement = 0.0
+                break
+        if improvement <= 1e-12 * max(cost, 1e-12) or np.abs(step).max() < 1e-10:
+            break
+    return x, z, float(np.sqrt(cost / (len(r) // 2)))

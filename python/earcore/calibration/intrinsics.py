@@ -1,6 +1,7 @@
 """Intrinsics (Paper I, step 7): Zhang's method for each lens (OpenCV's calibrateCamera,
-Brown-Conrady k1, k2, p1, p2, k3) and the colour camera's offset from the depth camera
-(stereoCalibrate with both lenses fixed)."""
+Brown-Conrady k1, k2, p1, p2, k3), and the lens refit with the robot as the rig (which
+also gives the camera's pose from pixels alone; the colour camera's offset from the
+depth camera is the difference of the two rig poses)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import numpy as np
 from earcore.calibration.board import Detection, _cv2
 from earcore.calibration.errors import DegeneratePoses, TooFewFrames
 
-__all__ = ["LensFit", "calibrate_lens", "calibrate_lens_on_robot", "colour_offset", "lens_displacement", "reprojection_errors"]
+__all__ = ["LensFit", "calibrate_lens", "calibrate_lens_on_robot", "lens_displacement", "reprojection_errors"]
 
 
 @dataclass
@@ -69,30 +70,6 @@ def calibrate_lens(
         _object_points(board_points, len(detections)), image_points, size, K_guess.astype(np.float64).copy(), None, flags=flags
     )
     return LensFit(K, np.asarray(dist, dtype=np.float64).reshape(-1)[:5], float(rms), len(detections))
-
-
-def colour_offset(
-    depth_detections: list[Detection],
-    colour_detections: list[Detection],
-    board_points: np.ndarray,
-    depth_lens: LensFit,
-    colour_lens: LensFit,
-) -> tuple[np.ndarray, float]:
-    """depth_from_colour (4, 4) from frames where both cameras saw the board, and the
-    stereo RMS reprojection error (pixels)."""
-    cv2 = _cv2()
-    n = len(depth_detections)
-    rms, _, _, _, _, R, T, _, _ = cv2.stereoCalibrate(
-        _object_points(board_points, n),
-        [d.corners.astype(np.float32).reshape(-1, 1, 2) for d in depth_detections],
-        [d.corners.astype(np.float32).reshape(-1, 1, 2) for d in colour_detections],
-        depth_lens.K, depth_lens.distortion, colour_lens.K, colour_lens.distortion,
-        depth_detections[0].image_size, flags=cv2.CALIB_FIX_INTRINSIC,
-    )
-    colour_from_depth = np.eye(4)
-    colour_from_depth[:3, :3] = R
-    colour_from_depth[:3, 3] = np.asarray(T).reshape(3)
-    return np.linalg.inv(colour_from_depth), float(rms)
 
 
 def lens_displacement(K_a, dist_a, K_b, dist_b, size: tuple[int, int], step: int = 8, region=None, pixels=None) -> float:

@@ -8,7 +8,8 @@ Per camera, after one 360° sweep that every camera watches:
   → the board's mount from tilting in place → staged positions outward from the image
   centre, re-aimed after every accepted frame with the refined eye-to-hand, then again
   20 % farther → Zhang's method for the IR/depth and colour lenses and their offset →
-  eye-to-hand again with the corrected lenses.
+  the depth error (depth distortion) → eye-to-hand again with the corrected lenses and
+  depths.
 
 The robot side is forward kinematics of the joint state at capture; every motion is
 checked against a map of the cell's known geometry and unreachable or colliding poses
@@ -25,12 +26,20 @@ from typing import Callable
 import numpy as np
 
 import earcore
-from earcore.calibration.board import Detection, corner_points, detect_board
+from earcore.calibration.board import Detection, _cv2, corner_points, detect_board
 from earcore.calibration.errors import BoardNotSeen, CalibrationError, DegeneratePoses, TooFewFrames
-from earcore.calibration.eye_to_hand import EyeToHand, apply_pose, fit_eye_to_hand
+from earcore.calibration.eye_to_hand import (
+    EyeToHand,
+    apply_pose,
+    fit_eye_to_hand,
+    fit_eye_to_hand_from_poses,
+    mean_pose,
+    refine_by_reprojection,
+)
 from earcore.calibration.intrinsics import calibrate_lens, calibrate_lens_on_robot, reprojection_errors
 from earcore.calibration.store import Calibration, CalibrationFileError, CameraCalibration
 from earcore.cloud import box_voxel_centres
+from earcore.depth_error import DepthBias, radius2_grid, radius2_of
 from earcore.planning.errors import PlanningError
 from earcore.planning.ik import UnreachablePose, rotation_vector, solve_ik
 from earcore.planning.rrt import JointSpacePlanner
@@ -112,6 +121,11 @@ class CalibrationSettings:
     max_reprojection_px: float = 1.0
     #: Passes of lens-and-pose from pixels / mount from depth in step 7.
     refinement_passes: int = 4
+    #: The depth error's terms to fit (of offset + scale·z + radial·ρ²·z²,
+    #: `earcore.depth_error`) from the corners' measured depth against where the robot
+    #: and the pose from the pixels put them (Paper I's depth distortion), taken out
+    #: before the final 3D-3D fit; () fits none.
+    depth_error_terms: tuple[str, ...] = ("offset", "scale", "radial")
     seed: int = 0
 
 
@@ -373,27 +387,50 @@ class Calibrator:
         """The board in camera `name`'s IR image now (no depth: for searches in motion)."""
         return detect_board(self.camera(name).render_true()[0], self.board)
 
+    def has_depth(self, name: str) -> bool:
+        return self.camera(name).sensor.has_depth
+
     def observe(self, name: str, *, tilted: bool = False, colour: bool = True) -> Observation | None:
         """Capture camera `name` with the robot still: detect the board in the IR image
-        (and the colour image), keep `depth_frames` depth frames of the board's region."""
+        (and the colour image), keep `depth_frames` depth frames of the board's region
+        (none for a colour-only camera, whose own image stands in for the IR image)."""
         cam = self.camera(name)
         image, true_depth, _ = cam.render_true()
         ir = detect_board(image, self.board)
         if ir is None:
             return None
+        if not cam.sensor.has_depth:
+            q = self.cell.joint_positions
+            return Observation(name, q, self.base_from_flange(q), ir, None, np.zeros((0, 0, 0), np.float32), (0, 0), tilted)
         lo = np.maximum(np.floor(ir.corners.min(axis=0)).astype(int) - 40, 0)
         hi = np.ceil(ir.corners.max(axis=0)).astype(int) + 40
         # The board and robot are still: frames differ by the sensor's noise only.
-        depth = np.stack(
-            [cam.sensor.corrupt(true_depth, cam.rng)[lo[1] : hi[1], lo[0] : hi[0]] for _ in range(self.settings.depth_frames)]
-        ).astype(np.float32)
+        region = true_depth[lo[1] : hi[1], lo[0] : hi[0]]
+        origin = (int(lo[0]), int(lo[1]))
+        depth = np.stack([cam.sensor.corrupt(region, cam.rng, origin) for _ in range(self.settings.depth_frames)]).astype(np.float32)
         col = detect_board(cam.render_colour(), self.board) if (colour and cam.sensor.colour is not None) else None
         q = self.cell.joint_positions
-        return Observation(name, q, self.base_from_flange(q), ir, col, depth, (int(lo[0]), int(lo[1])), tilted)
+        return Observation(name, q, self.base_from_flange(q), ir, col, depth, origin, tilted)
 
-    def corners_3d(self, obs: Observation, K: np.ndarray, distortion) -> np.ndarray:
-        return corner_points(
-            obs.ir, obs.depth, K, distortion, method=self.settings.corner_method, origin=obs.origin
+    def corners_3d(self, obs: Observation, K: np.ndarray, distortion, depth_error: DepthBias | None = None) -> np.ndarray:
+        """The frame's corners in the camera frame from its depth, through the lens (K,
+        distortion), with `depth_error` taken out of the depth first."""
+        depth = obs.depth
+        if depth_error is not None and not depth_error.is_zero:
+            depth = depth_error.correct(depth, radius2_grid(K, depth.shape[2], depth.shape[1], obs.origin))
+        return corner_points(obs.ir, depth, K, distortion, method=self.settings.corner_method, origin=obs.origin)
+
+    def depth_error(self, obs: list[Observation], K, distortion, base_from_camera: np.ndarray, mount: np.ndarray) -> DepthBias:
+        """Step 7's depth distortion: every corner's measured depth against its depth
+        where forward kinematics, the mount and the pose from the pixels put it."""
+        measured, predicted, rho2 = [], [], []
+        camera_from_base = np.linalg.inv(base_from_camera)
+        for o in obs:
+            measured.append(self.corners_3d(o, K, distortion)[:, 2])
+            predicted.append(apply_pose(camera_from_base @ o.base_from_flange @ mount, self.board_points)[:, 2])
+            rho2.append(radius2_of(o.ir.corners, K))
+        return DepthBias.fit(
+            np.concatenate(measured), np.concatenate(predicted), np.concatenate(rho2), terms=self.settings.depth_error_terms
         )
 
     # --- Algorithm 1 -----------------------------------------------------------
@@ -441,12 +478,16 @@ class Calibrator:
             if name not in self.start_poses:
                 raise BoardNotSeen(name, f"not during the 360° sweep at elevations {list(s.sweep_elevations_deg)}°")
 
-    def _fit(self, name: str, K, distortion, mount: np.ndarray, estimate_mount: bool, obs=None, threshold=None) -> EyeToHand:
+    def _fit(
+        self, name: str, K, distortion, mount: np.ndarray, estimate_mount: bool, obs=None, threshold=None, depth_error=None
+    ) -> EyeToHand:
         obs = self.observations[name] if obs is None else obs
+        if not self.has_depth(name):
+            return self._fit_from_pixels(name, K, distortion, mount, estimate_mount, obs)
         t = time.perf_counter()
         try:
             return fit_eye_to_hand(
-                [self.corners_3d(o, K, distortion) for o in obs],
+                [self.corners_3d(o, K, distortion, depth_error) for o in obs],
                 np.array([o.base_from_flange for o in obs]),
                 self.board_points,
                 mount,
@@ -454,6 +495,41 @@ class Calibrator:
                 threshold=self.settings.ransac_threshold if threshold is None else threshold,
                 camera=name,
             )
+        finally:
+            self.solver_time += time.perf_counter() - t
+
+    def board_poses(self, obs: list[Observation], K, distortion) -> np.ndarray:
+        """camera_from_board (F, 4, 4) of every frame from its corners' pixels (PnP for a
+        planar target, through the lens K, distortion)."""
+        cv2 = _cv2()
+        out = np.empty((len(obs), 4, 4))
+        for i, o in enumerate(obs):
+            ok, rvec, tvec = cv2.solvePnP(
+                self.board_points, o.ir.corners.astype(np.float64), np.asarray(K, float), np.asarray(distortion, float),
+                flags=cv2.SOLVEPNP_IPPE,
+            )
+            if not ok:
+                raise DegeneratePoses(o.camera, "PnP found no board pose for a frame")
+            out[i] = np.eye(4)
+            out[i, :3, :3] = cv2.Rodrigues(rvec)[0]
+            out[i, :3, 3] = np.ravel(tvec)
+        return out
+
+    def _fit_from_pixels(self, name: str, K, distortion, mount: np.ndarray, estimate_mount: bool, obs) -> EyeToHand:
+        """Eye-to-hand of a colour-only camera from the board's pose in each frame: AX = ZB
+        (OpenCV's robot-world/hand-eye) when the mount is wanted, else the camera pose
+        that carries the designed mount's board onto each frame's, averaged."""
+        t = time.perf_counter()
+        try:
+            poses = self.board_poses(obs, K, distortion)
+            flanges = np.array([o.base_from_flange for o in obs])
+            if estimate_mount:
+                return fit_eye_to_hand_from_poses(poses, flanges, self.board_points, camera=name)
+            x = mean_pose(np.array([f @ mount @ np.linalg.inv(a) for f, a in zip(flanges, poses)]))
+            seen = np.concatenate([apply_pose(x @ a, self.board_points) for a in poses])
+            robot = np.concatenate([apply_pose(f @ mount, self.board_points) for f in flanges])
+            rmse = float(np.sqrt(np.mean(np.sum((seen - robot) ** 2, axis=1))))
+            return EyeToHand(x, np.asarray(mount, dtype=np.float64), rmse, len(obs), len(seen))
         finally:
             self.solver_time += time.perf_counter() - t
 
@@ -588,6 +664,8 @@ class Calibrator:
         cam = self.camera(name)
         if len(obs) < 3:
             raise TooFewFrames(name, len(obs), 3)
+        if not cam.sensor.has_depth:
+            return self._finish_colour_only(name, obs, screened)
         t = time.perf_counter()
         zhang = calibrate_lens(
             [o.ir for o in obs], self.board_points, cam.sensor.intrinsics, camera=name, lens_model=self.settings.lens_model
@@ -601,6 +679,7 @@ class Calibrator:
             threshold=self.settings.ransac_threshold_uncorrected,
         )
         depth_lens = zhang
+        depth_error = DepthBias()
         for _ in range(self.settings.refinement_passes):
             t = time.perf_counter()
             depth_lens, base_from_ir = self._lens_on_robot(
@@ -616,7 +695,13 @@ class Calibrator:
                     return self.finish(name, [o for o, g in zip(obs, good) if g], screened=True)
                 screened = True
             previous = fit.flange_from_board
-            fit = self._fit(name, depth_lens.K, depth_lens.distortion, previous, estimate_mount=True, obs=obs)
+            if self.settings.depth_error_terms:
+                t = time.perf_counter()
+                depth_error = self.depth_error(obs, depth_lens.K, depth_lens.distortion, base_from_ir, previous)
+                self.solver_time += time.perf_counter() - t
+            fit = self._fit(
+                name, depth_lens.K, depth_lens.distortion, previous, estimate_mount=True, obs=obs, depth_error=depth_error
+            )
             if np.abs(fit.flange_from_board - previous).max() < 1e-5:
                 break
         if depth_lens.rms > self.settings.max_reprojection_px:
@@ -657,6 +742,7 @@ class Calibrator:
             colour_distortion=None if colour_lens is None else colour_lens.distortion,
             colour_size=None if colour_lens is None else colour_detections[0].image_size,
             depth_from_colour=offset,
+            depth_error=None if depth_error.is_zero else depth_error.as_list(),
             flange_from_board=fit.flange_from_board,
             eye_to_hand_rmse=fit.rmse,
             depth_reprojection_rms=depth_lens.rms,
@@ -667,6 +753,57 @@ class Calibrator:
             corners=fit.corners,
             depth_region=_region([o.ir for o in obs]),
             colour_region=_region(colour_detections) if colour_lens is not None else None,
+            start_q=[float(v) for v in self.start_poses[name][1]] if name in self.start_poses else None,
+        )
+
+    def _finish_colour_only(self, name: str, obs: list[Observation], screened: bool) -> CameraCalibration:
+        """Steps 6-7 for a camera without depth: Zhang's method, AX = ZB for the pose and
+        the mount, then the lens and pose refined with the robot as the rig, the mount
+        from every frame's board pose in turn (the pose of the camera's own image)."""
+        s = self.settings
+        cam = self.camera(name)
+        t = time.perf_counter()
+        zhang = calibrate_lens([o.ir for o in obs], self.board_points, cam.sensor.intrinsics, camera=name, lens_model=s.lens_model)
+        self.solver_time += time.perf_counter() - t
+        fit = self._fit_from_pixels(name, zhang.K, zhang.distortion, s.mount, True, obs)
+        lens, mount = zhang, fit.flange_from_board
+        flanges = np.array([o.base_from_flange for o in obs])
+        base_from_camera = fit.base_from_camera
+        for _ in range(s.refinement_passes):
+            t = time.perf_counter()
+            lens, base_from_camera = self._lens_on_robot(name, obs, [o.ir for o in obs], mount, lens.K, lens.distortion)
+            if not screened:
+                good = self._explained(obs, [o.ir for o in obs], mount, lens, base_from_camera)
+                if not good.all():
+                    self.progress(f"{name}: {int((~good).sum())} frame(s) the lens and pose cannot explain dropped")
+                    return self._finish_colour_only(name, [o for o, g in zip(obs, good) if g], True)
+                screened = True
+            # The pose and the mount that best explain every corner's pixel through the
+            # refined lens (no depth to fix the mount with).
+            previous = mount
+            base_from_camera, mount, _ = refine_by_reprojection(
+                [o.ir.corners for o in obs], flanges, self.board_points, lens.K, lens.distortion, base_from_camera, mount
+            )
+            self.solver_time += time.perf_counter() - t
+            if np.abs(mount - previous).max() < 1e-5:
+                break
+        if lens.rms > s.max_reprojection_px:
+            raise DegeneratePoses(
+                name, f"the lens and pose explain the corners only to {lens.rms:.1f} px rms (> {s.max_reprojection_px} px)"
+            )
+        return CameraCalibration(
+            name=name,
+            base_from_camera=base_from_camera,
+            colour_K=lens.K,
+            colour_distortion=lens.distortion,
+            colour_size=obs[0].ir.image_size,
+            flange_from_board=mount,
+            eye_to_hand_rmse=fit.rmse,
+            colour_reprojection_rms=lens.rms,
+            zhang_reprojection_rms=zhang.rms,
+            frames=len(obs),
+            corners=len(obs) * len(self.board_points),
+            colour_region=_region([o.ir for o in obs]),
             start_q=[float(v) for v in self.start_poses[name][1]] if name in self.start_poses else None,
         )
 

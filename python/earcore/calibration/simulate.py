@@ -8,10 +8,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from earcore.calibration.eye_to_hand import rotation_spread_deg
+from earcore.calibration.eye_to_hand import apply_pose, rotation_spread_deg
 from earcore.calibration.intrinsics import lens_displacement
 from earcore.calibration.procedure import nominal_mount
 from earcore.calibration.store import CameraCalibration
+from earcore.depth_error import radius2_of
 from earcore.perception.pipeline import perturb_pose
 from earcore.sim.config import CellConfig, calibration_cameras
 from earcore.sim.tools import Checkerboard
@@ -70,6 +71,10 @@ class CalibrationErrors:
     offset_translation: float
     offset_rotation_deg: float
     mount_translation: float
+    #: The depth error left after the calibrated correction (m), RMS and largest over
+    #: the corners seen (NaN without observations).
+    depth_error_rms: float = float("nan")
+    depth_error_max: float = float("nan")
 
 
 def evaluate(cell, calibration: CameraCalibration, true_mount: np.ndarray | None = None, observations=None) -> CalibrationErrors:
@@ -85,12 +90,19 @@ def evaluate(cell, calibration: CameraCalibration, true_mount: np.ndarray | None
         ir_px = np.concatenate([o.ir.corners for o in observations])
         seen = [o.colour.corners for o in observations if o.colour is not None]
         colour_px_seen = np.concatenate(seen) if seen else None
-    depth_px = lens_displacement(
-        calibration.depth_K, calibration.depth_distortion, sensor.intrinsics, sensor.distortion,
-        calibration.depth_size, region=calibration.depth_region, pixels=ir_px,
-    )
-    colour_px = offset_t = offset_r = float("nan")
-    if calibration.colour_K is not None and sensor.colour is not None:
+    depth_px = colour_px = offset_t = offset_r = float("nan")
+    if not calibration.has_depth and calibration.colour_K is not None:
+        # A colour-only camera: its one lens is the sensor's.
+        colour_px = lens_displacement(
+            calibration.colour_K, calibration.colour_distortion, sensor.intrinsics, sensor.distortion,
+            calibration.colour_size or (sensor.width, sensor.height), region=calibration.colour_region, pixels=ir_px,
+        )
+    else:
+        depth_px = lens_displacement(
+            calibration.depth_K, calibration.depth_distortion, sensor.intrinsics, sensor.distortion,
+            calibration.depth_size or (sensor.width, sensor.height), region=calibration.depth_region, pixels=ir_px,
+        )
+    if calibration.has_depth and calibration.colour_K is not None and sensor.colour is not None:
         c = sensor.colour
         colour_px = lens_displacement(
             calibration.colour_K, calibration.colour_distortion, c.intrinsics, c.distortion,
@@ -99,10 +111,22 @@ def evaluate(cell, calibration: CameraCalibration, true_mount: np.ndarray | None
         if calibration.depth_from_colour is not None:
             offset_t = float(np.linalg.norm(calibration.depth_from_colour[:3, 3] - c.depth_from_colour[:3, 3]))
             offset_r = _angle_deg(calibration.depth_from_colour, c.depth_from_colour)
+    depth_rms = depth_max = float("nan")
+    if observations and calibration.has_depth and ir_px is not None:
+        # The true depths of the corners seen (true pose, true mount) and the image radius.
+        camera_from_base = np.linalg.inv(truth)
+        board = Checkerboard().inner_corners()
+        z = np.concatenate(
+            [apply_pose(camera_from_base @ o.base_from_flange @ (true_mount if true_mount is not None else nominal_mount()), board)[:, 2]
+             for o in observations]
+        )
+        rho2 = radius2_of(ir_px, sensor.intrinsics)
+        left = sensor.depth_bias.error(z, rho2) - calibration.depth_bias.error(z, rho2)
+        depth_rms, depth_max = float(np.sqrt(np.mean(left**2))), float(np.abs(left).max())
     mount_t = float("nan")
     if true_mount is not None and calibration.flange_from_board is not None:
         mount_t = float(np.linalg.norm(calibration.flange_from_board[:3, 3] - true_mount[:3, 3]))
     return CalibrationErrors(
         calibration.name, (float(local[0]), float(local[1]), float(local[2])), float(np.linalg.norm(local)), _angle_deg(est, truth),
-        depth_px, colour_px, offset_t, offset_r, mount_t,
+        depth_px, colour_px, offset_t, offset_r, mount_t, depth_rms, depth_max,
     )

@@ -1,5 +1,6 @@
-"""The calibration file (YAML): every camera's lenses, colour-depth offset and
-`base_from_camera`, with residuals and frame counts. Written atomically, and a camera
+"""The calibration file (YAML): every camera's lenses, colour-depth offset, depth error
+and `base_from_camera`, with residuals and frame counts. A colour-only camera has no
+depth entries; its `base_from_camera` is its colour camera's pose. Written atomically, and a camera
 that failed never replaces a good entry (a partial calibration merges into the file)."""
 
 from __future__ import annotations
@@ -34,14 +35,18 @@ _VECTORS = {"depth_distortion": 5, "colour_distortion": 5}
 @dataclass
 class CameraCalibration:
     name: str
+    #: The depth camera's pose (the colour camera's for a colour-only camera).
     base_from_camera: np.ndarray
-    depth_K: np.ndarray
-    depth_distortion: np.ndarray
-    depth_size: tuple[int, int]
+    depth_K: np.ndarray | None = None
+    depth_distortion: np.ndarray | None = None
+    depth_size: tuple[int, int] | None = None
     colour_K: np.ndarray | None = None
     colour_distortion: np.ndarray | None = None
     colour_size: tuple[int, int] | None = None
     depth_from_colour: np.ndarray | None = None
+    #: The depth error (offset m, scale, radial m) that `earcore.depth_error.DepthBias`
+    #: takes out of the depth images; None: not calibrated.
+    depth_error: list[float] | None = None
     flange_from_board: np.ndarray | None = None
     #: RMS 3D distance (m) between the camera's and the robot's corners.
     eye_to_hand_rmse: float = math.nan
@@ -60,6 +65,17 @@ class CameraCalibration:
     colour_region: tuple[int, int, int, int] | None = None
     #: The joint state where this camera saw the board best (re-checks start there).
     start_q: list[float] | None = None
+
+    @property
+    def depth_bias(self):
+        """The calibrated depth error as an `earcore.depth_error.DepthBias` (zero if none)."""
+        from earcore.depth_error import DepthBias
+
+        return DepthBias() if self.depth_error is None else DepthBias(*self.depth_error)
+
+    @property
+    def has_depth(self) -> bool:
+        return self.depth_K is not None
 
     def to_dict(self) -> dict:
         out = {}
@@ -82,9 +98,15 @@ class CameraCalibration:
         unknown = set(data) - known
         if unknown:
             raise CalibrationFileError(f"{where}: unknown keys {sorted(unknown)}")
-        for key in ("name", "base_from_camera", "depth_K", "depth_distortion", "depth_size"):
+        for key in ("name", "base_from_camera"):
             if data.get(key) is None:
                 raise CalibrationFileError(f"{where}: missing {key!r}")
+        for lens in ("depth", "colour"):
+            given = [data.get(f"{lens}_{k}") is not None for k in ("K", "distortion", "size")]
+            if any(given) and not all(given):
+                raise CalibrationFileError(f"{where}: the {lens} lens needs {lens}_K, {lens}_distortion and {lens}_size")
+        if data.get("depth_K") is None and data.get("colour_K") is None:
+            raise CalibrationFileError(f"{where}: missing 'depth_K' (or 'colour_K' for a colour-only camera)")
         kwargs = {}
         for key, value in data.items():
             if value is None:
@@ -97,6 +119,11 @@ class CameraCalibration:
                 value = arr
             elif key in ("depth_size", "colour_size", "depth_region", "colour_region"):
                 value = tuple(int(v) for v in value)
+            elif key == "depth_error":
+                arr = np.asarray(value, dtype=np.float64)
+                if arr.shape != (3,) or not np.isfinite(arr).all():
+                    raise CalibrationFileError(f"{where}: depth_error must be 3 finite numbers (offset, scale, radial)")
+                value = [float(v) for v in arr]
             kwargs[key] = value
         return cls(**kwargs)
 

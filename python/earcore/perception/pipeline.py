@@ -17,6 +17,7 @@ import numpy as np
 
 import earcore
 from earcore.cloud import box_voxel_centres, voxel_codes
+from earcore.depth_error import DepthBias, radius2_grid
 from earcore.robots import RobotModel
 from earcore.sim.camera import Frame
 from earcore.sim.config import PerceptionConfig
@@ -74,6 +75,9 @@ class PerceptionPipeline:
         self.poses: dict[str, np.ndarray] = {}
         #: (K, distortion) per camera name from a calibration; else the frame's own.
         self.intrinsics: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        #: Calibrated depth error per camera name, taken out of its depth images.
+        self.depth_errors: dict[str, DepthBias] = {}
+        self._radius2: dict[str, np.ndarray] = {}
         self._refined = not config.refine_poses
         self._last_time: float | None = None
         #: Cameras that do not move with the robot (only these are refined by ICP).
@@ -91,15 +95,32 @@ class PerceptionPipeline:
         self.intrinsics[camera] = (np.asarray(K, dtype=np.float64), np.asarray(distortion, dtype=np.float64))
 
     def load_calibration(self, calibration) -> None:
-        """Poses and depth intrinsics of every camera in a `earcore.calibration.Calibration`."""
+        """Poses, depth intrinsics and depth errors of every camera in a
+        `earcore.calibration.Calibration`."""
         for name, cam in calibration.cameras.items():
+            if not cam.has_depth:
+                continue  # a colour-only camera adds nothing to the map
             self.set_pose(name, cam.base_from_camera)
             self.set_intrinsics(name, cam.depth_K, cam.depth_distortion)
+            self.depth_errors[name] = cam.depth_bias
+            self._radius2.pop(name, None)
+
+    def _depth_of(self, frame: Frame, K: np.ndarray) -> np.ndarray:
+        """The frame's depth image with the camera's calibrated depth error taken out."""
+        bias = self.depth_errors.get(frame.camera)
+        if bias is None or bias.is_zero:
+            return frame.depth
+        h, w = frame.depth.shape
+        rho2 = self._radius2.get(frame.camera)
+        if rho2 is None or rho2.shape != (h, w):
+            rho2 = self._radius2[frame.camera] = radius2_grid(K, w, h)
+        return bias.correct(frame.depth, rho2)
 
     def _points_of(self, frame: Frame, **kwargs):
         K, distortion = self.intrinsics.get(frame.camera, (frame.K, frame.distortion))
         return earcore.depth_to_points(
-            frame.depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], distortion=distortion, max_depth=self.config.max_range, **kwargs
+            self._depth_of(frame, K), K[0, 0], K[1, 1], K[0, 2], K[1, 2], distortion=distortion,
+            max_depth=self.config.max_range, **kwargs,
         )
 
     def _pose_of(self, frame: Frame) -> np.ndarray:

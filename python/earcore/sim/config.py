@@ -30,7 +30,7 @@ __all__ = [
 @dataclass
 class CameraConfig:
     name: str
-    #: A key of `earcore.sim.sensors.SENSORS`: kinect_v2, kinect_v1, f200.
+    #: A key of `earcore.sim.sensors.SENSORS`: kinect_v2, kinect_v1, f200, webcam (colour only).
     sensor: str
     #: Camera position and the point it looks at, in the robot base frame (m); for a
     #: camera on the end-effector, the offset along the tool's z axis instead.

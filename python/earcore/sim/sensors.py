@@ -14,6 +14,9 @@ quantisation); the numbers are documented on each preset and checked by the test
   baseline: steps of z²/348 m (1.1 cm at 2 m), as Khoshelham and Elberink (2012) report.
 * RealSense F200 (coded light, 640×480, 73°×59°, 0.2-1.2 m): axial σ(z) = 0.5 + 2.5 z² mm
   (an assumption matching its datasheet's ~1 mm at 0.5 m), whole-mm depth.
+* A colour-only camera ("webcam", 640×480, 60°×46.8°, a USB camera's typical barrel lens
+  k1 = −0.12, k2 = 0.08): no depth at all (`has_depth` is False; its frames carry an
+  empty depth image). Calibration finds its pose from the board's image alone (AX = ZB).
 
 Lenses (the ground truth calibration has to recover; OpenCV's Brown-Conrady model k1,
 k2, p1, p2, k3): the Kinect V2's IR lens (0.09, −0.27, 0, 0, 0.09) is the typical
@@ -22,6 +25,14 @@ factory calibration libfreenect2 reads off the device; the Kinect V1's IR lens
 Heikkilä (2012, "Joint depth and color camera calibration with distortion correction")
 report. Each Kinect has its colour camera beside the depth camera: 5.2 cm (V2) and
 2.5 cm (V1) along x with a fraction of a degree of misalignment (`ColourSensor`).
+
+Systematic depth error (`DepthBias`, what Paper I's step 7 calls depth distortion): the
+sensor reports z + offset + scale·z + radial·ρ²·z², with ρ² = ((u − cx)/fx)² + ((v − cy)/fy)²
+fixed to the image. The Kinect V2's (+3 mm, +6 mm radial: millimetres at the centre
+growing toward the corners) and the Kinect V1's (+0.3 % of z, −6 mm radial: a scale error
+of the disparity-to-depth conversion and a disparity pattern that grows with z²) are
+assumptions of the size Lachat et al. (2015), Pagliari and Pinto (2015) and Herrera,
+Kannala and Heikkilä (2012) report for the devices; calibration has to find them.
 
 Every model drops pixels at depth discontinuities (a neighbour more than `edge_jump`
 away) with probability `edge_dropout`, beyond `max_incidence` from the surface normal,
@@ -35,7 +46,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["SENSORS", "ColourSensor", "SensorModel"]
+from earcore.depth_error import DepthBias, radius2_grid
+
+__all__ = ["SENSORS", "ColourSensor", "DepthBias", "SensorModel", "radius2_grid"]
 
 
 Distortion = tuple[float, float, float, float, float]
@@ -99,7 +112,8 @@ class SensorModel:
     near: float
     far: float
     rate_hz: float
-    #: Axial noise model: "tof" (Kinect V2), "structured" (Kinect V1) or "coded" (F200).
+    #: Axial noise model: "tof" (Kinect V2), "structured" (Kinect V1), "coded" (F200),
+    #: or "none" for a camera without depth.
     noise: str
     #: Projector-camera baseline (m) of a structured-light sensor: depth is quantised in
     #: disparity steps of 1/8 pixel of the native disparity image (focal length
@@ -116,6 +130,12 @@ class SensorModel:
     #: The colour camera beside the depth camera; None: colour comes from the depth
     #: camera's own view (a registered image).
     colour: ColourSensor | None = None
+    #: Systematic depth error (depth distortion); the noise is added on top.
+    depth_bias: DepthBias = DepthBias()
+
+    @property
+    def has_depth(self) -> bool:
+        return self.noise != "none"
 
     @property
     def fx(self) -> float:
@@ -156,6 +176,8 @@ class SensorModel:
             mm = 1.2 + 1.9 * (z - 0.4) ** 2 + np.where(theta > np.radians(60), 0.1 * grazing / np.sqrt(z), 0.0)
         elif self.noise == "coded":
             mm = 0.5 + 2.5 * z**2 + 0.0 * theta
+        elif self.noise == "none":
+            mm = 0.0 * z * theta
         else:
             raise ValueError(f"unknown noise model {self.noise!r}")
         return mm * 1e-3
@@ -170,14 +192,20 @@ class SensorModel:
             z = np.round(z / self.depth_step) * self.depth_step
         return z
 
-    def corrupt(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Apply the noise model to a true depth image (0 = no return): axial noise by
-        depth and incidence, dropouts at edges and grazing angles, range limits,
-        quantisation. Returns the measured depth image (0 where invalid)."""
+    def corrupt(self, depth: np.ndarray, rng: np.random.Generator, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+        """Apply the systematic error and the noise model to a true depth image (0 = no
+        return): axial noise by depth and incidence, dropouts at edges and grazing
+        angles, range limits, quantisation. Returns the measured depth image (0 where
+        invalid). `depth` may be a region of the image whose first pixel is `origin`."""
         z = np.asarray(depth, dtype=np.float64)
+        if not self.has_depth:
+            return np.zeros_like(z)
         valid = (z > 0) & np.isfinite(z)
         incidence = incidence_angles(z, self.fx, self.fy)
-        noisy = z + rng.normal(size=z.shape) * self.sigma(np.where(valid, z, 1.0), np.nan_to_num(incidence))
+        biased = z
+        if not self.depth_bias.is_zero:
+            biased = z + self.depth_bias.error(z, radius2_grid(self.intrinsics, z.shape[1], z.shape[0], origin))
+        noisy = biased + rng.normal(size=z.shape) * self.sigma(np.where(valid, z, 1.0), np.nan_to_num(incidence))
         keep = valid & (incidence <= np.radians(self.max_incidence_deg))
         # Mixed pixels at depth edges: drop with some probability.
         jump = np.zeros_like(z, dtype=bool)
@@ -220,11 +248,14 @@ SENSORS: dict[str, SensorModel] = {
         "kinect_v2", 512, 424, 70.6, 60.0, 0.5, 4.5, 30.0, "tof",
         distortion=(0.09, -0.27, 0.0, 0.0, 0.09),
         colour=ColourSensor(1920, 1080, 84.1, 53.8, (0.03, -0.05, 0.0, 0.0, 0.0), (0.052, 0.0, 0.0), (0.3, -0.2, 0.1)),
+        depth_bias=DepthBias(offset=0.003, radial=0.006),
     ),
     "kinect_v1": SensorModel(
         "kinect_v1", 320, 240, 57.0, 43.0, 0.4, 4.5, 30.0, "structured", baseline=0.075, disparity_focal=580.0, depth_step=0.001,
         distortion=(-0.10, 0.25, 0.0, 0.0, 0.0),
         colour=ColourSensor(640, 480, 62.0, 48.6, (0.15, -0.35, 0.0, 0.0, 0.0), (0.025, 0.0, 0.0), (-0.2, 0.3, 0.0)),
+        depth_bias=DepthBias(scale=0.003, radial=-0.006),
     ),
     "f200": SensorModel("f200", 640, 480, 73.0, 59.0, 0.2, 1.2, 30.0, "coded"),
+    "webcam": SensorModel("webcam", 640, 480, 60.0, 46.8, 0.1, 5.0, 30.0, "none", distortion=(-0.12, 0.08, 0.0, 0.0, 0.0)),
 }
