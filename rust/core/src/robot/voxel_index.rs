@@ -403,33 +403,45 @@ impl VoxelIndex {
             len: 0,
             overflow: false,
         };
-        for s in 0..=steps {
+        // The ball of radius r + spacing/2 around a sample covers the enclosing capsule
+        // near it.
+        let needed = r + 0.5 * spacing + 1e-6;
+        let mut s = 0;
+        while s <= steps {
             let t = s as f64 / steps as f64;
             let p = capsule.axis_point(t);
             let Some((cell, centre)) = self.cell_of(&p) else {
                 return Err(self.outside_error(&p));
             };
             if self.nearest[cell] == NONE {
+                s += 1;
                 continue;
             }
             // Every box is ≥ cell_distance from p (p is in the cell) and ≥ box_distance
-            // − offset (the centre's bound moved by at most the offset); the ball of
-            // radius r + spacing/2 around p covers the enclosing capsule near here.
-            let needed = r + 0.5 * spacing + 1e-6;
-            if self.cell_distance[cell] as f64 > needed {
+            // − offset (the centre's bound moved by at most the offset).
+            let mut clear = self.cell_distance[cell] as f64;
+            if clear <= needed {
+                let offset = crate::geometry::distance_squared(&p, &centre).sqrt();
+                clear = clear.max(self.box_distance[cell] as f64 - offset);
+            }
+            if clear > needed {
+                // Sphere tracing: a sample m spacings further on is ≥ clear − m·spacing
+                // from every box, so it is free too while that exceeds `needed`.
+                s += ((clear - needed) / spacing) as usize + 1;
                 continue;
             }
-            let offset = crate::geometry::distance_squared(&p, &centre).sqrt();
-            if self.box_distance[cell] as f64 - offset > needed {
-                continue;
-            }
-            // A ball inside the body that reaches the nearest box proves a collision.
+            // A ball inside the body that reaches the nearest box proves a collision; so
+            // does that box overlapping the body (one exact test that usually spares
+            // the scan of a colliding body).
             let near = self.center_of(self.nearest[cell] as usize);
             let inner = body.inner_radius_at(t);
-            if point_box_distance_squared(&p, &near, &half) <= inner * inner {
+            if point_box_distance_squared(&p, &near, &half) <= inner * inner
+                || body.overlaps_box(&near, &half)
+            {
                 return Ok(SampleVerdict::Collides);
             }
             runs.push(s);
+            s += 1;
         }
         Ok(if runs.len == 0 && !runs.overflow {
             SampleVerdict::Free
