@@ -469,7 +469,7 @@ impl VoxelIndex {
                 capsule.radius,
             );
             let (lo, hi) = piece.aabb();
-            self.for_each_occupied_in(lo, hi, |i| body.overlaps_box(&self.center_of(i), &half))
+            self.for_each_occupied_in(lo, hi, |centre| body.overlaps_box(&centre, &half))
         })
     }
 
@@ -477,21 +477,24 @@ impl VoxelIndex {
     pub fn body_collides_exact(&self, body: &Body) -> bool {
         let (lo, hi) = body.aabb();
         let half = self.half();
-        self.for_each_occupied_in(lo, hi, |i| body.overlaps_box(&self.center_of(i), &half))
+        self.for_each_occupied_in(lo, hi, |centre| body.overlaps_box(&centre, &half))
     }
 
     /// Calls `hit(cell)` on occupied cells meeting [lo, hi] until it returns true.
+    /// Calls `hit` with the centre of every occupied cell in the box [lo, hi] until it
+    /// returns true (then true). Centres come from the loop's coordinates: recovering
+    /// them from a linear index costs two integer divisions a cell.
     fn for_each_occupied_in(
         &self,
         lo: [f64; 3],
         hi: [f64; 3],
-        mut hit: impl FnMut(usize) -> bool,
+        mut hit: impl FnMut([f64; 3]) -> bool,
     ) -> bool {
         let mut a = [0usize; 3];
         let mut b = [0usize; 3];
         for i in 0..3 {
-            let l = ((lo[i] / self.resolution).floor() as i64 - self.origin[i]).max(0);
-            let h = ((hi[i] / self.resolution).floor() as i64 - self.origin[i])
+            let l = (fast_floor(lo[i] / self.resolution) as i64 - self.origin[i]).max(0);
+            let h = (fast_floor(hi[i] / self.resolution) as i64 - self.origin[i])
                 .min(self.dims[i] as i64 - 1);
             if l > h {
                 return false;
@@ -499,11 +502,15 @@ impl VoxelIndex {
             a[i] = l as usize;
             b[i] = h as usize;
         }
+        let coordinate =
+            |axis: usize, c: usize| ((self.origin[axis] + c as i64) as f64 + 0.5) * self.resolution;
         for z in a[2]..=b[2] {
+            let cz = coordinate(2, z);
             for y in a[1]..=b[1] {
+                let cy = coordinate(1, y);
                 let row = self.linear([0, y, z]);
                 for x in a[0]..=b[0] {
-                    if self.occupied[row + x] && hit(row + x) {
+                    if self.occupied[row + x] && hit([coordinate(0, x), cy, cz]) {
                         return true;
                     }
                 }
