@@ -50,12 +50,22 @@ pub struct IcpResult {
 
 /// What ICP aligns to: for a (moved) source point, a reference point and unit normal.
 pub trait IcpTarget: Sync {
+    /// State a thread carries from one source point to the next (points come in
+    /// Morton order, so a lookup can start where the last one ended).
+    type Cursor: Default;
     /// `max_distance` bounds how far the pair may be from `p`.
-    fn pair(&self, p: [f64; 3], max_distance: f64) -> Option<([f64; 3], [f64; 3])>;
+    fn pair(
+        &self,
+        p: [f64; 3],
+        max_distance: f64,
+        cursor: &mut Self::Cursor,
+    ) -> Option<([f64; 3], [f64; 3])>;
 }
 
 impl IcpTarget for PlaneTarget {
-    fn pair(&self, p: [f64; 3], max_distance: f64) -> Option<([f64; 3], [f64; 3])> {
+    type Cursor = ();
+
+    fn pair(&self, p: [f64; 3], max_distance: f64, _: &mut ()) -> Option<([f64; 3], [f64; 3])> {
         let (d2, j) = self.tree.nearest(p)?;
         (d2 <= max_distance * max_distance)
             .then(|| (self.tree.points()[j as usize], self.normals[j as usize]))
@@ -63,10 +73,18 @@ impl IcpTarget for PlaneTarget {
 }
 
 impl IcpTarget for crate::octree::SurfaceMap {
-    /// NOctoSLAM's descent; the depth of the node found bounds the distance: a node
-    /// larger than `max_distance` is too coarse to pair with.
-    fn pair(&self, p: [f64; 3], max_distance: f64) -> Option<([f64; 3], [f64; 3])> {
-        let (q, n, depth) = self.associate(p)?;
+    type Cursor = crate::octree::Descent;
+
+    /// NOctoSLAM's descent (resumed below the node shared with the previous point);
+    /// the depth of the node found bounds the distance: a node larger than
+    /// `max_distance` is too coarse to pair with.
+    fn pair(
+        &self,
+        p: [f64; 3],
+        max_distance: f64,
+        cursor: &mut Self::Cursor,
+    ) -> Option<([f64; 3], [f64; 3])> {
+        let (q, n, depth) = self.associate_from(p, cursor)?;
         (self.key_converter().node_size(depth) <= max_distance).then_some((q, n))
     }
 }
@@ -227,9 +245,9 @@ struct NormalEquations {
 
 /// JᵀWJ and JᵀWr of the point-to-plane residuals at `transform`, with
 /// r = (p' − q)·n and J = [p' × n, n] for the step (ω, t) applied on the left.
-fn normal_equations(
+fn normal_equations<T: IcpTarget>(
     source: &[[f64; 3]],
-    target: &impl IcpTarget,
+    target: &T,
     transform: &Matrix4<f64>,
     params: IcpParams,
 ) -> NormalEquations {
@@ -244,11 +262,13 @@ fn normal_equations(
             squared: 0.0,
             pairs: 0,
         };
+        let mut cursor = T::Cursor::default();
         for p in &source[start..(start + CHUNK).min(source.len())] {
             let moved = r * Vector3::from(*p) + t;
             let Some((q, n)) = target.pair(
                 [moved.x, moved.y, moved.z],
                 params.max_correspondence_distance,
+                &mut cursor,
             ) else {
                 continue;
             };

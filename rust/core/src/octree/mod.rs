@@ -16,5 +16,5 @@ pub use key::{KeyConverter, OcTreeKey, TREE_DEPTH, TREE_MAX_VAL};
 pub use occupancy::{logodds, probability, KeyUpdate, Leaf, OcTree, OccupancyParams};
 pub use ray::{cast_ray, compute_ray_keys, walk_ray, Point3f, RayCells, RayHit};
 pub use scan::InsertReport;
-pub use surface::{SurfaceMap, SurfaceNode, SurfaceParams, SurfaceSample};
+pub use surface::{Descent, SurfaceMap, SurfaceNode, SurfaceParams, SurfaceSample};
 pub use volume::{DenseMarker, KeyVolume};

@@ -298,13 +298,39 @@ impl SurfaceMap {
     /// position and the parent's normal, else with the deepest node passed that has a
     /// normal. Returns (position, unit normal, depth of the node that gave the normal).
     pub fn associate(&self, p: [f64; 3]) -> Option<([f64; 3], [f64; 3], u32)> {
+        self.associate_from(p, &mut Descent::default())
+    }
+
+    /// `associate`, resuming below the deepest node this point shares with the
+    /// previous descent recorded in `cursor` (ICP visits points in Morton order, so
+    /// neighbours share all but the last few levels). Use one cursor per thread and map.
+    pub fn associate_from(
+        &self,
+        p: [f64; 3],
+        cursor: &mut Descent,
+    ) -> Option<([f64; 3], [f64; 3], u32)> {
         let key = self.conv.coord_to_key_checked_f64(p)?;
         if self.root == NONE {
             return None;
         }
-        let mut node = self.root;
-        let mut best: Option<(SurfaceNode, u32)> = None;
-        for d in 0..TREE_DEPTH {
+        // Nodes down to the depth where the keys' child indices first differ are shared.
+        let shared = match cursor.key {
+            Some(prev) => {
+                let diff = (prev.0[0] ^ key.0[0]) | (prev.0[1] ^ key.0[1]) | (prev.0[2] ^ key.0[2]);
+                (diff.leading_zeros() as usize).min(cursor.len.saturating_sub(1))
+            }
+            None => 0,
+        };
+        let (mut node, mut best, start) = if shared > 0 {
+            (cursor.path[shared], cursor.best[shared], shared as u32)
+        } else {
+            (self.root, None, 0)
+        };
+        cursor.key = Some(key);
+        for d in start..TREE_DEPTH {
+            cursor.path[d as usize] = node;
+            cursor.best[d as usize] = best;
+            cursor.len = d as usize + 1;
             let here = self.arena.value(node);
             if here.has_normal {
                 best = Some((here, d));
@@ -323,10 +349,84 @@ impl SurfaceMap {
     }
 }
 
+/// The nodes of the last `SurfaceMap::associate_from` descent (for one map that does
+/// not change meanwhile): the node at each depth and the deepest node with a normal
+/// above it.
+#[derive(Clone, Debug)]
+pub struct Descent {
+    key: Option<OcTreeKey>,
+    path: [u32; TREE_DEPTH as usize],
+    best: [Option<(SurfaceNode, u32)>; TREE_DEPTH as usize],
+    len: usize,
+}
+
+impl Default for Descent {
+    fn default() -> Self {
+        Descent {
+            key: None,
+            path: [NONE; TREE_DEPTH as usize],
+            best: [None; TREE_DEPTH as usize],
+            len: 0,
+        }
+    }
+}
+
 fn pos(c: &SurfaceNode) -> Vector3<f64> {
     Vector3::new(
         f64::from(c.position[0]),
         f64::from(c.position[1]),
         f64::from(c.position[2]),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::Rng;
+
+    /// A resumed descent gives exactly what a fresh one does, whatever the order of
+    /// the points (Morton order shares long prefixes, random order short ones).
+    #[test]
+    fn resumed_descent_equals_fresh_descent() {
+        let mut rng = Rng::new(11);
+        let mut map = SurfaceMap::new(0.02, SurfaceParams::default()).unwrap();
+        // Two walls and a floor, a little noisy, inserted twice (normals form).
+        let mut points = Vec::new();
+        for _ in 0..6000 {
+            let (u, v) = (rng.uniform(-1.0, 1.0), rng.uniform(0.0, 1.0));
+            let e = rng.uniform(-0.003, 0.003);
+            points.push([u, 1.0 + e, v]);
+            points.push([1.0 + e, u, v]);
+            points.push([u, v, e]);
+        }
+        map.insert(&points).unwrap();
+        map.insert(&points).unwrap();
+        let queries: Vec<[f64; 3]> = (0..5000)
+            .map(|_| {
+                [
+                    rng.uniform(-1.1, 1.1),
+                    rng.uniform(-0.2, 1.1),
+                    rng.uniform(-0.1, 1.1),
+                ]
+            })
+            .chain(
+                points
+                    .iter()
+                    .take(3000)
+                    .map(|p| [p[0] + 0.004, p[1] - 0.003, p[2] + 0.002]),
+            )
+            .collect();
+        let order = crate::geometry::morton_order(&queries);
+        let morton: Vec<[f64; 3]> = order.iter().map(|&i| queries[i as usize]).collect();
+        let mut paired = 0;
+        for list in [&queries, &morton] {
+            let mut cursor = Descent::default();
+            for &q in list.iter() {
+                let fresh = map.associate(q);
+                assert_eq!(map.associate_from(q, &mut cursor), fresh, "{q:?}");
+                paired += usize::from(fresh.is_some());
+            }
+        }
+        assert!(paired > 4000, "{paired}");
+    }
 }
