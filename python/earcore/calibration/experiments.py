@@ -120,6 +120,7 @@ def calibration_table(seed: int = 0, camera_scale: float = 1.0, out: Path | None
                 "depth_mm": 1000 * err.depth_error_rms,
             }
         rows.append(entry)
+    calibrator.settings.depth_error_terms = terms
     cell.close()
     result = {"rows": rows, "run": run, "seed": seed}
     if out is not None:

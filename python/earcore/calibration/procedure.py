@@ -704,12 +704,7 @@ class Calibrator:
             )
             if np.abs(fit.flange_from_board - previous).max() < 1e-5:
                 break
-        if depth_lens.rms > self.settings.max_reprojection_px:
-            raise DegeneratePoses(
-                name,
-                f"the lens and pose explain the corners only to {depth_lens.rms:.1f} px rms "
-                f"(> {self.settings.max_reprojection_px} px): too few or too similar frames",
-            )
+        self._refuse_poor_lens(name, depth_lens)
         t = time.perf_counter()
         colour_lens, offset = None, None
         both = [o for o in obs if o.colour is not None]
@@ -787,10 +782,7 @@ class Calibrator:
             self.solver_time += time.perf_counter() - t
             if np.abs(mount - previous).max() < 1e-5:
                 break
-        if lens.rms > s.max_reprojection_px:
-            raise DegeneratePoses(
-                name, f"the lens and pose explain the corners only to {lens.rms:.1f} px rms (> {s.max_reprojection_px} px)"
-            )
+        self._refuse_poor_lens(name, lens)
         return CameraCalibration(
             name=name,
             base_from_camera=base_from_camera,
@@ -806,6 +798,14 @@ class Calibrator:
             colour_region=_region([o.ir for o in obs]),
             start_q=[float(v) for v in self.start_poses[name][1]] if name in self.start_poses else None,
         )
+
+    def _refuse_poor_lens(self, name: str, lens) -> None:
+        """A calibration whose lens and pose leave the corners too far off is refused."""
+        limit = self.settings.max_reprojection_px
+        if lens.rms > limit:
+            raise DegeneratePoses(
+                name, f"the lens and pose explain the corners only to {lens.rms:.1f} px rms (> {limit} px): too few or too similar frames"
+            )
 
     def _corners_in_base(self, obs: list[Observation], mount: np.ndarray) -> np.ndarray:
         """Every frame's board corners placed in the base frame by forward kinematics."""
