@@ -12,7 +12,7 @@ use crate::error::{Error, Result};
 use crate::floor::fast_floor;
 use crate::octree::{OcTree, OcTreeKey, TREE_DEPTH};
 use crate::robot::body::Body;
-use crate::robot::capsule::segment_box_closest;
+use crate::robot::capsule::point_segment_distance_squared;
 
 const NONE: u32 = u32::MAX;
 /// Axis samples per voxel length in collision tests: denser samples narrow the band
@@ -532,7 +532,7 @@ impl VoxelIndex {
         let capsule = body.enclosing_capsule();
         let len = capsule.length();
         let steps = (2.0 * len / res).ceil().max(1.0) as usize;
-        let half = self.half();
+        let half_diagonal = 0.5 * SQRT3 * res;
         let mut last = NONE;
         for s in 0..=steps {
             let p = capsule.axis_point(s as f64 / steps as f64);
@@ -544,9 +544,11 @@ impl VoxelIndex {
                 continue;
             }
             last = near;
+            // A cheap lower bound (the box's centre less its half diagonal) orders the
+            // candidates; the exact distance is only computed for the few that lead.
             let centre = self.center_of(near as usize);
-            let (d2, _, _) = segment_box_closest(&capsule.a, &capsule.b, &centre, &half);
-            out.push((d2.sqrt() - capsule.radius, tag, near));
+            let d = point_segment_distance_squared(&capsule.a, &capsule.b, &centre).sqrt();
+            out.push((d - half_diagonal - capsule.radius, tag, near));
         }
         Ok(())
     }
@@ -682,6 +684,7 @@ fn distance_transform_1d(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::robot::capsule::segment_box_closest;
     use crate::synthetic::Rng;
 
     fn random_index(rng: &mut Rng, res: f64, count: usize) -> VoxelIndex {
