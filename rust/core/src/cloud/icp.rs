@@ -66,9 +66,8 @@ impl IcpTarget for PlaneTarget {
     type Cursor = ();
 
     fn pair(&self, p: [f64; 3], max_distance: f64, _: &mut ()) -> Option<([f64; 3], [f64; 3])> {
-        let (d2, j) = self.tree.nearest(p)?;
-        (d2 <= max_distance * max_distance)
-            .then(|| (self.tree.points()[j as usize], self.normals[j as usize]))
+        let (_, j) = self.tree.nearest_within(p, max_distance * max_distance)?;
+        Some((self.tree.points()[j as usize], self.normals[j as usize]))
     }
 }
 

@@ -104,16 +104,26 @@ impl KdTree {
     }
 
     /// The nearest point to `q` as (squared distance, index); ties go to the lower index.
-    /// An iterative walk with a small stack (the hot path of point-to-plane ICP).
     pub fn nearest(&self, q: [f64; 3]) -> Option<(f64, u32)> {
+        self.nearest_within(q, f64::INFINITY)
+    }
+
+    /// The nearest point within squared distance `limit` (inclusive) of `q`, if any.
+    /// An iterative walk with a fixed stack (the hot path of point-to-plane ICP); the
+    /// limit prunes the walk, which matters for points with no near neighbour.
+    pub fn nearest_within(&self, q: [f64; 3], limit: f64) -> Option<(f64, u32)> {
         if self.nodes.is_empty() {
             return None;
         }
-        let mut best = (f64::INFINITY, u32::MAX);
-        // (node, squared distance from q to the node's side of every split above it)
-        let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
-        stack.push((0, 0.0));
-        while let Some((node, bound)) = stack.pop() {
+        let mut best = (limit, u32::MAX);
+        // (node, squared distance from q to the node's side of every split above it).
+        // Median splits keep the tree ≤ 32 levels deep for u32 indices, and a
+        // depth-first walk holds at most one entry per level plus one.
+        let mut stack = [(0u32, 0.0f64); 64];
+        let mut len = 1;
+        while len > 0 {
+            len -= 1;
+            let (node, bound) = stack[len];
             if bound > best.0 {
                 continue;
             }
@@ -141,13 +151,15 @@ impl KdTree {
                     };
                     let far_bound = bound.max(diff * diff);
                     if far_bound <= best.0 {
-                        stack.push((far, far_bound));
+                        stack[len] = (far, far_bound);
+                        len += 1;
                     }
-                    stack.push((near, bound));
+                    stack[len] = (near, bound);
+                    len += 1;
                 }
             }
         }
-        Some(best)
+        (best.1 != u32::MAX).then_some(best)
     }
 
     /// The `k` nearest points to `q` as (squared distance, index), nearest first,
@@ -243,6 +255,11 @@ mod tests {
                 })
                 .min_by(|a, b| a.partial_cmp(b).unwrap());
             assert_eq!(tree.nearest(q), brute);
+            // Within a limit: the same point when it is inside, else none.
+            for limit in [1e-4, 4e-3, 0.05] {
+                let expected = brute.filter(|&(d2, _)| d2 <= limit);
+                assert_eq!(tree.nearest_within(q, limit), expected, "{q:?} {limit}");
+            }
         }
     }
 

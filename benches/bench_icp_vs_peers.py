@@ -1,0 +1,129 @@
+"""Point-to-plane ICP side by side, one thread, same data, one run: earcore (against a
+`PlaneTarget` and against a 1 cm `SurfaceMap`), small_gicp (its point-to-plane ICP and
+its GICP) and open3d-cpu (point-to-plane).
+
+Data: the perception benchmark's frames (four Kinect V2-like cameras in the simulated
+cell, depth in the robot's base frame by the true poses, cropped to 1.5 m). Target: the
+first three cameras' points on a 1 cm voxel grid; source: the fourth camera's points,
+15k and 100k of them, moved 2 cm / 2° off. The truth is the identity, so every result
+is scored by its remaining error. Target structures (k-d trees, normals, the surface map)
+are built once beforehand, as for a map; the times are the alignment alone.
+
+    python benches/bench_icp_vs_peers.py [--repeats 5]
+
+kiss-icp is not in the table: its Python API is an odometry pipeline (adaptive
+threshold, voxel map, motion model) with no single point-to-point alignment call to
+time against the same target.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # open3d: one thread, like the others
+
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import earcore  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_perception import CACHE, record  # noqa: E402
+
+
+def error(transform: np.ndarray) -> tuple[float, float]:
+    """Translation (mm) and rotation (degrees) of a transform that should be the identity."""
+    cos = np.clip((np.trace(transform[:3, :3]) - 1) / 2, -1.0, 1.0)
+    return 1e3 * float(np.linalg.norm(transform[:3, 3])), float(np.degrees(np.arccos(cos)))
+
+
+def timed(fn, repeats: int):
+    result = fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    import open3d as o3d
+    import small_gicp
+
+    earcore.set_num_threads(1)
+    data = dict(np.load(CACHE)) if CACHE.exists() else record(8)
+    K = data["K"]
+    clouds = []
+    for i in range(4):
+        pts = earcore.depth_to_points(
+            data["depth"][0, i].astype(np.float64), K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+            base_from_camera=data["poses"][0, i], max_depth=4.0,
+        )
+        clouds.append(earcore.crop(pts, center=np.zeros(3), radius=1.5))
+    target = earcore.voxel_downsample(np.vstack(clouds[:3]), 0.01)
+    normals = earcore.estimate_normals(target, 20)
+    plane_target = earcore.PlaneTarget(target, normals)
+    surface = earcore.SurfaceMap(0.01)
+    for c in clouds[:3]:
+        surface.insert(c)
+        surface.insert(c)
+    sg_target, sg_tree = small_gicp.preprocess_points(target, downsampling_resolution=0.005, num_neighbors=20)
+    o3d_target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(target))
+    o3d_target.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    start_pose = np.eye(4)
+    start_pose[:3, :3] = o3d.geometry.get_rotation_matrix_from_axis_angle(axis * np.radians(2.0))
+    start_pose[:3, 3] = [0.012, -0.01, 0.012]
+    rng = np.random.default_rng(0)
+    cpu = next((l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")), "?")
+    print(f"# point-to-plane ICP, one thread; machine: {cpu}, {os.cpu_count()} cores; target {len(target)} points "
+          f"(1 cm grid); source moved {error(start_pose)[0]:.0f} mm / {error(start_pose)[1]:.1f}° off\n")
+    print("| source points | method | alignment ms | iterations | ms per iteration | error mm | error ° |")
+    print("|---|---|---|---|---|---|---|")
+    for n in (15_000, 100_000):
+        source = clouds[3][rng.choice(len(clouds[3]), min(n, len(clouds[3])), replace=False)]
+        moved = source @ start_pose[:3, :3].T + start_pose[:3, 3]
+        back = np.linalg.inv(start_pose)  # the answer: target_from_moved-source
+        sg_source = small_gicp.PointCloud(moved)
+        small_gicp.estimate_covariances(sg_source, num_neighbors=20)
+        o3d_source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(moved))
+        rows = []
+
+        def ours(tgt):
+            r = earcore.icp_point_to_plane(moved, tgt, np.eye(4), max_correspondence_distance=0.05,
+                                           translation_tolerance=1e-5, rotation_tolerance=1e-5)
+            return r.transform, r.iterations
+
+        def sg(kind):
+            r = small_gicp.align(sg_target, sg_source, sg_tree, registration_type=kind, max_correspondence_distance=0.05,
+                                 num_threads=1, max_iterations=50, rotation_epsilon=1e-5, translation_epsilon=1e-5)
+            return r.T_target_source, r.iterations
+
+        def o3d_icp():
+            r = o3d.pipelines.registration.registration_icp(
+                o3d_source, o3d_target, 0.05, np.eye(4), o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+                o3d.pipelines.registration.ICPConvergenceCriteria(relative_fitness=1e-9, relative_rmse=1e-9, max_iteration=50),
+            )
+            return np.asarray(r.transformation), None
+
+        for label, fn in (("earcore, SurfaceMap", lambda: ours(surface)), ("earcore, PlaneTarget", lambda: ours(plane_target)),
+                          ("small_gicp PLANE_ICP", lambda: sg("PLANE_ICP")), ("small_gicp GICP", lambda: sg("GICP")),
+                          ("open3d point-to-plane", o3d_icp)):
+            seconds, (transform, iterations) = timed(fn, args.repeats)
+            mm, deg = error(np.asarray(transform) @ np.linalg.inv(back))
+            per = f"{1e3 * seconds / iterations:.2f}" if iterations else "–"
+            rows.append(seconds)
+            print(f"| {len(source)} | {label} | {1e3 * seconds:.1f} | {iterations if iterations else '–'} | {per} | {mm:.2f} | {deg:.3f} |")
+
+
+if __name__ == "__main__":
+    main()
