@@ -22,22 +22,18 @@ import numpy as np
 import earcore
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_perception import CACHE, record  # noqa: E402
+from bench_perception import base_points, load_frames  # noqa: E402
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=10)
     args = parser.parse_args()
-    data = dict(np.load(CACHE)) if CACHE.exists() else record(8)
+    data = load_frames()
     earcore.set_num_threads(1)
-    K = data["K"]
     clouds = []
     for i in range(4):
-        pts = earcore.depth_to_points(
-            data["depth"][0, i].astype(np.float64), K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-            base_from_camera=data["poses"][0, i], max_depth=4.0,
-        )
+        pts = base_points(data, 0, i)
         clouds.append(earcore.crop(pts, center=np.zeros(3), radius=1.5))
     surface = earcore.SurfaceMap(0.01)
     for c in clouds[:3]:

@@ -3,7 +3,8 @@
 its GICP) and open3d-cpu (point-to-plane).
 
 Data: the perception benchmark's frames (four Kinect V2-like cameras in the simulated
-cell, depth in the robot's base frame by the true poses, cropped to 1.5 m). Target: the
+cell; back-projected through the sensor's lens with its depth error taken out, into the
+robot's base frame by the true poses, cropped to 1.5 m). Target: the
 first three cameras' points on a 1 cm voxel grid; source: the fourth camera's points,
 15k and 100k of them, moved 2 cm / 2° off. The truth is the identity, so every result
 is scored by its remaining error. Target structures (k-d trees, normals, the surface map)
@@ -33,7 +34,7 @@ import numpy as np  # noqa: E402
 import earcore  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_perception import CACHE, record  # noqa: E402
+from bench_perception import base_points, load_frames  # noqa: E402
 
 
 def error(transform: np.ndarray) -> tuple[float, float]:
@@ -60,14 +61,10 @@ def main() -> None:
     import small_gicp
 
     earcore.set_num_threads(1)
-    data = dict(np.load(CACHE)) if CACHE.exists() else record(8)
-    K = data["K"]
+    data = load_frames()
     clouds = []
     for i in range(4):
-        pts = earcore.depth_to_points(
-            data["depth"][0, i].astype(np.float64), K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-            base_from_camera=data["poses"][0, i], max_depth=4.0,
-        )
+        pts = base_points(data, 0, i)
         clouds.append(earcore.crop(pts, center=np.zeros(3), radius=1.5))
     target = earcore.voxel_downsample(np.vstack(clouds[:3]), 0.01)
     normals = earcore.estimate_normals(target, 20)

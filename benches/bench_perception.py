@@ -36,6 +36,36 @@ from earcore.sim.config import CameraConfig, CellConfig, PerceptionConfig
 CACHE = Path("out/recorded_frames.npz")
 
 
+def _sensor_signature() -> str:
+    """What the recorded frames depend on besides the cell: a changed sensor model (noise,
+    lens, depth error) makes the cache stale."""
+    from earcore.sim.sensors import SENSORS
+
+    return repr(SENSORS["kinect_v2"])
+
+
+def load_frames(sets: int = 8) -> dict:
+    """The cached frame sets, recorded anew when missing, too few or from another sensor model."""
+    if CACHE.exists():
+        data = dict(np.load(CACHE))
+        if str(data.get("sensor", "")) == _sensor_signature() and len(data["depth"]) >= sets:
+            return data
+    return record(sets)
+
+
+def base_points(data: dict, frame_set: int, camera: int) -> np.ndarray:
+    """One recorded depth image as points in the base frame, through the sensor's lens and
+    with its depth error taken out (as a calibrated camera would deliver them)."""
+    from earcore.depth_error import radius2_grid
+    from earcore.sim.sensors import SENSORS
+
+    sensor, K = SENSORS["kinect_v2"], data["K"]
+    depth = data["depth"][frame_set, camera].astype(np.float64)
+    depth = sensor.depth_bias.correct(depth, radius2_grid(K, depth.shape[1], depth.shape[0]))
+    return earcore.depth_to_points(depth, K[0, 0], K[1, 1], K[0, 2], K[1, 2], distortion=sensor.distortion,
+                                   base_from_camera=data["poses"][frame_set, camera], max_depth=4.0)
+
+
 def record(sets: int) -> dict:
     from earcore.sim.cell import SimulatedCell, default_waypoints
 
@@ -55,7 +85,7 @@ def record(sets: int) -> dict:
         qs.append(cell.q.copy())
         K = frames[0].K
     cell.close()
-    data = {"depth": np.stack(depth), "poses": np.stack(poses), "q": np.stack(qs), "K": K}
+    data = {"depth": np.stack(depth), "poses": np.stack(poses), "q": np.stack(qs), "K": K, "sensor": np.array(_sensor_signature())}
     CACHE.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(CACHE, **data)
     return data
@@ -137,9 +167,7 @@ def main() -> None:
     parser.add_argument("--sets", type=int, default=8, help="frame sets to record (4 depth frames each)")
     parser.add_argument("--threads", type=int, default=0, help="earcore threads (0 = all cores)")
     args = parser.parse_args()
-    data = dict(np.load(CACHE)) if CACHE.exists() else record(args.sets)
-    if len(data["depth"]) < args.sets:
-        data = record(args.sets)
+    data = load_frames(args.sets)
     earcore.set_num_threads(args.threads)
     config = PerceptionConfig(min_height=None)  # the same pipeline on both sides (see above)
     robot = earcore.robots.load("ur5")
