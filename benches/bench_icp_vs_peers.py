@@ -24,9 +24,7 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # open3d: one thread, like the others
 
-import statistics  # noqa: E402
 import sys  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -35,22 +33,13 @@ import earcore  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_perception import base_points, load_frames  # noqa: E402
+from bench_vs_octomap import median_time  # noqa: E402
 
 
 def error(transform: np.ndarray) -> tuple[float, float]:
     """Translation (mm) and rotation (degrees) of a transform that should be the identity."""
     cos = np.clip((np.trace(transform[:3, :3]) - 1) / 2, -1.0, 1.0)
     return 1e3 * float(np.linalg.norm(transform[:3, 3])), float(np.degrees(np.arccos(cos)))
-
-
-def timed(fn, repeats: int):
-    result = fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times), result
 
 
 def main() -> None:
@@ -115,7 +104,7 @@ def main() -> None:
         for label, fn in (("earcore, SurfaceMap", lambda: ours(surface)), ("earcore, PlaneTarget", lambda: ours(plane_target)),
                           ("small_gicp PLANE_ICP", lambda: sg("PLANE_ICP")), ("small_gicp GICP", lambda: sg("GICP")),
                           ("open3d point-to-plane", o3d_icp)):
-            seconds, (transform, iterations) = timed(fn, args.repeats)
+            seconds, (transform, iterations) = median_time(fn, args.repeats)
             mm, deg = error(np.asarray(transform) @ np.linalg.inv(back))
             per = f"{1e3 * seconds / iterations:.2f}" if iterations else "–"
             rows.append(seconds)
