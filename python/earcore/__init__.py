@@ -38,6 +38,7 @@ from earcore.registration import (  # noqa: E402
     rigid_fit,
     rigid_fit_ransac,
 )
+from earcore.lidar_odometry import LidarOdometry, OdometrySettings  # noqa: E402
 from earcore.cloud import (  # noqa: E402
     cluster_points,
     crop,
@@ -69,6 +70,8 @@ __all__ = [
     "OutOfMapError",
     "RobotModel",
     "SurfaceMap",
+    "LidarOdometry",
+    "OdometrySettings",
     "fit_body",
     "robots",
     "__version__",

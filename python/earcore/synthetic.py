@@ -9,6 +9,7 @@ from earcore._earcore import benchmark_frame, render_depth_points, render_lidar_
 
 __all__ = [
     "benchmark_frame",
+    "handheld_trajectory",
     "lidar_room",
     "look_at",
     "random_scene",
@@ -50,3 +51,45 @@ def lidar_room(rng: np.random.Generator, n_boxes: int = 12) -> np.ndarray:
     corner = rng.uniform([-3.9, -3.9], [3.9, 3.9], size=(n_boxes, 2)) - size[:, :2] / 2
     furniture = np.column_stack([corner, np.zeros(n_boxes), corner + size[:, :2], size[:, 2]])
     return np.vstack([room, furniture])
+
+
+def _rotation_xyz(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def handheld_trajectory(
+    rng: np.random.Generator, seconds: float, rate_hz: float = 20.0, speed: float = 0.5
+) -> list[np.ndarray]:
+    """A lidar carried by hand through `lidar_room` above the furniture (NOctoSLAM's
+    episodes): a smooth Catmull-Rom path through random waypoints at walking `speed`
+    (m/s), yaw sweeping, a few degrees of roll and pitch. One 4×4 `room_from_sensor`
+    per scan at `rate_hz`, sensor z up."""
+    waypoints = rng.uniform([-2.8, -2.8, 2.2], [2.8, 2.8, 2.8], size=(int(seconds / 4) + 4, 3))
+    u = np.linspace(0, 1, 200, endpoint=False)[:, None]
+    fine = []
+    for i in range(1, len(waypoints) - 2):
+        p0, p1, p2, p3 = waypoints[i - 1 : i + 3]
+        fine.append(
+            0.5 * ((2 * p1) + (-p0 + p2) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u**2 + (-p0 + 3 * p1 - 3 * p2 + p3) * u**3)
+        )
+    path = np.vstack(fine)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    n = int(seconds * rate_hz)
+    s = np.minimum(np.arange(n) * speed / rate_hz, arc[-1])
+    positions = np.column_stack([np.interp(s, arc, path[:, a]) for a in range(3)])
+    t = np.arange(n) / rate_hz
+    phase = rng.uniform(0, 2 * np.pi, 4)
+    yaw = 0.6 * np.sin(0.25 * t + phase[0]) + 0.4 * np.sin(0.11 * t + phase[1])
+    roll = np.radians(4) * np.sin(0.7 * t + phase[2])
+    pitch = np.radians(4) * np.sin(0.5 * t + phase[3])
+    poses = []
+    for k in range(n):
+        m = np.eye(4)
+        m[:3, :3] = _rotation_xyz(roll[k], pitch[k], yaw[k])
+        m[:3, 3] = positions[k]
+        poses.append(m)
+    return poses

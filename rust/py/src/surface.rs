@@ -32,12 +32,19 @@ impl PySurfaceMap {
 #[pymethods]
 impl PySurfaceMap {
     #[new]
-    #[pyo3(signature = (resolution=0.01, *, prob_hit=0.7, clamping_max=0.971, similar=0.25))]
-    fn new(resolution: f64, prob_hit: f64, clamping_max: f64, similar: f64) -> PyResult<Self> {
+    #[pyo3(signature = (resolution=0.01, *, prob_hit=0.7, clamping_max=0.971, similar=0.25, position_memory=None))]
+    fn new(
+        resolution: f64,
+        prob_hit: f64,
+        clamping_max: f64,
+        similar: f64,
+        position_memory: Option<u16>,
+    ) -> PyResult<Self> {
         let params = SurfaceParams {
             prob_hit,
             clamping_max,
             similar,
+            position_memory,
         };
         Ok(PySurfaceMap {
             inner: RwLock::new(SurfaceMap::new(resolution, params).py()?),
@@ -50,17 +57,50 @@ impl PySurfaceMap {
     }
 
     /// Insert end points (N, 3) and propagate positions and normals up the tree;
-    /// returns the number of leaves touched.
-    fn insert(&self, py: Python<'_>, points: &Bound<'_, PyAny>) -> PyResult<usize> {
+    /// returns the number of leaves touched. With `sensor_origin` and `beam_spacing`
+    /// (radians between neighbouring scan lines, e.g. 2° for a 16-line lidar over 30°)
+    /// each point's leaf is the smallest node spanning the gap between scan lines at
+    /// its range, at most `max_leaf_size` metres (NOctoSLAM's dynamic leaf depth).
+    #[pyo3(signature = (points, sensor_origin=None, beam_spacing=None, max_leaf_size=0.32))]
+    fn insert(
+        &self,
+        py: Python<'_>,
+        points: &Bound<'_, PyAny>,
+        sensor_origin: Option<[f64; 3]>,
+        beam_spacing: Option<f64>,
+        max_leaf_size: f64,
+    ) -> PyResult<usize> {
         let pts = self::points(points, "points")?;
         let slice = pts.as_slice()?;
-        py.detach(|| self.inner.write().insert(slice)).py()
+        py.detach(|| {
+            let depths = match (sensor_origin, beam_spacing) {
+                (None, None) => None,
+                (Some(o), Some(b)) => {
+                    Some(self.inner.read().leaf_depths(slice, o, b, max_leaf_size)?)
+                }
+                _ => {
+                    return Err(earcore_core::Error::InvalidArgument(
+                        "dynamic leaf depth needs both sensor_origin and beam_spacing".into(),
+                    ))
+                }
+            };
+            self.inner
+                .write()
+                .insert_at_depths(slice, depths.as_deref())
+        })
+        .py()
     }
 
-    /// Nodes at `depth` (16 = leaves; None = every node): positions (M, 3), normals
+    /// Nodes at `depth` (16 = the finest level; None = every node), or only the
+    /// leaves (nodes without children, at any depth): positions (M, 3), normals
     /// (M, 3, NaN where a node has none) and depths (M,).
-    #[pyo3(signature = (depth=None))]
-    fn nodes<'py>(&self, py: Python<'py>, depth: Option<u32>) -> PyResult<SurfaceNodes<'py>> {
+    #[pyo3(signature = (depth=None, *, leaves_only=false))]
+    fn nodes<'py>(
+        &self,
+        py: Python<'py>,
+        depth: Option<u32>,
+        leaves_only: bool,
+    ) -> PyResult<SurfaceNodes<'py>> {
         if depth.is_some_and(|d| d > 16) {
             return Err(pyo3::exceptions::PyValueError::new_err(
                 "depth must be between 0 and 16",
@@ -70,6 +110,9 @@ impl PySurfaceMap {
             let map = self.inner.read();
             let (mut p, mut n, mut d) = (Vec::new(), Vec::new(), Vec::new());
             map.for_each_node(depth, |s| {
+                if leaves_only && !s.leaf {
+                    return;
+                }
                 p.push(s.node.position.map(f64::from));
                 n.push(if s.node.has_normal {
                     s.node.normal.map(f64::from)
@@ -78,6 +121,43 @@ impl PySurfaceMap {
                 });
                 d.push(s.depth as u8);
             });
+            (p, n, d)
+        });
+        Ok((
+            rows_to_array(py, p)?,
+            rows_to_array(py, n)?,
+            vec_to_array(py, d),
+        ))
+    }
+
+    /// NOctoSLAM's association for each query point (N, 3): the paired position (M, 3)
+    /// and normal, and the depth of the node that gave the position; NaN rows and
+    /// depth 0 where no node with a normal lies on the point's branch.
+    fn associate<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'_, PyAny>,
+    ) -> PyResult<SurfaceNodes<'py>> {
+        let pts = self::points(points, "points")?;
+        let slice = pts.as_slice()?;
+        let (p, n, d) = py.detach(|| {
+            let map = self.inner.read();
+            let mut cursor = earcore_core::octree::Descent::default();
+            let (mut p, mut n, mut d) = (Vec::new(), Vec::new(), Vec::new());
+            for &q in slice {
+                match map.associate_from(q, &mut cursor) {
+                    Some((pos, normal, depth)) => {
+                        p.push(pos);
+                        n.push(normal);
+                        d.push(depth as u8);
+                    }
+                    None => {
+                        p.push([f64::NAN; 3]);
+                        n.push([f64::NAN; 3]);
+                        d.push(0);
+                    }
+                }
+            }
             (p, n, d)
         });
         Ok((

@@ -12,6 +12,13 @@
 //!    (Eq. 4) when exactly two eigenvalues are similar (a plane), else the mean of the
 //!    children's normals, else none. Untouched branches are not visited, so an
 //!    update's cost does not grow with the map.
+//!
+//! Dynamic leaf depth (the paper's Fig. 3, for sparse multi-line lidar): a point may
+//! end in a leaf above the finest level, sized to the gap between neighbouring scan
+//! lines at its range, so that leaves of neighbouring lines touch and a leaf averages
+//! many points. A leaf is any node without children; an existing coarse leaf absorbs
+//! finer points (it is never split), and a coarse point reaching an inner node goes on
+//! into the existing finer branch.
 
 use super::arena::{NodeArena, NONE};
 use super::key::{child_runs, KeyConverter, OcTreeKey, TREE_DEPTH};
@@ -27,6 +34,8 @@ pub struct SurfaceNode {
     /// Unit normal; meaningful only when `has_normal`.
     pub normal: [f32; 3],
     pub has_normal: bool,
+    /// End points blended into this leaf (saturating; used by `position_memory`).
+    pub hits: u16,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,6 +46,11 @@ pub struct SurfaceParams {
     pub clamping_max: f64,
     /// Two eigenvalues λ_a ≤ λ_b are "similar" when λ_a ≥ similar · λ_b.
     pub similar: f64,
+    /// `None`: the paper's blend (a new point weighs M / (p_occ + M), ~0.42 once the
+    /// leaf is certain, so a leaf follows its latest points). `Some(k)`: a leaf holds
+    /// the mean of its first k points and then a moving average over k, so a map built
+    /// while the sensor pose drifts keeps what it saw first (SLAM's anchor).
+    pub position_memory: Option<u16>,
 }
 
 impl Default for SurfaceParams {
@@ -45,6 +59,7 @@ impl Default for SurfaceParams {
             prob_hit: 0.7,
             clamping_max: 0.971,
             similar: 0.25,
+            position_memory: None,
         }
     }
 }
@@ -64,6 +79,8 @@ pub struct SurfaceMap {
 pub struct SurfaceSample {
     pub key: OcTreeKey,
     pub depth: u32,
+    /// Without children (with dynamic leaf depth, leaves lie above depth 16 too).
+    pub leaf: bool,
     pub node: SurfaceNode,
 }
 
@@ -78,7 +95,8 @@ impl SurfaceMap {
         if !(ok(params.prob_hit)
             && ok(params.clamping_max)
             && params.prob_hit <= params.clamping_max
-            && ok(params.similar))
+            && ok(params.similar)
+            && params.position_memory != Some(0))
         {
             return Err(Error::InvalidArgument(format!(
                 "surface map parameters out of range: {params:?}"
@@ -111,9 +129,80 @@ impl SurfaceMap {
         std::mem::size_of::<Self>() + self.arena.memory_usage()
     }
 
-    /// Insert end points (map frame, metres) and propagate; returns the number of
-    /// distinct leaves touched. The input is checked before the map changes.
+    /// Insert end points (map frame, metres) into leaves at the finest level and
+    /// propagate; returns the number of distinct leaves touched. The input is checked
+    /// before the map changes.
     pub fn insert(&mut self, points: &[[f64; 3]]) -> Result<usize> {
+        self.insert_at_depths(points, None)
+    }
+
+    /// Dynamic leaf depth: the depth (≤ 16) of the smallest node at least as large as
+    /// the gap `range · beam_spacing` between neighbouring scan lines at each point's
+    /// range from `origin`, no coarser than `max_leaf_size` metres.
+    pub fn leaf_depths(
+        &self,
+        points: &[[f64; 3]],
+        origin: [f64; 3],
+        beam_spacing: f64,
+        max_leaf_size: f64,
+    ) -> Result<Vec<u8>> {
+        if !(beam_spacing.is_finite() && beam_spacing > 0.0 && beam_spacing < 1.0) {
+            return Err(Error::InvalidArgument(format!(
+                "beam_spacing must be an angle in radians in (0, 1), got {beam_spacing}"
+            )));
+        }
+        if !origin.iter().all(|c| c.is_finite()) {
+            return Err(Error::InvalidArgument(format!(
+                "sensor origin {origin:?} is not finite"
+            )));
+        }
+        if !(max_leaf_size.is_finite() && max_leaf_size > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "max_leaf_size must be a positive number of metres, got {max_leaf_size}"
+            )));
+        }
+        let res = self.resolution();
+        let coarsest = (max_leaf_size / res).log2().floor().clamp(0.0, 15.0) as u32;
+        Ok(points
+            .iter()
+            .map(|p| {
+                let range = ((p[0] - origin[0]).powi(2)
+                    + (p[1] - origin[1]).powi(2)
+                    + (p[2] - origin[2]).powi(2))
+                .sqrt();
+                let gap = range * beam_spacing / res;
+                // ⌈log2 gap⌉ without logarithms: for gap > 1 it is the bit length of ⌈gap⌉ − 1.
+                let levels = if gap > 1.0 {
+                    let cells = gap.min(65536.0).ceil() as u64;
+                    (64 - (cells - 1).leading_zeros()).min(coarsest)
+                } else {
+                    0
+                };
+                (TREE_DEPTH - levels) as u8
+            })
+            .collect())
+    }
+
+    /// `insert` with a leaf depth per point (`leaf_depths`; `None`: all at 16).
+    pub fn insert_at_depths(
+        &mut self,
+        points: &[[f64; 3]],
+        depths: Option<&[u8]>,
+    ) -> Result<usize> {
+        if let Some(d) = depths {
+            if d.len() != points.len() {
+                return Err(Error::InvalidArgument(format!(
+                    "one leaf depth per point expected ({} points, {} depths)",
+                    points.len(),
+                    d.len()
+                )));
+            }
+            if let Some(bad) = d.iter().find(|&&x| x == 0 || u32::from(x) > TREE_DEPTH) {
+                return Err(Error::InvalidArgument(format!(
+                    "leaf depths must lie in 1..=16, got {bad}"
+                )));
+            }
+        }
         let mut items = Vec::with_capacity(points.len());
         for (i, &p) in points.iter().enumerate() {
             if !p.iter().all(|c| c.is_finite()) {
@@ -134,14 +223,39 @@ impl SurfaceMap {
         if items.is_empty() {
             return Ok(0);
         }
-        // Stable within a leaf: points blend in input order.
-        items.sort_by_key(|&(m, _)| m);
+        // Input order within a leaf: points blend in input order.
+        crate::geometry::sort_keyed(&mut items);
         if self.root == NONE {
             self.root = self.arena.alloc(SurfaceNode::default());
         }
         let mut touched = 0;
-        self.insert_recursive(self.root, 0, &items, points, &mut touched);
+        self.insert_recursive(self.root, 0, &items, points, depths, &mut touched);
         Ok(touched)
+    }
+
+    /// Whether `items` end in `node` (at `depth`): the finest level, an existing leaf
+    /// (a node without children that holds a position), or a new node at or below the
+    /// leaf depth one of the items asks for (all of a node's points end together, so
+    /// no position is lost to propagation).
+    fn ends_here(
+        &self,
+        node: u32,
+        depth: u32,
+        items: &[(u64, u32)],
+        depths: Option<&[u8]>,
+    ) -> bool {
+        if depth == TREE_DEPTH {
+            return true;
+        }
+        if self.arena.has_children(node) {
+            return false;
+        }
+        self.arena.value(node).log_odds != 0.0
+            || depths.is_some_and(|d| {
+                items
+                    .iter()
+                    .any(|&(_, i)| u32::from(d[i as usize]) <= depth)
+            })
     }
 
     fn insert_recursive(
@@ -150,9 +264,10 @@ impl SurfaceMap {
         depth: u32,
         items: &[(u64, u32)],
         points: &[[f64; 3]],
+        depths: Option<&[u8]>,
         touched: &mut usize,
     ) {
-        if depth == TREE_DEPTH {
+        if self.ends_here(node, depth, items, depths) {
             *touched += 1;
             let mut n = self.arena.value(node);
             let m = self.params.prob_hit;
@@ -162,11 +277,17 @@ impl SurfaceMap {
                 if n.log_odds == 0.0 {
                     n.position = d.map(|c| c as f32);
                 } else {
-                    let p_occ = probability(n.log_odds);
+                    // Weights of the stored position and of the new point.
+                    let (w_old, w_new) = match self.params.position_memory {
+                        None => (probability(n.log_odds), m),
+                        Some(k) => (f64::from(n.hits.min(k)), 1.0),
+                    };
                     for (stored, new) in n.position.iter_mut().zip(d) {
-                        *stored = ((f64::from(*stored) * p_occ + new * m) / (p_occ + m)) as f32;
+                        *stored =
+                            ((f64::from(*stored) * w_old + new * w_new) / (w_old + w_new)) as f32;
                     }
                 }
+                n.hits = n.hits.saturating_add(1);
                 n.log_odds = (n.log_odds + self.hit).min(self.clamp_max);
             }
             self.arena.set_value(node, n);
@@ -177,7 +298,7 @@ impl SurfaceMap {
                 Some(c) => c,
                 None => self.arena.create_child(node, pos, SurfaceNode::default()),
             };
-            self.insert_recursive(child, depth + 1, group, points, touched);
+            self.insert_recursive(child, depth + 1, group, points, depths, touched);
         }
         self.propagate(node);
     }
@@ -258,6 +379,7 @@ impl SurfaceMap {
                 f(SurfaceSample {
                     key: base,
                     depth: d,
+                    leaf: !self.arena.has_children(n),
                     node: self.arena.value(n),
                 });
             }
@@ -296,7 +418,8 @@ impl SurfaceMap {
     /// NOctoSLAM's association for point-to-plane ICP: descend toward the leaf holding
     /// `p`; if that leaf exists and its parent has a normal, pair `p` with the leaf's
     /// position and the parent's normal, else with the deepest node passed that has a
-    /// normal. Returns (position, unit normal, depth of the node that gave the normal).
+    /// normal. Returns (position, unit normal, depth of the node that gave the
+    /// position: the leaf, or the node with the normal).
     pub fn associate(&self, p: [f64; 3]) -> Option<([f64; 3], [f64; 3], u32)> {
         self.associate_from(p, &mut Descent::default())
     }
@@ -338,10 +461,14 @@ impl SurfaceMap {
             let Some(child) = self.arena.child(node, key.child_index(TREE_DEPTH - 1 - d)) else {
                 break;
             };
-            if d + 1 == TREE_DEPTH && here.has_normal {
+            if here.has_normal && !self.arena.has_children(child) {
                 // `child` is the leaf and `here` its parent, which has a normal.
                 let leaf = self.arena.value(child);
-                return Some((leaf.position.map(f64::from), here.normal.map(f64::from), d));
+                return Some((
+                    leaf.position.map(f64::from),
+                    here.normal.map(f64::from),
+                    d + 1,
+                ));
             }
             node = child;
         }
