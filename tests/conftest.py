@@ -40,3 +40,23 @@ def octomap_leaves(tree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def octomap():
     """The reference implementation, skipped cleanly if it is not installed."""
     return pytest.importorskip("pyoctomap")
+
+
+def nearest_face_normals(points, boxes):
+    """The unit normal (up to sign) of the axis-aligned box face nearest each point:
+    the analytic reference for normals estimated from scans of box scenes."""
+    points = np.asarray(points, dtype=np.float64)
+    best = np.full(len(points), np.inf)
+    axis = np.zeros(len(points), dtype=np.int64)
+    for box in np.asarray(boxes, dtype=np.float64):
+        lo, hi = box[:3], box[3:]
+        clamped = np.clip(points, lo, hi)
+        for a in range(3):
+            for value in (lo[a], hi[a]):
+                off = (points - clamped) ** 2
+                off[:, a] = (points[:, a] - value) ** 2
+                d = off.sum(axis=1)
+                closer = d < best
+                best[closer] = d[closer]
+                axis[closer] = a
+    return np.eye(3)[axis]

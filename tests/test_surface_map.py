@@ -228,3 +228,23 @@ def test_lidar_odometry_follows_a_hand_held_scanner_through_the_room():
     assert odometry.degenerate_scans == 0 and len(odometry.poses) == len(truths) == 80
     with pytest.raises(ValueError, match="non-empty"):
         odometry.add_scan(np.zeros((0, 3)))
+
+
+def test_surface_normals_of_the_scanned_room():
+    """Issue 3, acceptance 4: ten lidar scans (σ 1.5 cm) of the room with its furniture,
+    inserted with dynamic leaf depth; every node with a normal, up to 32 cm, against the
+    nearest wall, floor, ceiling or box face (analytic): median < 5°."""
+    from conftest import nearest_face_normals
+
+    rng = np.random.default_rng(12)
+    boxes = earcore.synthetic.lidar_room(rng)
+    m = earcore.SurfaceMap(0.01, position_memory=100)
+    for k, pose in enumerate(earcore.synthetic.handheld_trajectory(rng, seconds=5.0)[::10]):
+        scan = earcore.synthetic.render_lidar_scan(pose, [], boxes, seed=k)
+        m.insert(scan @ pose[:3, :3].T + pose[:3, 3], pose[:3, 3], np.radians(2.0), max_leaf_size=0.16)
+    positions, normals, depths = m.nodes()
+    keep = ~np.isnan(normals[:, 0]) & (depths >= 11)
+    cos = np.abs(np.sum(normals[keep] * nearest_face_normals(positions[keep], boxes), axis=1))
+    errors = np.degrees(np.arccos(np.clip(cos, 0, 1)))
+    assert keep.sum() > 500
+    assert np.median(errors) < 5.0, np.median(errors)

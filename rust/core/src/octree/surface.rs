@@ -173,7 +173,8 @@ impl SurfaceMap {
                 let gap = range * beam_spacing / res;
                 // ⌈log2 gap⌉ without logarithms: for gap > 1 it is the bit length of ⌈gap⌉ − 1.
                 let levels = if gap > 1.0 {
-                    let cells = gap.min(65536.0).ceil() as u64;
+                    let whole = gap.min(65536.0) as u64;
+                    let cells = whole + u64::from((whole as f64) < gap);
                     (64 - (cells - 1).leading_zeros()).min(coarsest)
                 } else {
                     0
@@ -282,9 +283,11 @@ impl SurfaceMap {
                         None => (probability(n.log_odds), m),
                         Some(k) => (f64::from(n.hits.min(k)), 1.0),
                     };
+                    // (stored·w_old + new·w_new) / (w_old + w_new), one division per point.
+                    let share = w_new / (w_old + w_new);
                     for (stored, new) in n.position.iter_mut().zip(d) {
-                        *stored =
-                            ((f64::from(*stored) * w_old + new * w_new) / (w_old + w_new)) as f32;
+                        let old = f64::from(*stored);
+                        *stored = (old + (new - old) * share) as f32;
                     }
                 }
                 n.hits = n.hits.saturating_add(1);
