@@ -4,7 +4,9 @@ the danger-map construction test (Fig. 7).
 A-B-A return trips of the UR5, four experiments with one seed:
   Exp. 1  reactive planner, a static pillar blocking the direct path;
   Exp. 2  reactive planner, a person's arm entering the direct path at random
-          (one reach after another, held 2-5 s, peak hand speed 0.25-1.6 m/s);
+          (one reach after another, peak hand speed 0.25-1.6 m/s, held there 2-5 s
+          while the hand moves about by up to 8 cm: Paper II's obstacle was moved
+          into the path by hand);
   Exp. 3  predictive planner + reflexes, the same arm (same reaches);
   Direct  no obstacle.
 Prints mean ± std per return trip of planning, optimisation and execution time, path
@@ -35,6 +37,9 @@ import numpy as np
 from earcore.sim.config import RunConfig
 
 __all__ = ["CirclesDriver", "experiment_configs", "fig7", "main", "table2"]
+
+#: How far the held hand moves about its target (m) in Exp. 2 and 3.
+HELD_HAND_WANDER = 0.08
 
 #: A 10 × 10 cm pillar between the tool's A and B positions (Exp. 1).
 PILLAR = (0.28, 0.33, 0.0, 0.38, 0.43, 0.8)
@@ -79,6 +84,7 @@ def experiment_configs(seed: int = 0, camera_scale: float = 0.25, duration: floa
     person.cell.person.reach_targets = targets
     person.cell.person.reach_speeds = speeds
     person.cell.person.reach_holds = holds
+    person.cell.person.wander = HELD_HAND_WANDER
     exp2 = deepcopy(person)
     exp2.planning.mode = "reactive"
     configs["Exp. 2"] = exp2

@@ -69,6 +69,9 @@ class RiskReport:
     approaching: bool = False
     #: The robot link holding `on_robot` (-1: unknown).
     link: int = -1
+    #: That obstacle's own velocity (m/s, world frame) and its voxels.
+    velocity: np.ndarray | None = None
+    voxels: np.ndarray | None = None
 
     def fires(self, threshold: float, min_separation: float = 0.0) -> bool:
         """Eq. 3 (risk ≥ T), or an approaching obstacle closer than `min_separation`
@@ -106,8 +109,11 @@ class ObstacleTracker:
         min_voxels: int = 3,
         gate: float = 0.35,
         window: int = 4,
+        still_speed: float = 0.1,
     ) -> None:
         self.robot = robot
+        #: Obstacles slower than this (m/s) are still: the planner keeps clear of them.
+        self.still_speed = still_speed
         self.resolution = resolution
         self.beta = beta
         self.min_voxels = min_voxels
@@ -168,22 +174,28 @@ class ObstacleTracker:
             # Only an obstacle that itself moves towards the robot is a reflex matter (the
             # planner keeps the robot's own path clear of still ones); its speed is then
             # taken relative to the robot's closest point.
-            approaching = float(v @ towards) > 0 if d > 0 else True
+            # A still obstacle's voxel centroid jitters (noise, and the robot hiding parts
+            # of it): below `still_speed` it does not count as coming by itself.
+            moving = float(np.linalg.norm(v)) >= self.still_speed
+            approaching = (moving and float(v @ towards) > 0) if d > 0 else True
             if approaching and qd is not None and c["link"] >= 0:
                 v = v - _point_jacobian(self.robot, q, int(c["link"]), c["on_robot"]) @ qd
             speed = float(np.linalg.norm(v))
             risk = speed**2 / (self.beta * max(d, 1e-3)) if approaching else 0.0
             if best is None or risk > best[0] or (risk == best[0] and d < best[2]):
-                best = (risk, speed, d, c["on_robot"], c["on_obstacle"], approaching and speed > 0.05, int(c["link"]))
+                best = (
+                    risk, speed, d, c["on_robot"], c["on_obstacle"], approaching and speed > 0.05, int(c["link"]),
+                    track.velocity, track.voxels,
+                )
         frame_period = 1.0 / 15.0
         if best is None:
             sp = protective_separation(0.0, robot_speed, reaction_time=frame_period, stopping_time=0.0)
             return RiskReport(time_s, 0, 0.0, 0.0, float("inf"), None, None, sp, False, time.perf_counter() - t0)
-        risk, speed, d, on_robot, on_obstacle, approaching, link = best
+        risk, speed, d, on_robot, on_obstacle, approaching, link, velocity, track_voxels = best
         sp = protective_separation(speed, robot_speed, reaction_time=frame_period, stopping_time=0.2)
         return RiskReport(
             time_s, len(self.tracks), risk, speed, d, on_robot, on_obstacle, sp, d < sp,
-            time.perf_counter() - t0, approaching, link,
+            time.perf_counter() - t0, approaching, link, velocity, track_voxels,
         )
 
     def _associate(self, time_s: float, clusters: list[np.ndarray]) -> None:
@@ -255,6 +267,18 @@ def _path_free(robot, tree, path: np.ndarray, resolution: float, dynamic, voxel_
     return bool(np.all(d > 0))
 
 
+def _leads_away(robot, q_end: np.ndarray, report: RiskReport, voxel_size: float, horizon: float) -> bool:
+    """Whether the robot at `q_end` is farther from the reported obstacle than it is now,
+    both from the obstacle's voxels now and from them moved on by its velocity over
+    `horizon` seconds (True when the report carries no obstacle)."""
+    if report.voxels is None or not len(report.voxels) or not np.isfinite(report.clearance):
+        return True
+    voxels = np.asarray(report.voxels, dtype=np.float64)
+    shifted = voxels + (np.zeros(3) if report.velocity is None else np.asarray(report.velocity) * horizon)
+    ends = robot.clearance_to_voxels(np.vstack([voxels, shifted]), voxel_size, q_end)
+    return bool(float(ends["distance"]) > report.clearance)
+
+
 def plan_reflex(
     robot,
     tree,
@@ -270,6 +294,7 @@ def plan_reflex(
     voxel_size: float = 0.05,
     escape: bool = False,
     prefer_move_away: bool = False,
+    horizon: float = 0.3,
 ) -> ReflexMove | None:
     """Paper II's reflex for the current state: backtrack along the last
     `backtrack_fraction` of `executed` (the joint states passed, oldest first) if that
@@ -284,7 +309,10 @@ def plan_reflex(
     reflex never waits for the live map's index to be rebuilt. `escape`: the robot
     touches a dynamic obstacle already; accept moves that steadily increase the
     clearance to it (see `_path_free`). `prefer_move_away`: skip the backtrack (an
-    obstacle this close is escaped fastest straight away from it)."""
+    obstacle this close is escaped fastest straight away from it). A backtrack is taken
+    only if it ends farther from the obstacle than the robot is now, with the obstacle
+    where it is and where its velocity takes it in `horizon` seconds: the executed path
+    can lead back towards the obstacle (a hand coming from behind)."""
     q = np.asarray(q, dtype=np.float64)
     executed = np.asarray(executed, dtype=np.float64).reshape(-1, len(q))
     if len(executed) >= 2 and not prefer_move_away:
@@ -297,7 +325,11 @@ def plan_reflex(
             tail = np.vstack([q[None], executed[::-1][: n + 1]])
             keep = np.r_[True, np.linalg.norm(np.diff(tail, axis=0), axis=1) > 1e-9]
             tail = tail[keep]
-            if len(tail) >= 2 and _path_free(robot, tree, tail, resolution, dynamic, voxel_size, escape):
+            if (
+                len(tail) >= 2
+                and _path_free(robot, tree, tail, resolution, dynamic, voxel_size, escape)
+                and _leads_away(robot, tail[-1], report, voxel_size, horizon)
+            ):
                 return ReflexMove("backtrack", tail)
     if report.on_obstacle is None:
         return None
@@ -311,6 +343,12 @@ def plan_reflex(
         position = robot.fk(q)[link, :3, 3]
     jac = _point_jacobian(robot, q, link, position)
     away = position - report.on_obstacle
+    if report.clearance <= 0 and dynamic is not None and len(dynamic):
+        # Touching: the closest points lie inside each other and their difference can
+        # point into the obstacle; leave from the centre of its nearby voxels instead.
+        near = dynamic[np.linalg.norm(dynamic - position, axis=1) < 0.2]
+        if len(near):
+            away = position - near.mean(axis=0)
     norm = np.linalg.norm(away)
     if norm < 1e-9:
         return None

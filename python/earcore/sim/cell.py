@@ -192,12 +192,13 @@ class SimulatedCell:
             if len(speeds) != n or len(holds) != n:
                 raise ValueError("person.reach_speeds and reach_holds must be empty or as long as person.reach_starts")
             reaches = [
-                Reach(s, tuple(t), h, v) for s, t, h, v in zip(pc.reach_starts, pc.reach_targets, holds, speeds)
+                Reach(s, tuple(t), h, v, pc.wander)
+                for s, t, h, v in zip(pc.reach_starts, pc.reach_targets, holds, speeds)
             ]
         else:
             starts = np.cumsum(self.rng.uniform(3.0, 8.0, 8))
             targets = self.rng.uniform([0.3, -0.2, 0.1], [0.6, 0.4, 0.45], (8, 3))
-            reaches = [Reach(float(s), tuple(t), pc.hold_s) for s, t in zip(starts, targets)]
+            reaches = [Reach(float(s), tuple(t), pc.hold_s, wander=pc.wander) for s, t in zip(starts, targets)]
         return HumanArm(self.p, pc.shoulder, pc.rest_hand, reaches, peak_speed=pc.peak_speed)
 
     def attach_tool(self, tool, flange_from_tool: np.ndarray) -> int:

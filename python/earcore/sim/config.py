@@ -86,6 +86,8 @@ class PersonConfig:
     #: Peak hand speed (m/s) and hold (s) per reach; empty = `peak_speed` / `hold_s`.
     reach_speeds: list[float] = field(default_factory=list)
     reach_holds: list[float] = field(default_factory=list)
+    #: While held, the hand moves about its target by up to this much (m); 0 = still.
+    wander: float = 0.0
 
 
 @dataclass

@@ -31,6 +31,9 @@ class Reach:
     hold: float = 1.0
     #: Peak hand speed of this reach (m/s); None = the arm's default.
     speed: float | None = None
+    #: While held, the hand moves about the target by up to this much (m): a person
+    #: holding something into the robot's path does not hold it still. 0 = still.
+    wander: float = 0.0
 
 
 def minimum_jerk(s: np.ndarray | float) -> np.ndarray | float:
@@ -69,6 +72,12 @@ class HumanArm:
         self.shoulder = np.asarray(shoulder, dtype=np.float64)
         self.rest = np.asarray(rest_hand, dtype=np.float64)
         self.reaches = sorted(reaches, key=lambda r: r.start)
+        # The held hand's motion per reach: three sinusoids, periods and phases fixed
+        # by the reach's start time (so a run repeats).
+        self._wander_terms = []
+        for reach in self.reaches:
+            rng = np.random.default_rng(int(round(reach.start * 1000)))
+            self._wander_terms.append((rng.uniform(1.3, 2.6, 3), rng.uniform(0, 2 * np.pi, 3)))
         self.peak_speed = peak_speed
         self.geometry = geometry
         g = geometry
@@ -86,7 +95,7 @@ class HumanArm:
         return reach_duration(self.rest, target, speed or self.peak_speed)
 
     def hand_position(self, t: float) -> np.ndarray:
-        for reach in self.reaches:
+        for reach, terms in zip(self.reaches, self._wander_terms):
             target = np.asarray(reach.target, dtype=np.float64)
             go = self.duration(target, reach.speed)
             end = reach.start + 2 * go + reach.hold
@@ -94,11 +103,22 @@ class HumanArm:
                 if t < reach.start + go:
                     f = minimum_jerk((t - reach.start) / go)
                 elif t < reach.start + go + reach.hold:
-                    f = 1.0
+                    return target + self._wander(reach, terms, t - reach.start - go)
                 else:
                     f = 1.0 - minimum_jerk((t - reach.start - go - reach.hold) / go)
                 return self.rest + f * (target - self.rest)
         return self.rest.copy()
+
+    @staticmethod
+    def _wander(reach: Reach, terms: tuple[np.ndarray, np.ndarray], tau: float) -> np.ndarray:
+        """The held hand's offset from its target `tau` seconds into the hold: the
+        reach's sinusoids (periods 1.3-2.6 s) under a sin² envelope, so the hand leaves
+        and returns to the target with zero speed."""
+        if reach.wander <= 0.0 or reach.hold <= 0.0:
+            return np.zeros(3)
+        periods, phases = terms
+        envelope = np.sin(np.pi * tau / reach.hold) ** 2
+        return reach.wander * envelope * np.array([1.0, 1.0, 0.5]) * np.sin(2 * np.pi * tau / periods + phases)
 
     def joints(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Shoulder, elbow, wrist and fingertip positions at time t (elbow pointing down)."""

@@ -459,7 +459,7 @@ impl SurfaceMap {
             cursor.len = d as usize + 1;
             let here = self.arena.value(node);
             if here.has_normal {
-                best = Some((here, d));
+                best = Some((node, d));
             }
             let Some(child) = self.arena.child(node, key.child_index(TREE_DEPTH - 1 - d)) else {
                 break;
@@ -475,7 +475,10 @@ impl SurfaceMap {
             }
             node = child;
         }
-        best.map(|(n, d)| (n.position.map(f64::from), n.normal.map(f64::from), d))
+        best.map(|(n, d)| {
+            let n = self.arena.value(n);
+            (n.position.map(f64::from), n.normal.map(f64::from), d)
+        })
     }
 }
 
@@ -486,7 +489,8 @@ impl SurfaceMap {
 pub struct Descent {
     key: Option<OcTreeKey>,
     path: [u32; TREE_DEPTH as usize],
-    best: [Option<(SurfaceNode, u32)>; TREE_DEPTH as usize],
+    /// (node, depth) of the deepest node with a normal above each depth.
+    best: [Option<(u32, u32)>; TREE_DEPTH as usize],
     len: usize,
 }
 
