@@ -321,6 +321,67 @@ def test_reflex_backtracks_or_moves_away(ur5):
     assert not ur5.check_motion(tree, move.path[0], move.path[-1])
 
 
+def test_reflex_does_not_backtrack_into_an_obstacle_coming_from_behind(ur5):
+    """The free way back is refused when it ends nearer the obstacle, where it is or where
+    its velocity takes it in the horizon (checked against the exact distance); the reflex
+    then moves away, and the move leaves the obstacle farther behind."""
+    from earcore.planning.reflex import RiskReport
+
+    res = 0.05
+    tree = earcore.OcTree(res)
+    executed = A + np.linspace(0, 1, 50)[:, None] * (B - A)
+    q = executed[-1]
+    tool = ur5.fk(q)[-1, :3, 3]
+    behind = ur5.fk(executed[-12])[-1, :3, 3]
+    # A small cluster 25 cm beyond the way back, coming at 1.2 m/s along it.
+    heading = (behind - tool) / np.linalg.norm(behind - tool)
+    centre = behind + 0.25 * heading
+    voxels = (np.floor((centre + np.array([[x, y, 0.0] for x in (0, res) for y in (0, res)])) / res) + 0.5) * res
+    c = ur5.clearance_to_voxels(voxels, res, q)
+    velocity = -1.2 * heading
+    report = RiskReport(0.0, 1, 3.0, 1.2, float(c["distance"]), c["on_robot"], c["on_obstacle"], 0.5, True, 0.0,
+                        True, int(c["link"]), velocity, voxels)
+    move = plan_reflex(ur5, tree, q, executed, report, dynamic=voxels, voxel_size=res, horizon=0.3)
+    assert move is not None and move.kind == "move_away"
+    end = ur5.clearance_to_voxels(voxels, res, move.path[-1])["distance"]
+    assert end > c["distance"]
+    # Without a velocity the obstacle sits still beyond the way back: backtracking still
+    # heads towards it, so it is refused too; an obstacle ahead leaves the way back open.
+    ahead = (np.floor((tool + 0.2 * (tool - behind) / np.linalg.norm(tool - behind)) / res) + 0.5) * res
+    c = ur5.clearance_to_voxels(ahead[None], res, q)
+    report = RiskReport(0.0, 1, 3.0, 1.2, float(c["distance"]), c["on_robot"], c["on_obstacle"], 0.5, True, 0.0,
+                        True, int(c["link"]), np.zeros(3), ahead[None])
+    move = plan_reflex(ur5, tree, q, executed, report, dynamic=ahead[None], voxel_size=res)
+    assert move.kind == "backtrack"
+
+
+def test_a_still_obstacle_is_no_reflex_matter(ur5):
+    """A still cluster near the robot whose nearer half the robot hides every other frame:
+    its centroid flickers by 2.5 cm, an estimated 0.075 m/s. Under `still_speed` it is not
+    approaching and its risk is 0 while the robot moves towards it (once the track's
+    velocity window is full); counted as moving (still_speed 0), the robot's own approach
+    makes it a risk."""
+    res = 0.05
+    tool = ur5.fk(A)[-1, :3, 3]
+    base = (np.floor((tool + np.array([0.15, 0.0, 0.0])) / res) + 0.5) * res
+    full = base + np.array([[x, y, z] for x in (0, res) for y in (0, res) for z in (0, res)])
+    far_half = full[full[:, 0] > base[0] + res / 2]
+    qd = np.zeros(6)
+    qd[1] = 0.4  # the shoulder lift brings the tool forward and down, towards the cluster
+    worst = {}
+    for still in (0.1, 0.0):
+        tracker = ObstacleTracker(ur5, res, still_speed=still)
+        risks = []
+        for k in range(10):
+            report = tracker.update(k / 15, full if k % 2 else far_half, A, qd=qd)
+            if k >= tracker.window:  # once the velocity window is full
+                risks.append(report.risk)
+        worst[still] = max(risks)
+        assert np.linalg.norm(tracker.tracks[0].velocity) < 0.1
+    assert worst[0.1] == 0.0
+    assert worst[0.0] > 0.0
+
+
 # --- the executive in the cell -------------------------------------------------------------------
 
 
