@@ -84,6 +84,22 @@ def test_trajectory_respects_limits_and_follows_the_path(kind):
     assert np.abs(v[0]).max() < 0.1 and np.abs(v[-1]).max() < 0.1  # rest to rest
 
 
+@pytest.mark.parametrize("length", [1e-8, 1e-5, 1e-3, 0.3])
+def test_short_moves_take_the_rest_to_rest_time(length):
+    """A straight move from rest to rest under a tangential acceleration limit a takes
+    2·sqrt(L / a) (accelerate half-way, brake half-way) while the speed limit is not
+    reached. A move shorter than one resampling step once came out as 10^4-10^8 s (zero
+    speed at both of its only two knots) and hung a reflex."""
+    direction = np.array([1.0, -1.0, 0.5, 0.0, 0.0, 0.0]) / 1.5
+    path = np.stack([A, A + length * direction])
+    traj = time_parameterize(path, V_MAX, A_MAX, control_period=1 / 240)
+    # The tangential share of the acceleration is half of every joint's limit.
+    moving = np.abs(direction) > 0
+    a = np.min(0.5 * A_MAX[moving] / np.abs(direction)[moving])
+    assert traj.duration == pytest.approx(2 * np.sqrt(length / a), rel=0.05)
+    assert np.allclose(traj.sample(traj.duration), path[-1])
+
+
 def test_trajectory_bad_input():
     with pytest.raises(ValueError, match="NaN"):
         time_parameterize([[0.0, np.nan]], [1, 1], [1, 1])

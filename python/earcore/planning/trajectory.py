@@ -110,7 +110,9 @@ def time_parameterize(
     path = path[keep]
     if len(path) == 1:
         return Trajectory(np.zeros(1), path.copy(), np.zeros_like(path), np.zeros(1), np.zeros(1))
-    q = densify(path, step)
+    # At least two samples per path: from rest to rest over a single one the profile
+    # would have zero speed at both knots and take forever (a tiny reflex move hung).
+    q = densify(path, min(step, 0.5 * path_length(path)))
     ds = np.linalg.norm(np.diff(q, axis=0), axis=1)
     s = np.r_[0.0, np.cumsum(ds)]
     # Path derivatives: one-sided on the segments, central at the knots.

@@ -100,13 +100,14 @@ class HumanArm:
             go = self.duration(target, reach.speed)
             end = reach.start + 2 * go + reach.hold
             if reach.start <= t < end:
+                offset = 0.0
                 if t < reach.start + go:
                     f = minimum_jerk((t - reach.start) / go)
                 elif t < reach.start + go + reach.hold:
-                    return target + self._wander(reach, terms, t - reach.start - go)
+                    f, offset = 1.0, self._wander(reach, terms, t - reach.start - go)
                 else:
                     f = 1.0 - minimum_jerk((t - reach.start - go - reach.hold) / go)
-                return self.rest + f * (target - self.rest)
+                return self.rest + f * (target - self.rest) + offset
         return self.rest.copy()
 
     @staticmethod
