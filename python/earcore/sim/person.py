@@ -100,7 +100,7 @@ class HumanArm:
             go = self.duration(target, reach.speed)
             end = reach.start + 2 * go + reach.hold
             if reach.start <= t < end:
-                offset = 0.0
+                offset: float | np.ndarray = 0.0
                 if t < reach.start + go:
                     f = minimum_jerk((t - reach.start) / go)
                 elif t < reach.start + go + reach.hold:
@@ -131,7 +131,7 @@ class HumanArm:
         # The wrist sits `hand` back from the fingertip along the reach direction.
         wrist = hand_tip - direction * g.hand
         to_wrist = wrist - self.shoulder
-        d = min(np.linalg.norm(to_wrist), g.upper_arm + g.forearm - 1e-6)
+        d = min(float(np.linalg.norm(to_wrist)), g.upper_arm + g.forearm - 1e-6)
         u = to_wrist / np.linalg.norm(to_wrist)
         # Two-link IK in the vertical plane through the reach: elbow below the line.
         a = (g.upper_arm**2 - g.forearm**2 + d**2) / (2 * d)
