@@ -371,37 +371,6 @@ def test_reflex_does_not_backtrack_into_an_obstacle_coming_from_behind(ur5):
     assert move.kind == "backtrack"
 
 
-def test_a_fast_obstacle_is_side_stepped_not_outrun(ur5):
-    """Moving away from a hand that comes at the robot at 1.3 m/s means moving along its path
-    (it catches up); the move-away then steps out of the path instead: the tool's move is
-    perpendicular to the obstacle's velocity, on the side the tool already is. A slow
-    obstacle is still moved away from straight."""
-    from earcore.planning.reflex import RiskReport, _sidestep
-
-    away = np.array([-0.40, 0.01, 0.25])
-    velocity = np.array([-1.0, -0.05, 0.8])
-    side = _sidestep(away, velocity)
-    assert abs(side @ velocity) < 1e-12 and side @ away > 0
-    np.testing.assert_array_equal(_sidestep(away, 0.2 * velocity / np.linalg.norm(velocity)), away)
-    res = 0.05
-    tree = earcore.OcTree(res)
-    q = A + 0.5 * (B - A)
-    tool = ur5.fk(q)[-1, :3, 3]
-    offset = np.array([0.0, 0.06, 0.0])  # the tool sits 6 cm beside the hand's path
-    hand = tool - offset + np.array([0.25, 0.0, 0.0])
-    voxels = (np.floor(hand / res) + 0.5) * res
-    velocity = np.array([-1.3, 0.0, 0.0])
-    c = ur5.clearance_to_voxels(voxels[None], res, q)
-    report = RiskReport(0.0, 1, 3.0, 1.3, float(c["distance"]), tool, voxels, 0.5, True, 0.0,
-                        True, len(ur5.link_names) - 1, velocity, voxels[None])
-    move = plan_reflex(ur5, tree, q, np.zeros((0, 6)), report, dynamic=voxels[None], voxel_size=res,
-                       move_away_distance=0.1, end_effector_link=len(ur5.link_names) - 1)
-    assert move is not None and move.kind == "move_away"
-    step = ur5.fk(move.path[-1])[-1, :3, 3] - tool
-    assert abs(step[0]) < 0.3 * np.linalg.norm(step), step  # across the hand's path, not along it
-    assert step[1] > 0.05  # out to the side the tool is on
-
-
 def test_a_still_obstacle_is_no_reflex_matter(ur5):
     """A still cluster near the robot whose nearer half the robot hides every other frame:
     its centroid flickers by 2.5 cm, an estimated 0.075 m/s. Under `still_speed` it is not

@@ -267,24 +267,6 @@ def _path_free(robot, tree, path: np.ndarray, resolution: float, dynamic, voxel_
     return bool(np.all(d > 0))
 
 
-def _sidestep(away: np.ndarray, velocity: np.ndarray | None, fast: float = 0.5) -> np.ndarray:
-    """The escape direction from an obstacle at `away` (robot point − obstacle point).
-    Straight away is along the obstacle's own path when it comes at the robot, and an
-    obstacle faster than the robot (a hand at 1-1.6 m/s against ~0.5 m/s) then catches
-    up; for obstacles faster than `fast` m/s the part of `away` along their velocity is
-    dropped, so the robot steps out of their path, to the side it is already on."""
-    if velocity is None:
-        return away
-    v = np.asarray(velocity, dtype=np.float64)
-    speed = float(np.linalg.norm(v))
-    if speed < fast:
-        return away
-    u = v / speed
-    side = away - (away @ u) * u
-    # Dead ahead (within 2 cm of its path) there is no side to prefer: keep straight away.
-    return side if np.linalg.norm(side) > 0.02 else away
-
-
 def _leads_away(robot, q_end: np.ndarray, report: RiskReport, voxel_size: float, horizon: float) -> bool:
     """Whether the robot at `q_end` is farther from the reported obstacle than it is now,
     both from the obstacle's voxels now and from them moved on by its velocity over
@@ -367,7 +349,6 @@ def plan_reflex(
         near = dynamic[np.linalg.norm(dynamic - position, axis=1) < 0.2]
         if len(near):
             away = position - near.mean(axis=0)
-    away = _sidestep(away, report.velocity)
     norm = np.linalg.norm(away)
     if norm < 1e-9:
         return None
