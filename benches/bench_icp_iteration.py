@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +21,7 @@ import earcore
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_perception import base_points, load_frames  # noqa: E402
+from bench_vs_octomap import median_time as median_of  # noqa: E402
 
 
 def main() -> None:
@@ -44,13 +43,12 @@ def main() -> None:
     guess[:3, 3] = [0.01, -0.005, 0.008]
 
     def median_time(iterations: int) -> float:
-        times = []
-        for _ in range(args.repeats):
-            start = time.perf_counter()
-            earcore.icp_point_to_plane(source, surface, guess, max_iterations=iterations, max_correspondence_distance=0.05,
-                                       translation_tolerance=0.0, rotation_tolerance=0.0)
-            times.append(time.perf_counter() - start)
-        return statistics.median(times)
+        return median_of(
+            lambda: earcore.icp_point_to_plane(source, surface, guess, max_iterations=iterations,
+                                               max_correspondence_distance=0.05,
+                                               translation_tolerance=0.0, rotation_tolerance=0.0),
+            args.repeats,
+        )[0]
 
     one, eleven = median_time(1), median_time(11)
     per_iteration = (eleven - one) / 10

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
-import time
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -22,17 +22,14 @@ import earcore
 from earcore.lidar_odometry import OdometrySettings
 from earcore.synthetic import handheld_trajectory, lidar_room, render_lidar_scan
 
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_vs_octomap import median_time  # noqa: E402
+
 SETTINGS = OdometrySettings()
 
 
 def median_seconds(fn, repeats: int) -> float:
-    fn()  # warm up
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+    return median_time(fn, repeats)[0]
 
 
 def random_pose(rng: np.random.Generator) -> np.ndarray:

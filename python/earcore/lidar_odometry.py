@@ -2,7 +2,7 @@
 every scan is registered to the map with point-to-plane ICP from a constant-velocity
 guess, then inserted at the estimated pose with dynamic leaf depth.
 
-    odometry = LidarOdometry(beam_spacing=np.radians(2.0))   # VLP-16: 16 rings over 30°
+    odometry = LidarOdometry(OdometrySettings(beam_spacing=np.radians(2.0)))  # VLP-16: 16 rings over 30°
     for scan in scans:                                       # (N, 3) in the sensor frame
         pose = odometry.add_scan(scan)                       # 4×4 map_from_sensor
 

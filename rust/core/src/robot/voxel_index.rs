@@ -480,7 +480,6 @@ impl VoxelIndex {
         self.for_each_occupied_in(lo, hi, |centre| body.overlaps_box(&centre, &half))
     }
 
-    /// Calls `hit(cell)` on occupied cells meeting [lo, hi] until it returns true.
     /// Calls `hit` with the centre of every occupied cell in the box [lo, hi] until it
     /// returns true (then true). Centres come from the loop's coordinates: recovering
     /// them from a linear index costs two integer divisions a cell.
