@@ -117,6 +117,18 @@ def test_statistical_outlier_removal_equals_brute_force(k, std_ratio):
     assert (idx < 1500).mean() > 0.9
 
 
+def test_statistical_outlier_removal_equals_brute_force_on_uneven_density():
+    # Blobs of very different spreads: neighbouring points' k-th distances differ by
+    # orders of magnitude, so the per-point distance guess must widen (and the grid
+    # fall back to the k-d tree) without changing the answer.
+    rng = np.random.default_rng(7)
+    blobs = [rng.normal(rng.uniform(-2, 2, 3), scale, (n, 3)) for scale, n in [(0.002, 400), (0.05, 800), (0.4, 900)]]
+    pts = rng.permutation(np.vstack(blobs + [rng.uniform(-3, 3, (100, 3))]))
+    for k in (5, 20):
+        _, idx = earcore.remove_statistical_outliers(pts, k, 1.0, return_index=True)
+        np.testing.assert_array_equal(idx, brute_force_outliers(pts, k, 1.0))
+
+
 def test_statistical_outlier_removal_rejects_bad_input():
     with pytest.raises(ValueError, match="more points"):
         earcore.remove_statistical_outliers(np.zeros((5, 3)), k=5)
@@ -126,9 +138,14 @@ def test_statistical_outlier_removal_rejects_bad_input():
         earcore.remove_statistical_outliers(np.zeros((50, 3)), k=0)
 
 
-def test_voxel_grid_centroids_are_exact():
+@pytest.mark.parametrize("layout", ["random", "runs", "far apart"])
+def test_voxel_grid_centroids_are_exact(layout):
     rng = np.random.default_rng(3)
     pts = rng.normal(0, 0.5, (30_000, 3))
+    if layout == "runs":  # neighbours share voxels, as along a depth image's rows
+        pts = pts[np.lexsort(np.floor(pts / 0.05).T)]
+    elif layout == "far apart":  # beyond what a packed 21-bit-per-axis key can span
+        pts[::2] += 1.0e6
     colours = rng.integers(0, 255, (30_000, 3)).astype(np.float64)
     centroids, mean_colours = earcore.voxel_downsample(pts, 0.05, colours)
     keys = np.floor(pts / 0.05).astype(np.int64)

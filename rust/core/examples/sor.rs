@@ -4,12 +4,20 @@ use earcore_core::cloud::{statistical_outliers, voxel_downsample, OutlierParams}
 use earcore_core::synthetic::{benchmark_scene, render_points};
 
 fn time(label: &str, points: &[[f64; 3]]) {
-    let t = std::time::Instant::now();
-    for _ in 0..20 {
-        statistical_outliers(points, OutlierParams::default()).expect("enough points");
-    }
-    let ms = t.elapsed().as_secs_f64() * 1e3 / 20.0;
-    println!("{label}: {} points, {ms:.2} ms", points.len());
+    let mut runs: Vec<f64> = (0..40)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            statistical_outliers(points, OutlierParams::default()).expect("enough points");
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    runs.sort_by(f64::total_cmp);
+    println!(
+        "{label}: {} points, median {:.2} ms, fastest {:.2} ms",
+        points.len(),
+        runs[20],
+        runs[0]
+    );
 }
 
 fn main() {
