@@ -50,41 +50,92 @@ pub struct IcpResult {
 
 /// What ICP aligns to: for a (moved) source point, a reference point and unit normal.
 pub trait IcpTarget: Sync {
-    /// State a thread carries from one source point to the next (points come in
-    /// Morton order, so a lookup can start where the last one ended).
-    type Cursor: Default;
-    /// `max_distance` bounds how far the pair may be from `p`.
+    /// State a thread carries from one source point to the next and from one
+    /// iteration to the next, for one fixed run of source points (they come in Morton
+    /// order, so a lookup can start where the last one ended).
+    type Cursor: Default + Send;
+    /// `max_distance` bounds how far the pair may be from `p`; `index` is the point's
+    /// place in the cursor's run (the same point keeps its index every iteration).
     fn pair(
         &self,
         p: [f64; 3],
         max_distance: f64,
         cursor: &mut Self::Cursor,
+        index: usize,
     ) -> Option<([f64; 3], [f64; 3])>;
 }
 
 impl IcpTarget for PlaneTarget {
     type Cursor = ();
 
-    fn pair(&self, p: [f64; 3], max_distance: f64, _: &mut ()) -> Option<([f64; 3], [f64; 3])> {
+    fn pair(
+        &self,
+        p: [f64; 3],
+        max_distance: f64,
+        _: &mut (),
+        _: usize,
+    ) -> Option<([f64; 3], [f64; 3])> {
         let (_, j) = self.tree.nearest_within(p, max_distance * max_distance)?;
         Some((self.tree.points()[j as usize], self.normals[j as usize]))
     }
 }
 
+/// A SurfaceMap lookup's state: the last descent, and per source point the leaf key
+/// it fell in last iteration with the pair found there.
+#[derive(Default)]
+pub struct SurfaceCursor {
+    descent: crate::octree::Descent,
+    memo: Vec<PairMemo>,
+}
+
+/// A pair as the map stores it (single precision), for one leaf key.
+#[derive(Clone, Copy)]
+struct PairMemo {
+    key: crate::octree::OcTreeKey,
+    found: bool,
+    position: [f32; 3],
+    normal: [f32; 3],
+}
+
 impl IcpTarget for crate::octree::SurfaceMap {
-    type Cursor = crate::octree::Descent;
+    type Cursor = SurfaceCursor;
 
     /// NOctoSLAM's descent (resumed below the node shared with the previous point);
     /// the depth of the node found bounds the distance: a node larger than
-    /// `max_distance` is too coarse to pair with.
+    /// `max_distance` is too coarse to pair with. The pair depends only on the leaf
+    /// key, and once ICP settles most points stay in their leaf from one iteration to
+    /// the next: those reuse last iteration's pair without descending.
     fn pair(
         &self,
         p: [f64; 3],
         max_distance: f64,
         cursor: &mut Self::Cursor,
+        index: usize,
     ) -> Option<([f64; 3], [f64; 3])> {
-        let (q, n, depth) = self.associate_from(p, cursor)?;
-        (self.key_converter().node_size(depth) <= max_distance).then_some((q, n))
+        let key = self.key_converter().coord_to_key_checked_f64(p)?;
+        let memo = match cursor.memo.get(index) {
+            Some(m) if m.key == key => *m,
+            _ => {
+                let found = self
+                    .associate_key_from(key, &mut cursor.descent)
+                    .filter(|&(_, _, depth)| self.key_converter().node_size(depth) <= max_distance);
+                // The map's values are single precision: nothing is lost.
+                let (q, n) = found.map_or(([0.0; 3], [0.0; 3]), |(q, n, _)| (q, n));
+                let m = PairMemo {
+                    key,
+                    found: found.is_some(),
+                    position: q.map(|v| v as f32),
+                    normal: n.map(|v| v as f32),
+                };
+                if index >= cursor.memo.len() {
+                    cursor.memo.resize(index + 1, m);
+                }
+                cursor.memo[index] = m;
+                m
+            }
+        };
+        memo.found
+            .then(|| (memo.position.map(f64::from), memo.normal.map(f64::from)))
     }
 }
 
@@ -181,8 +232,13 @@ pub fn icp_point_to_plane(
         degenerate: false,
         conditioning: 0.0,
     };
+    // One cursor per run of source points, kept across iterations.
+    let runs: Vec<(usize, std::sync::Mutex<_>)> = (0..source.len())
+        .step_by(RUN)
+        .map(|start| (start, std::sync::Mutex::new(Default::default())))
+        .collect();
     for iteration in 1..=params.max_iterations {
-        let system = normal_equations(source, target, &transform, params);
+        let system = normal_equations(source, target, &transform, params, &runs);
         result.iterations = iteration;
         result.fitness = system.pairs as f64 / source.len() as f64;
         result.rmse = if system.pairs > 0 {
@@ -235,6 +291,9 @@ pub fn icp_point_to_plane(
     Ok(result)
 }
 
+/// Source points per parallel run (and cursor).
+const RUN: usize = 2048;
+
 struct NormalEquations {
     h: Matrix6<f64>,
     g: Vector6<f64>,
@@ -249,25 +308,27 @@ fn normal_equations<T: IcpTarget>(
     target: &T,
     transform: &Matrix4<f64>,
     params: IcpParams,
+    runs: &[(usize, std::sync::Mutex<T::Cursor>)],
 ) -> NormalEquations {
     let r = transform.fixed_view::<3, 3>(0, 0).into_owned();
     let t = transform.fixed_view::<3, 1>(0, 3).into_owned();
-    const CHUNK: usize = 2048;
-    let starts: Vec<usize> = (0..source.len()).step_by(CHUNK).collect();
-    let parts = threads::map_parts(&starts, |&start| {
+    let parts = threads::map_parts(runs, |(start, cursor)| {
         let mut acc = NormalEquations {
             h: Matrix6::zeros(),
             g: Vector6::zeros(),
             squared: 0.0,
             pairs: 0,
         };
-        let mut cursor = T::Cursor::default();
-        for p in &source[start..(start + CHUNK).min(source.len())] {
+        // Each run's cursor is locked by one thread only: never contended.
+        let mut cursor = cursor.lock().unwrap_or_else(|e| e.into_inner());
+        let run = &source[*start..(start + RUN).min(source.len())];
+        for (index, p) in run.iter().enumerate() {
             let moved = r * Vector3::from(*p) + t;
             let Some((q, n)) = target.pair(
                 [moved.x, moved.y, moved.z],
                 params.max_correspondence_distance,
                 &mut cursor,
+                index,
             ) else {
                 continue;
             };
@@ -300,4 +361,63 @@ fn normal_equations<T: IcpTarget>(
             pairs: a.pairs + b.pairs,
         },
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::octree::{SurfaceMap, SurfaceParams};
+    use crate::synthetic::Rng;
+
+    /// NOctoSLAM's association done afresh for every point, every iteration.
+    struct FreshDescents<'a>(&'a SurfaceMap);
+
+    impl IcpTarget for FreshDescents<'_> {
+        type Cursor = ();
+
+        fn pair(
+            &self,
+            p: [f64; 3],
+            max_distance: f64,
+            _: &mut (),
+            _: usize,
+        ) -> Option<([f64; 3], [f64; 3])> {
+            let (q, n, depth) = self.0.associate(p)?;
+            (self.0.key_converter().node_size(depth) <= max_distance).then_some((q, n))
+        }
+    }
+
+    /// Reusing a point's pair while it stays in its leaf changes nothing: the same
+    /// pairs, the same sums, bit for bit.
+    #[test]
+    fn pairs_kept_across_iterations_equal_fresh_descents() {
+        let mut rng = Rng::new(5);
+        let mut map = SurfaceMap::new(0.01, SurfaceParams::default()).unwrap();
+        let mut points = Vec::new();
+        for _ in 0..8000 {
+            let (u, v) = (rng.uniform(-1.0, 1.0), rng.uniform(0.0, 1.0));
+            points.push([u, 1.0 + rng.uniform(-0.002, 0.002), v]);
+            points.push([1.0 + rng.uniform(-0.002, 0.002), u, v]);
+            points.push([u, v, rng.uniform(-0.002, 0.002)]);
+        }
+        map.insert(&points).unwrap();
+        map.insert(&points).unwrap();
+        // 5000 source points, more than two parallel runs' worth.
+        let source: Vec<[f64; 3]> = points.iter().step_by(4).take(5000).copied().collect();
+        let mut initial = Matrix4::identity();
+        initial[(0, 3)] = 0.02;
+        initial[(2, 3)] = -0.01;
+        let params = IcpParams {
+            max_iterations: 15,
+            translation_tolerance: 0.0,
+            rotation_tolerance: 0.0,
+            ..IcpParams::default()
+        };
+        let kept = icp_point_to_plane(&source, &map, &initial, params).unwrap();
+        let fresh = icp_point_to_plane(&source, &FreshDescents(&map), &initial, params).unwrap();
+        assert_eq!(kept.transform, fresh.transform);
+        assert_eq!(kept.rmse, fresh.rmse);
+        assert_eq!(kept.fitness, fresh.fitness);
+        assert!(kept.transform[(0, 3)].abs() < 1e-3, "{}", kept.transform);
+    }
 }

@@ -15,7 +15,7 @@ mod voxel_grid;
 pub use clusters::cluster_points;
 pub use crop::{crop_box, crop_sphere};
 pub use depth::{depth_to_points, BrownConrady, DepthFrame, Intrinsics};
-pub use icp::{icp_point_to_plane, IcpParams, IcpResult, IcpTarget, PlaneTarget};
+pub use icp::{icp_point_to_plane, IcpParams, IcpResult, IcpTarget, PlaneTarget, SurfaceCursor};
 pub use kdtree::KdTree;
 pub use normals::estimate_normals;
 pub use outliers::{statistical_outliers, OutlierParams};

@@ -436,6 +436,16 @@ impl SurfaceMap {
         cursor: &mut Descent,
     ) -> Option<([f64; 3], [f64; 3], u32)> {
         let key = self.conv.coord_to_key_checked_f64(p)?;
+        self.associate_key_from(key, cursor)
+    }
+
+    /// `associate_from` for the leaf key of a point: the association depends on
+    /// nothing else (callers may cache it per key).
+    pub fn associate_key_from(
+        &self,
+        key: OcTreeKey,
+        cursor: &mut Descent,
+    ) -> Option<([f64; 3], [f64; 3], u32)> {
         if self.root == NONE {
             return None;
         }
