@@ -526,7 +526,7 @@ impl PyRobotModel {
 
     /// True where a configuration collides with the map's obstacles (or itself).
     /// qs (dof,) → bool; (K, dof) → (K,) bool. With `return_links`, also the index of
-    /// the first colliding link (-1 where free).
+    /// a colliding link (the first one found; -1 where free).
     #[pyo3(signature = (tree, qs, *, obstacles = "occupied", self_collision = true, return_links = false))]
     fn check_configurations<'py>(
         &self,

@@ -73,6 +73,10 @@ struct Scratch {
     frames: Vec<Frame>,
     placed: PlacedBodies,
     undecided: Vec<(usize, Body, UndecidedRuns)>,
+    /// The order in which bodies meet the distance-field pass: a body that collides
+    /// moves one place forward, so in a batch the bodies that usually collide come
+    /// first and a colliding configuration ends after fewer samples.
+    order: Vec<usize>,
 }
 
 impl Scratch {
@@ -81,6 +85,7 @@ impl Scratch {
             frames: vec![Frame::identity(); model.chain().num_links()],
             placed: PlacedBodies::default(),
             undecided: Vec::new(),
+            order: Vec::new(),
         }
     }
 }
@@ -97,12 +102,21 @@ fn contact_of(
     // First the cheap distance-field pass over every body (a certain collision ends
     // it), then exact scans where it left doubt, in link order.
     scratch.undecided.clear();
-    let moving = placed.links.iter().zip(&placed.bodies).zip(&placed.moving);
-    for ((link, body), _) in moving.filter(|(_, m)| **m) {
-        match index.body_samples(body)? {
-            SampleVerdict::Collides => return Ok(Contact::Obstacle(*link)),
+    if scratch.order.is_empty() {
+        scratch.order = (0..placed.bodies.len())
+            .filter(|&b| placed.moving[b])
+            .collect();
+    }
+    for at in 0..scratch.order.len() {
+        let b = scratch.order[at];
+        let (link, body) = (placed.links[b], placed.bodies[b]);
+        match index.body_samples(&body)? {
+            SampleVerdict::Collides => {
+                scratch.order.swap(at, at.saturating_sub(1));
+                return Ok(Contact::Obstacle(link));
+            }
             SampleVerdict::Free => {}
-            SampleVerdict::Undecided(runs) => scratch.undecided.push((*link, *body, runs)),
+            SampleVerdict::Undecided(runs) => scratch.undecided.push((link, body, runs)),
         }
     }
     for (link, body, runs) in &scratch.undecided {
