@@ -82,8 +82,10 @@ pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Ve
     let b = (a - crate::na::Matrix3::identity() * q) / p;
     let r = (b.determinant() / 2.0).clamp(-1.0, 1.0);
     let phi = r.acos() / 3.0;
-    let largest = q + 2.0 * p * phi.cos();
-    let smallest = q + 2.0 * p * (phi + 2.0 * std::f64::consts::PI / 3.0).cos();
+    // cos(φ + 2π/3) = −(cos φ + √3 sin φ) / 2: one sin_cos instead of two cosines.
+    let (sin, cos) = phi.sin_cos();
+    let largest = q + 2.0 * p * cos;
+    let smallest = q - p * (cos + 3f64.sqrt() * sin);
     let middle = 3.0 * q - largest - smallest;
     let m = a - crate::na::Matrix3::identity() * smallest;
     let rows = [
@@ -150,19 +152,20 @@ pub fn sort_keyed(items: &mut [(u64, u32)]) {
         items.sort_unstable();
         return;
     }
-    let mut counts = vec![[0u32; 256]; 8];
+    // The bytes in which some key differs from the first: only those need a pass.
+    let first = items[0].0;
+    let differs = items.iter().fold(0u64, |acc, &(k, _)| acc | (k ^ first));
+    let bytes: Vec<usize> = (0..8).filter(|b| (differs >> (8 * b)) & 255 != 0).collect();
+    let mut counts = vec![[0u32; 256]; bytes.len()];
     for &(k, _) in items.iter() {
-        for (byte, count) in counts.iter_mut().enumerate() {
+        for (&byte, count) in bytes.iter().zip(counts.iter_mut()) {
             count[((k >> (8 * byte)) & 255) as usize] += 1;
         }
     }
     let mut scratch = vec![(0u64, 0u32); n];
     let (mut src, mut dst) = (&mut items[..], &mut scratch[..]);
     let mut in_scratch = false;
-    for (byte, count) in counts.iter().enumerate() {
-        if count.iter().any(|&c| c as usize == n) {
-            continue; // every key has the same byte here
-        }
+    for (&byte, count) in bytes.iter().zip(counts.iter()) {
         let mut offsets = [0u32; 256];
         let mut sum = 0;
         for (o, &c) in offsets.iter_mut().zip(count.iter()) {

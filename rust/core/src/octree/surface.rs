@@ -230,6 +230,8 @@ impl SurfaceMap {
             self.root = self.arena.alloc(SurfaceNode::default());
         }
         let mut touched = 0;
+        // With the shallowest leaf depth known, nodes above it skip the scan of their items.
+        let depths = depths.map(|d| (d, u32::from(d.iter().copied().min().unwrap_or(16))));
         self.insert_recursive(self.root, 0, &items, points, depths, &mut touched);
         Ok(touched)
     }
@@ -243,7 +245,7 @@ impl SurfaceMap {
         node: u32,
         depth: u32,
         items: &[(u64, u32)],
-        depths: Option<&[u8]>,
+        depths: Option<(&[u8], u32)>,
     ) -> bool {
         if depth == TREE_DEPTH {
             return true;
@@ -252,10 +254,11 @@ impl SurfaceMap {
             return false;
         }
         self.arena.value(node).log_odds != 0.0
-            || depths.is_some_and(|d| {
-                items
-                    .iter()
-                    .any(|&(_, i)| u32::from(d[i as usize]) <= depth)
+            || depths.is_some_and(|(d, shallowest)| {
+                depth >= shallowest
+                    && items
+                        .iter()
+                        .any(|&(_, i)| u32::from(d[i as usize]) <= depth)
             })
     }
 
@@ -265,7 +268,7 @@ impl SurfaceMap {
         depth: u32,
         items: &[(u64, u32)],
         points: &[[f64; 3]],
-        depths: Option<&[u8]>,
+        depths: Option<(&[u8], u32)>,
         touched: &mut usize,
     ) {
         if self.ends_here(node, depth, items, depths) {
