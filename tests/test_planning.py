@@ -302,6 +302,27 @@ def test_tracker_estimates_velocity_and_risk(ur5):
     assert report.risk == 0.0 and report.speed > 1.0
 
 
+def test_tracker_rates_a_reaching_arm_by_its_hand(ur5):
+    """An arm from a still shoulder whose hand comes at the tool at 1.2 m/s: its centroid
+    moves at about half that, the hand's end of the cluster (the lead) at the hand's speed,
+    and Eq. 2 takes the lead's."""
+    res = 0.05
+    tracker = ObstacleTracker(ur5, res, beta=1.5)
+    tool = ur5.fk(A)[-1, :3, 3]
+    shoulder = tool + np.array([1.1, 0.1, 0.0])
+    hand0 = tool + np.array([0.7, 0.0, 0.0])
+    velocity = np.array([-1.2, 0.0, 0.0])
+    for k in range(6):
+        hand = hand0 + velocity * k / 15
+        line = shoulder + np.linspace(0, 1, 60)[:, None] * (hand - shoulder)
+        voxels = np.unique((np.floor(line / res) + 0.5) * res, axis=0)
+        report = tracker.update(k / 15, voxels, A)
+    (track,) = tracker.tracks
+    assert np.linalg.norm(track.velocity) < 0.8  # the centroid lags the hand
+    assert np.linalg.norm(track.lead_velocity - velocity) < 0.25
+    assert report.speed == pytest.approx(np.linalg.norm(track.lead_velocity))
+
+
 def test_protective_separation_formula():
     # ISO/TS 15066: v_h (T_r + T_s) + v_r T_r + v_r T_s / 2 + C + Z_d + Z_r.
     got = protective_separation(1.6, 0.5, reaction_time=0.1, stopping_time=0.3, intrusion=0.02,

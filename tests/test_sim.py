@@ -163,6 +163,22 @@ def test_person_hand_speed_stays_within_the_limit(client):
     assert MINIMUM_JERK_PEAK == pytest.approx(1.875)
 
 
+def test_person_arrives_after_the_warm_up(client):
+    """Before `arrive` the arm is out of the scene (below the floor, no contact possible);
+    a reach planned before it is refused."""
+    arm = HumanArm(client, (0.9, 0.4, 0.45), (0.8, 0.5, 0.05), [Reach(1.0, (0.4, 0.2, 0.2), 1.0)], arrive=0.75)
+    arm.set_time(0.5)
+    assert not arm.present(0.5)
+    assert all(client.getBasePositionAndOrientation(b)[0][2] < -5 for b in arm.bodies)
+    arm.set_time(0.75)
+    assert arm.present(0.75)
+    centres = [np.array(client.getBasePositionAndOrientation(b)[0]) for b in arm.bodies]
+    expected = [(a + b) / 2 for a, b, _ in arm.segments(0.75)]
+    np.testing.assert_allclose(centres, expected, atol=1e-9)
+    with pytest.raises(ValueError, match="before the person arrives"):
+        HumanArm(client, (0.9, 0.4, 0.45), (0.8, 0.5, 0.05), [Reach(0.5, (0.4, 0.2, 0.2))], arrive=0.75)
+
+
 def test_config_round_trip_and_errors(tmp_path):
     config = RunConfig()
     config.cell.cameras.append(CameraConfig("extra", "kinect_v2", (1.0, 0.0, 1.0), (0.0, 0.0, 0.0)))
@@ -183,6 +199,7 @@ def small_run_config(duration: float, seed: int = 0) -> RunConfig:
     config.cell.camera_scale = 0.3
     config.cell.cameras = [c for c in config.cell.cameras if c.mount == "world"]
     config.cell.person.reach_starts = [0.3]
+    config.cell.person.arrive_s = 0.0
     config.cell.person.peak_speed = 1.6
     config.cell.person.hold_s = 1.0
     # These tests are about the cell and perception; the robot shuttles without planning
@@ -285,6 +302,7 @@ def test_danger_where_the_hand_was_fades_in_about_twenty_seconds():
     config.cell.cameras = [c for c in config.cell.cameras if c.name == "kinect_v2_left"]
     config.cell.camera_scale = 0.35
     config.cell.person.reach_starts = [0.5]
+    config.cell.person.arrive_s = 0.0
     config.cell.person.hold_s = 1.0
     cell = SimulatedCell(config.cell)
     pipeline = PerceptionPipeline(config.perception, cell.model)

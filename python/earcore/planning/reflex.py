@@ -41,10 +41,34 @@ class ObstacleTrack:
     history: list[tuple[float, np.ndarray]] = field(default_factory=list)
     voxels: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: The centroid when first seen, and (time, lead point) of the last few frames: the
+    #: lead is the obstacle's part farthest from where it started (a reaching hand).
+    anchor: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    lead_history: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    lead_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def centroid(self) -> np.ndarray:
         return self.history[-1][1]
+
+    def observe_lead(self, time_s: float, window: int, radius: float) -> None:
+        """Track the lead: the mean of the voxels within `radius` of the one farthest
+        from the anchor. An arm reaching from a still shoulder moves its centroid at
+        about half the hand's speed; the lead moves with the hand."""
+        far = self.voxels[np.argmax(np.linalg.norm(self.voxels - self.anchor, axis=1))]
+        lead = self.voxels[np.linalg.norm(self.voxels - far, axis=1) <= radius].mean(axis=0)
+        self.lead_history = (self.lead_history + [(time_s, lead)])[-window:]
+        self.lead_velocity = _slope(self.lead_history)
+
+    def approach_velocity(self) -> np.ndarray:
+        """The velocity Eq. 2 uses: the centroid's, or the lead's where the lead runs
+        ahead in about the same direction (only for an obstacle already moving as a
+        whole, so a still one whose visible part flickers stays still)."""
+        v, lead = self.velocity, self.lead_velocity
+        speed, lead_speed = float(np.linalg.norm(v)), float(np.linalg.norm(lead))
+        if lead_speed > speed > 0 and float(v @ lead) >= 0.7 * speed * lead_speed:
+            return lead
+        return v
 
 
 @dataclass
@@ -110,8 +134,13 @@ class ObstacleTracker:
         gate: float = 0.35,
         window: int = 4,
         still_speed: float = 0.1,
+        lead_window: int = 3,
+        lead_radius: float = 0.08,
     ) -> None:
         self.robot = robot
+        #: Frames and radius (m) of the lead point's velocity (`ObstacleTrack.observe_lead`).
+        self.lead_window = lead_window
+        self.lead_radius = lead_radius
         #: Obstacles slower than this (m/s) are still: the planner keeps clear of them.
         self.still_speed = still_speed
         self.resolution = resolution
@@ -169,14 +198,14 @@ class ObstacleTracker:
         for track in self.tracks:
             c = self.robot.clearance_to_voxels(track.voxels, self.resolution, q)
             d = float(c["distance"])
-            v = track.velocity
             towards = c["on_robot"] - c["on_obstacle"]
             # Only an obstacle that itself moves towards the robot is a reflex matter (the
             # planner keeps the robot's own path clear of still ones); its speed is then
             # taken relative to the robot's closest point.
             # A still obstacle's voxel centroid jitters (noise, and the robot hiding parts
             # of it): below `still_speed` it does not count as coming by itself.
-            moving = float(np.linalg.norm(v)) >= self.still_speed
+            moving = float(np.linalg.norm(track.velocity)) >= self.still_speed
+            own = v = track.approach_velocity() if moving else track.velocity
             approaching = (moving and float(v @ towards) > 0) if d > 0 else True
             if approaching and qd is not None and c["link"] >= 0:
                 v = v - _point_jacobian(self.robot, q, int(c["link"]), c["on_robot"]) @ qd
@@ -185,7 +214,7 @@ class ObstacleTracker:
             if best is None or risk > best[0] or (risk == best[0] and d < best[2]):
                 best = (
                     risk, speed, d, c["on_robot"], c["on_obstacle"], approaching and speed > 0.05, int(c["link"]),
-                    track.velocity, track.voxels,
+                    own, track.voxels,
                 )
         frame_period = 1.0 / 15.0
         if best is None:
@@ -214,8 +243,10 @@ class ObstacleTracker:
                 track.velocity = _slope(track.history)
                 kept.append(track)
         for i in unmatched:
-            kept.append(ObstacleTrack(self._next_id, [(time_s, centroids[i])], clusters[i]))
+            kept.append(ObstacleTrack(self._next_id, [(time_s, centroids[i])], clusters[i], anchor=centroids[i]))
             self._next_id += 1
+        for track in kept:
+            track.observe_lead(time_s, self.lead_window, self.lead_radius)
         self.tracks = kept
 
 

@@ -199,7 +199,7 @@ class SimulatedCell:
             starts = np.cumsum(self.rng.uniform(3.0, 8.0, 8))
             targets = self.rng.uniform([0.3, -0.2, 0.1], [0.6, 0.4, 0.45], (8, 3))
             reaches = [Reach(float(s), tuple(t), pc.hold_s, wander=pc.wander) for s, t in zip(starts, targets)]
-        return HumanArm(self.p, pc.shoulder, pc.rest_hand, reaches, peak_speed=pc.peak_speed)
+        return HumanArm(self.p, pc.shoulder, pc.rest_hand, reaches, peak_speed=pc.peak_speed, arrive=pc.arrive_s)
 
     def attach_tool(self, tool, flange_from_tool: np.ndarray) -> int:
         """Mount a tool (`earcore.sim.tools.Checkerboard`, `ObstaclePlate`) rigidly on the
@@ -277,11 +277,12 @@ class SimulatedCell:
     # --- ground truth ---------------------------------------------------------
 
     def person_segments(self) -> list[tuple[np.ndarray, np.ndarray, float]]:
-        return [] if self.person is None else self.person.segments(self.time)
+        present = self.person is not None and self.person.present(self.time)
+        return self.person.segments(self.time) if present else []
 
     def robot_person_distance(self) -> float:
         """Closest distance between the robot's links and the person's arm (m)."""
-        if self.person is None:
+        if self.person is None or not self.person.present(self.time):
             return float("inf")
         best = float("inf")
         for body in self.person.bodies:

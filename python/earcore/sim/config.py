@@ -88,6 +88,11 @@ class PersonConfig:
     reach_holds: list[float] = field(default_factory=list)
     #: While held, the hand moves about its target by up to this much (m); 0 = still.
     wander: float = 0.0
+    #: When the person steps up to the cell (s); before, the arm is out of the scene.
+    #: The reflexes' obstacle tracker learns the static scene during the planner's
+    #: warm-up (0.5 s) and assumes nobody is there then: a resting arm learned as static
+    #: hid the first 15 cm of its reach.
+    arrive_s: float = 0.75
 
 
 @dataclass

@@ -65,9 +65,15 @@ class HumanArm:
         peak_speed: float = 1.6,
         geometry: ArmGeometry = ArmGeometry(),
         colour=(0.85, 0.6, 0.45, 1.0),
+        arrive: float = 0.0,
     ) -> None:
         if not 0 < peak_speed <= 3.0:
             raise ValueError(f"peak_speed must be in (0, 3] m/s, got {peak_speed}")
+        early = [r.start for r in reaches if r.start < arrive]
+        if early:
+            raise ValueError(f"a reach starts at {early[0]} s, before the person arrives at {arrive} s")
+        #: Until then (s) the arm is out of the scene (below the floor).
+        self.arrive = float(arrive)
         self.client = client
         self.shoulder = np.asarray(shoulder, dtype=np.float64)
         self.rest = np.asarray(rest_hand, dtype=np.float64)
@@ -149,8 +155,15 @@ class HumanArm:
         g = self.geometry
         return [(s, e, g.upper_arm_radius), (e, w, g.forearm_radius), (w, f, g.hand_radius)]
 
+    def present(self, t: float) -> bool:
+        return t >= self.arrive
+
     def set_time(self, t: float) -> None:
         p = self.client
+        if not self.present(t):
+            for body in self.bodies:
+                p.resetBasePositionAndOrientation(body, [0, 0, -10], [0, 0, 0, 1])
+            return
         for body, (a, b, _) in zip(self.bodies, self.segments(t)):
             axis = b - a
             z = np.array([0.0, 0.0, 1.0])
