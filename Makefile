@@ -63,6 +63,7 @@ bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python
 	$(PY) benches/bench_vs_octomap.py
 	$(PY) benches/bench_robot_vs_fcl.py
 	$(PY) benches/bench_perception.py
+	$(PY) benches/bench_preprocess.py
 	$(PY) benches/bench_icp_iteration.py
 	$(PY) benches/bench_icp_vs_peers.py
 	$(PY) benches/bench_surface_map.py
