@@ -93,7 +93,8 @@ class RiskReport:
     approaching: bool = False
     #: The robot link holding `on_robot` (-1: unknown).
     link: int = -1
-    #: That obstacle's own velocity (m/s, world frame) and its voxels.
+    #: That obstacle's own velocity (m/s, world frame; its lead's where that runs ahead, see
+    #: `ObstacleTrack.approach_velocity`) and its voxels.
     velocity: np.ndarray | None = None
     voxels: np.ndarray | None = None
 
