@@ -129,6 +129,17 @@ def test_statistical_outlier_removal_equals_brute_force_on_uneven_density():
         np.testing.assert_array_equal(idx, brute_force_outliers(pts, k, 1.0))
 
 
+@pytest.mark.parametrize("k", [1, 5, 20])
+def test_statistical_outlier_removal_with_many_duplicates(k):
+    # A point with k copies of itself has a k-th distance of 0; the next point must not
+    # start (and get stuck) at a zero distance guess.
+    rng = np.random.default_rng(k)
+    surface = rng.uniform(-1, 1, (600, 3)) * [1, 1, 0.01]
+    pts = np.vstack([np.repeat(surface[:30], k + 2, axis=0), surface, rng.uniform(-2, 2, (20, 3))])
+    _, idx = earcore.remove_statistical_outliers(pts, k, 1.0, return_index=True)
+    np.testing.assert_array_equal(idx, brute_force_outliers(pts, k, 1.0))
+
+
 def test_statistical_outlier_removal_rejects_bad_input():
     with pytest.raises(ValueError, match="more points"):
         earcore.remove_statistical_outliers(np.zeros((5, 3)), k=5)

@@ -323,6 +323,23 @@ def test_tracker_rates_a_reaching_arm_by_its_hand(ur5):
     assert report.speed == pytest.approx(np.linalg.norm(track.lead_velocity))
 
 
+def test_a_lead_that_jumps_to_the_other_end_starts_again(ur5):
+    """A still L-shaped bar, first seen whole, whose long arm's end the robot hides every
+    other frame: the voxel farthest from where the track started switches ends (~0.4 m).
+    That is another part, not a motion: the lead's history starts again instead of
+    reading ~6 m/s. (Smaller flicker, under the jump, is what `still_speed` and the cap
+    on the lead's speed are for.)"""
+    res = 0.05
+    tracker = ObstacleTracker(ur5, res)
+    tool = ur5.fk(A)[-1, :3, 3]
+    bar = (np.floor((tool + np.array([0.4, 0.0, 0.2]) + np.arange(10)[:, None] * [res, 0, 0]) / res) + 0.5) * res
+    foot = bar[:2] - [0.0, 0.0, res]  # pulls the first centroid towards the left end
+    for k in range(8):
+        tracker.update(k / 15, np.vstack([foot, bar[:-3] if k % 2 else bar]), A)
+        assert len(tracker.tracks[0].lead_history) == 1
+        assert np.linalg.norm(tracker.tracks[0].lead_velocity) == 0.0
+
+
 def test_protective_separation_formula():
     # ISO/TS 15066: v_h (T_r + T_s) + v_r T_r + v_r T_s / 2 + C + Z_d + Z_r.
     got = protective_separation(1.6, 0.5, reaction_time=0.1, stopping_time=0.3, intrusion=0.02,

@@ -9,6 +9,7 @@ velocities) and `on_frame(time)` after every map frame (reflexes, re-planning).
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -97,6 +98,14 @@ class Executive:
         )
         self.reflexes_on = config.mode == "predictive" and config.reflexes
         self.tracker = ObstacleTracker(self.robot, self.tree.resolution, beta=config.risk_beta)
+        person = getattr(cell, "person", None)
+        if self.reflexes_on and person is not None and person.arrive < config.warmup:
+            # The tracker learns the static scene in the warm-up: a person there becomes scenery.
+            warnings.warn(
+                f"the person arrives at {person.arrive} s, before the planner's warm-up ends ({config.warmup} s): "
+                "the reflexes will take their resting arm for static scene",
+                stacklevel=2,
+            )
         self.v_max = cell.controller.max_velocity
         self.a_max = cell.controller.max_acceleration
         self.motion: _Motion | None = None

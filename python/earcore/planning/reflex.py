@@ -51,24 +51,34 @@ class ObstacleTrack:
     def centroid(self) -> np.ndarray:
         return self.history[-1][1]
 
-    def observe_lead(self, time_s: float, window: int, radius: float) -> None:
+    def observe_lead(self, time_s: float, window: int, radius: float, jump: float) -> None:
         """Track the lead: the mean of the voxels within `radius` of the one farthest
         from the anchor. An arm reaching from a still shoulder moves its centroid at
-        about half the hand's speed; the lead moves with the hand."""
+        about half the hand's speed; the lead moves with the hand. A lead that jumps
+        farther than `jump` in one frame is another part of the obstacle (the far end
+        switched, or the robot hid it): its history starts again."""
         far = self.voxels[np.argmax(np.linalg.norm(self.voxels - self.anchor, axis=1))]
         lead = self.voxels[np.linalg.norm(self.voxels - far, axis=1) <= radius].mean(axis=0)
+        if self.lead_history and float(np.linalg.norm(lead - self.lead_history[-1][1])) > jump:
+            self.lead_history = []
         self.lead_history = (self.lead_history + [(time_s, lead)])[-window:]
         self.lead_velocity = _slope(self.lead_history)
 
     def approach_velocity(self) -> np.ndarray:
         """The velocity Eq. 2 uses: the centroid's, or the lead's where the lead runs
         ahead in about the same direction (only for an obstacle already moving as a
-        whole, so a still one whose visible part flickers stays still)."""
+        whole, so a still one whose visible part flickers stays still), at most
+        `LEAD_SPEED_CAP` times the centroid's speed (a hand at the end of a straight arm
+        from a still shoulder moves at twice the centroid's)."""
         v, lead = self.velocity, self.lead_velocity
         speed, lead_speed = float(np.linalg.norm(v)), float(np.linalg.norm(lead))
         if lead_speed > speed > 0 and float(v @ lead) >= 0.7 * speed * lead_speed:
-            return lead
+            return lead * min(1.0, LEAD_SPEED_CAP * speed / lead_speed)
         return v
+
+
+#: The lead's speed counts up to this multiple of its obstacle's centroid speed.
+LEAD_SPEED_CAP = 3.0
 
 
 @dataclass
@@ -138,6 +148,8 @@ class ObstacleTracker:
         lead_window: int = 3,
         lead_radius: float = 0.08,
     ) -> None:
+        if not (lead_window >= 2 and lead_radius >= 0):
+            raise ValueError(f"need lead_window >= 2 and lead_radius >= 0, got {lead_window}, {lead_radius}")
         self.robot = robot
         #: Frames and radius (m) of the lead point's velocity (`ObstacleTrack.observe_lead`).
         self.lead_window = lead_window
@@ -247,7 +259,7 @@ class ObstacleTracker:
             kept.append(ObstacleTrack(self._next_id, [(time_s, centroids[i])], clusters[i], anchor=centroids[i]))
             self._next_id += 1
         for track in kept:
-            track.observe_lead(time_s, self.lead_window, self.lead_radius)
+            track.observe_lead(time_s, self.lead_window, self.lead_radius, self.gate)
         self.tracks = kept
 
 

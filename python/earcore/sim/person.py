@@ -69,6 +69,8 @@ class HumanArm:
     ) -> None:
         if not 0 < peak_speed <= 3.0:
             raise ValueError(f"peak_speed must be in (0, 3] m/s, got {peak_speed}")
+        if not (np.isfinite(arrive) and arrive >= 0):
+            raise ValueError(f"arrive must be a time >= 0 s, got {arrive}")
         early = [r.start for r in reaches if r.start < arrive]
         if early:
             raise ValueError(f"a reach starts at {early[0]} s, before the person arrives at {arrive} s")

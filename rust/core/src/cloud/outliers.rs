@@ -107,7 +107,9 @@ fn mean_knn_distances(points: &[[f64; 3]], k: usize) -> Vec<f64> {
                         })
                         .fold(f64::INFINITY, f64::min);
                     let proven = reach * reach;
-                    let mut t = guess.min(proven);
+                    // The floor keeps the widening going after a guess of 0 (a point
+                    // with k copies of itself).
+                    let mut t = guess.max(1e-4 * cell * cell).min(proven);
                     block.distances(q, &mut d2);
                     loop {
                         at_most(&d2, t, &mut near);

@@ -100,7 +100,9 @@ fn contact_of(
     model.place_into(q, &mut scratch.frames, &mut scratch.placed);
     let placed = &scratch.placed;
     // First the cheap distance-field pass over every body (a certain collision ends
-    // it), then exact scans where it left doubt, in link order.
+    // it), then exact scans where it left doubt. The verdict does not depend on the
+    // order; which colliding link is reported (or whether a body outside the index is
+    // reported before a collision is found) does.
     scratch.undecided.clear();
     if scratch.order.is_empty() {
         scratch.order = (0..placed.bodies.len())
