@@ -340,6 +340,37 @@ def test_a_lead_that_jumps_to_the_other_end_starts_again(ur5):
         assert np.linalg.norm(tracker.tracks[0].lead_velocity) == 0.0
 
 
+def test_keep_out_margin_around_tracked_obstacles(ur5):
+    """A voxel 2.5 cm from the tool: not a collision, but within a 4 cm keep-out margin
+    (the robot grown by 4 cm), for states, paths and the planner's ends; off again with
+    no voxels."""
+    res = 0.05
+    planner = JointSpacePlanner(ur5, earcore.OcTree(res))
+    grown = earcore.robots.load("ur5", padding=0.005 + 0.04)
+    grown.base = ur5.base
+    probe = (np.floor(ur5.fk(A)[-1, :3, 3] / res) + 0.5) * res
+    # Slide the voxel out along z until it is free of the robot, then 2.5 cm further.
+    gap = None
+    for dz in np.arange(0.0, 0.4, 0.005):
+        tree = earcore.OcTree(res)
+        tree.update_nodes((probe + [0, 0, dz])[None])
+        d = ur5.clearance(tree, A)["distance"]
+        if d >= 0.025:
+            gap = probe + [0, 0, dz]
+            break
+    assert gap is not None
+    voxel = (np.floor(gap / res) + 0.5) * res
+    assert planner.is_valid(A)
+    planner.set_keep_out(grown, voxel[None], res)
+    d = ur5.clearance_to_voxels(voxel[None], res, A)["distance"]
+    assert 0.02 <= d < 0.04 and not planner.is_valid(A)
+    assert not planner.path_is_valid(np.stack([B, A]))
+    with pytest.raises(StartInCollision, match="keep-out"):
+        planner.plan(A, B)
+    planner.set_keep_out(grown, np.zeros((0, 3)), res)
+    assert planner.is_valid(A) and planner.path_is_valid(np.stack([B, A]))
+
+
 def test_protective_separation_formula():
     # ISO/TS 15066: v_h (T_r + T_s) + v_r T_r + v_r T_s / 2 + C + Z_d + Z_r.
     got = protective_separation(1.6, 0.5, reaction_time=0.1, stopping_time=0.3, intrusion=0.02,

@@ -98,6 +98,14 @@ class Executive:
         )
         self.reflexes_on = config.mode == "predictive" and config.reflexes
         self.tracker = ObstacleTracker(self.robot, self.tree.resolution, beta=config.risk_beta)
+        #: The robot grown by `person_margin`, kept that far from the tracked obstacles.
+        self.grown_robot = None
+        margin = getattr(config, "person_margin", 0.0)
+        if self.reflexes_on and margin > 0:
+            from earcore.robots import load
+
+            self.grown_robot = load(cell.config.robot, padding=cell.config.padding + margin)
+            self.grown_robot.base = self.robot.base
         person = getattr(cell, "person", None)
         if self.reflexes_on and person is not None and person.arrive < config.warmup:
             # The tracker learns the static scene in the warm-up: a person there becomes scenery.
@@ -275,6 +283,7 @@ class Executive:
             qd = self.command if self.config.relative_velocity else None
             report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed, qd)
             self.log.risk.append(report)
+            self.planner.rrt.set_keep_out(self.grown_robot, self.tracker.last_dynamic, self.tree.resolution)
             in_reflex = self.motion is not None and self.motion.kind in ("reflex", "backtrack")
             close = report.approaching and report.clearance < self.config.min_separation
             # A running reflex is not restarted, except a backtrack the obstacle still

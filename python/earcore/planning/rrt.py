@@ -90,11 +90,40 @@ class JointSpacePlanner:
         #: Validity queries made by the last `plan` call (states, edges) and the time
         #: spent in them, for the planning benchmark's "validity share".
         self.checks = {"states": 0, "motions": 0, "seconds": 0.0}
+        #: Keep-out (`set_keep_out`): this robot grown by a margin must not touch these voxels.
+        self._keep_out: tuple | None = None
 
     # --- validity, as the planner sees it ---------------------------------------
 
+    def set_keep_out(self, grown_robot, voxels, resolution: float) -> None:
+        """Besides the map, keep `grown_robot` (this robot with its bodies grown by a
+        margin; self-collision is not checked on it) clear of `voxels` (centres of
+        `resolution` cubes, e.g. the people the reflex layer tracks). None or no voxels:
+        off. Start and goal must satisfy it too."""
+        if grown_robot is None or voxels is None or not len(voxels):
+            self._keep_out = None
+            return
+        import earcore
+
+        tree = earcore.OcTree(resolution)
+        tree.update_nodes(np.asarray(voxels, dtype=np.float64).reshape(-1, 3))
+        self._keep_out = (grown_robot, tree)
+
+    def _kept_out(self, q) -> bool:
+        """True where `q` comes within the keep-out margin."""
+        if self._keep_out is None:
+            return False
+        robot, tree = self._keep_out
+        return bool(robot.check_configurations(tree, q, self_collision=False))
+
+    def _motion_kept_out(self, q0, q1) -> bool:
+        if self._keep_out is None:
+            return False
+        robot, tree = self._keep_out
+        return bool(robot.check_motion(tree, q0, q1, self.resolution, self_collision=False))
+
     def is_valid(self, q) -> bool:
-        return not bool(self.robot.check_configurations(self.tree, q, obstacles=self.obstacles))
+        return not bool(self.robot.check_configurations(self.tree, q, obstacles=self.obstacles)) and not self._kept_out(q)
 
     def path_is_valid(self, path) -> bool:
         """Every edge of a polyline free at the planner's resolution."""
@@ -102,12 +131,18 @@ class JointSpacePlanner:
         if len(path) == 1:
             return self.is_valid(path[0])
         hits = self.robot.check_motions(self.tree, path[:-1], path[1:], self.resolution, obstacles=self.obstacles)
-        return not bool(np.any(hits))
+        if np.any(hits):
+            return False
+        if self._keep_out is not None:
+            robot, tree = self._keep_out
+            near = robot.check_motions(tree, path[:-1], path[1:], self.resolution, self_collision=False)
+            return not bool(np.any(near))
+        return True
 
     def _describe(self, q) -> str | None:
         hit, link = self.robot.check_configurations(self.tree, q, obstacles=self.obstacles, return_links=True)
         if not hit:
-            return None
+            return "within the keep-out margin of a tracked obstacle" if self._kept_out(q) else None
         return self.robot.link_names[link] if link >= 0 else "self-collision"
 
     # --- planning ---------------------------------------------------------------
@@ -133,9 +168,12 @@ class JointSpacePlanner:
 
         clock = time.perf_counter
 
+        kept_out, motion_kept_out = self._kept_out, self._motion_kept_out
+
         def state_valid(s) -> bool:
             t0 = clock()
-            free = not robot.check_configurations(tree, s[0:dof], obstacles=obstacles)
+            q = s[0:dof]
+            free = not robot.check_configurations(tree, q, obstacles=obstacles) and not kept_out(q)
             checks["states"] += 1
             checks["seconds"] += clock() - t0
             return free
@@ -143,7 +181,8 @@ class JointSpacePlanner:
         class EdgeValidator(ob.MotionValidator):
             def checkMotion(self, s1, s2) -> bool:  # noqa: N802 (OMPL's name)
                 t0 = clock()
-                free = not robot.check_motion(tree, s1[0:dof], s2[0:dof], res, obstacles=obstacles)
+                q0, q1 = s1[0:dof], s2[0:dof]
+                free = not robot.check_motion(tree, q0, q1, res, obstacles=obstacles) and not motion_kept_out(q0, q1)
                 checks["motions"] += 1
                 checks["seconds"] += clock() - t0
                 return free
@@ -201,7 +240,8 @@ class JointSpacePlanner:
         if not (time_limit > 0 and attempts >= 1):
             raise ValueError("time_limit must be > 0 and attempts >= 1")
         self.checks.update(states=0, motions=0, seconds=0.0)
-        if not self.robot.check_motion(self.tree, start, goal, self.resolution, obstacles=self.obstacles):
+        straight_hits = self.robot.check_motion(self.tree, start, goal, self.resolution, obstacles=self.obstacles)
+        if not straight_hits and not self._motion_kept_out(start, goal):
             # The straight motion is free: RRT-Connect would find it at once; skip OMPL.
             direct = PlannedPath(np.stack([start, goal]), 0.0, 0.0)
             return [direct]

@@ -200,6 +200,10 @@ class PlanningConfig:
     #: Beyond the paper: an approaching obstacle closer than this (m) also fires the
     #: reflex, as a move away (a slow hand's risk D stays below T until it touches).
     min_separation: float = 0.06
+    #: Beyond the paper: paths keep this much clearance (m) from the tracked moving
+    #: obstacles (people) on top of not touching what the map holds of them: the cameras
+    #: see one side of a hand, and a tight path brushed its other side. 0 = off.
+    person_margin: float = 0.04
     #: Goal tolerances for end-effector pose goals (m, rad).
     position_tolerance: float = 0.01
     orientation_tolerance: float = 0.1
