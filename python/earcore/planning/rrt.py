@@ -90,8 +90,11 @@ class JointSpacePlanner:
         #: Validity queries made by the last `plan` call (states, edges) and the time
         #: spent in them, for the planning benchmark's "validity share".
         self.checks = {"states": 0, "motions": 0, "seconds": 0.0}
-        #: Keep-out (`set_keep_out`): this robot grown by a margin must not touch these voxels.
+        #: Keep-out (`set_keep_out`): the grown robot, the voxels and their size; and the
+        #: (grown robot, map) in force, without the voxels the robot is already near.
+        self._keep_out_source: tuple | None = None
         self._keep_out: tuple | None = None
+        self._keep_out_cache: dict = {}
 
     # --- validity, as the planner sees it ---------------------------------------
 
@@ -99,15 +102,36 @@ class JointSpacePlanner:
         """Besides the map, keep `grown_robot` (this robot with its bodies grown by a
         margin; self-collision is not checked on it) clear of `voxels` (centres of
         `resolution` cubes, e.g. the people the reflex layer tracks). None or no voxels:
-        off. Start and goal must satisfy it too."""
+        off. Voxels already within the margin where a plan starts or ends (or where the
+        robot is, for `path_is_valid`) are left out for that query: the reflexes deal
+        with what is that close, and a robot next to one could not move at all."""
         if grown_robot is None or voxels is None or not len(voxels):
-            self._keep_out = None
+            self._keep_out_source = self._keep_out = None
             return
-        import earcore
+        voxels = np.asarray(voxels, dtype=np.float64).reshape(-1, 3)
+        self._keep_out_source = (grown_robot, voxels, float(resolution))
+        self._keep_out = self._keep_out_away_from()
 
-        tree = earcore.OcTree(resolution)
-        tree.update_nodes(np.asarray(voxels, dtype=np.float64).reshape(-1, 3))
-        self._keep_out = (grown_robot, tree)
+    def _keep_out_away_from(self, *qs) -> tuple | None:
+        """The keep-out map without the voxels within the margin at any of `qs`."""
+        if self._keep_out_source is None:
+            return None
+        robot, voxels, res = self._keep_out_source
+        keep = np.ones(len(voxels), dtype=bool)
+        for q in qs:
+            # A voxel centre within half a diagonal of the grown bodies: within the margin.
+            keep &= np.asarray(robot.self_filter(voxels, np.asarray(q, dtype=np.float64), 0.87 * res), dtype=bool)
+        chosen = voxels[keep]
+        if not len(chosen):
+            return None
+        key = chosen.tobytes()
+        if key not in self._keep_out_cache:
+            import earcore
+
+            tree = earcore.OcTree(res)
+            tree.update_nodes(chosen)
+            self._keep_out_cache = {key: (robot, tree)}  # one map at a time; its index is built once
+        return self._keep_out_cache[key]
 
     def _kept_out(self, q) -> bool:
         """True where `q` comes within the keep-out margin."""
@@ -128,6 +152,7 @@ class JointSpacePlanner:
     def path_is_valid(self, path) -> bool:
         """Every edge of a polyline free at the planner's resolution."""
         path = np.asarray(path, dtype=np.float64)
+        self._keep_out = self._keep_out_away_from(path[0], path[-1])
         if len(path) == 1:
             return self.is_valid(path[0])
         hits = self.robot.check_motions(self.tree, path[:-1], path[1:], self.resolution, obstacles=self.obstacles)
@@ -236,6 +261,9 @@ class JointSpacePlanner:
         within `time_limit` seconds (Paper II, Table I: 1 s, 3 attempts). Raises
         `StartInCollision`, `GoalInCollision`, or `NoPathFound` when no attempt
         succeeds; never runs longer than attempts × (time_limit + simplification)."""
+        start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
+        if start.shape == goal.shape == (self.dof,) and np.isfinite(start).all() and np.isfinite(goal).all():
+            self._keep_out = self._keep_out_away_from(start, goal)
         start, goal = self.check_ends(start, goal)
         if not (time_limit > 0 and attempts >= 1):
             raise ValueError("time_limit must be > 0 and attempts >= 1")
