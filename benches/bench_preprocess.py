@@ -49,6 +49,7 @@ def open3d_stages(points: np.ndarray, repeats: int) -> dict[str, float] | None:
         import open3d as o3d
     except ImportError:
         return None
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
 
     def crop() -> np.ndarray:
         return points[np.einsum("ij,ij->i", points, points) <= 1.5**2]
@@ -79,12 +80,6 @@ def main() -> None:
     for threads in (1, 0):
         earcore.set_num_threads(threads)
         rows.append(("earcore", "1" if threads == 1 else str(os.cpu_count()), earcore_stages(points, args.repeats)))
-    try:
-        import open3d as o3d
-
-        o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
-    except ImportError:
-        pass
     peer = open3d_stages(points, args.repeats)
     if peer is not None:
         rows.append(("open3d-cpu", "its own", peer))

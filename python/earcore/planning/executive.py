@@ -100,7 +100,7 @@ class Executive:
         self.tracker = ObstacleTracker(self.robot, self.tree.resolution, beta=config.risk_beta)
         #: The robot grown by `person_margin`, kept that far from the tracked obstacles.
         self.grown_robot = None
-        margin = getattr(config, "person_margin", 0.0)
+        margin = config.person_margin
         if self.reflexes_on and margin > 0:
             from earcore.robots import load
 

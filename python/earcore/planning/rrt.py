@@ -22,6 +22,8 @@ from earcore.planning.trajectory import path_length
 __all__ = ["JointSpacePlanner", "PlannedPath"]
 
 _SEEDED = False
+#: `JointSpacePlanner._keep_out` before its map is built.
+_UNFILTERED = object()
 
 
 def _ompl():
@@ -93,7 +95,7 @@ class JointSpacePlanner:
         #: Keep-out (`set_keep_out`): the grown robot, the voxels and their size; and the
         #: (grown robot, map) in force, without the voxels the robot is already near.
         self._keep_out_source: tuple | None = None
-        self._keep_out: tuple | None = None
+        self._keep_out: tuple | object | None = None
         self._keep_out_cache: dict = {}
 
     # --- validity, as the planner sees it ---------------------------------------
@@ -110,7 +112,7 @@ class JointSpacePlanner:
             return
         voxels = np.asarray(voxels, dtype=np.float64).reshape(-1, 3)
         self._keep_out_source = (grown_robot, voxels, float(resolution))
-        self._keep_out = self._keep_out_away_from()
+        self._keep_out = _UNFILTERED  # built on first use: plans and paths pick their own
 
     def _keep_out_away_from(self, *qs) -> tuple | None:
         """The keep-out map without the voxels within the margin at any of `qs`."""
@@ -133,17 +135,24 @@ class JointSpacePlanner:
             self._keep_out_cache = {key: (robot, tree)}  # one map at a time; its index is built once
         return self._keep_out_cache[key]
 
+    def _active_keep_out(self) -> tuple | None:
+        if self._keep_out is _UNFILTERED:
+            self._keep_out = self._keep_out_away_from()
+        return self._keep_out
+
     def _kept_out(self, q) -> bool:
         """True where `q` comes within the keep-out margin."""
-        if self._keep_out is None:
+        active = self._active_keep_out()
+        if active is None:
             return False
-        robot, tree = self._keep_out
+        robot, tree = active
         return bool(robot.check_configurations(tree, q, self_collision=False))
 
     def _motion_kept_out(self, q0, q1) -> bool:
-        if self._keep_out is None:
+        active = self._active_keep_out()
+        if active is None:
             return False
-        robot, tree = self._keep_out
+        robot, tree = active
         return bool(robot.check_motion(tree, q0, q1, self.resolution, self_collision=False))
 
     def is_valid(self, q) -> bool:
@@ -244,6 +253,7 @@ class JointSpacePlanner:
                 raise ValueError(f"{name} must have {self.dof} joint values, got shape {q.shape}")
             if not np.isfinite(q).all():
                 raise ValueError(f"{name} contains NaN or infinite values: {q}")
+        self._keep_out = self._keep_out_away_from(start, goal)
         # Joints outside their limits raise ValueError (naming the joint) here.
         link = self._describe(start)
         if link is not None:
@@ -261,9 +271,6 @@ class JointSpacePlanner:
         within `time_limit` seconds (Paper II, Table I: 1 s, 3 attempts). Raises
         `StartInCollision`, `GoalInCollision`, or `NoPathFound` when no attempt
         succeeds; never runs longer than attempts × (time_limit + simplification)."""
-        start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
-        if start.shape == goal.shape == (self.dof,) and np.isfinite(start).all() and np.isfinite(goal).all():
-            self._keep_out = self._keep_out_away_from(start, goal)
         start, goal = self.check_ends(start, goal)
         if not (time_limit > 0 and attempts >= 1):
             raise ValueError("time_limit must be > 0 and attempts >= 1")
