@@ -262,6 +262,61 @@ def test_the_loop_filters_the_robot_and_keeps_the_arm(tmp_path):
     assert (danger > 0).any()
 
 
+def test_far_points_clear_the_space_inside_the_crop_sphere():
+    """Points beyond the crop radius are not inserted, but their rays still show that
+    the space in front of them is empty: with `clear_beyond_crop` the map learns that
+    space as free (without it, space seen only against a far background stays unknown
+    and its danger could never decay)."""
+    import dataclasses
+
+    from earcore.perception import PerceptionPipeline
+    from earcore.perception.pipeline import _cut_at_sphere
+    from earcore.sim.cell import SimulatedCell
+
+    # The cut: where each ray leaves the sphere, on the segment, |c - centre| = radius.
+    rng = np.random.default_rng(3)
+    centre, radius = np.array([0.1, -0.2, 0.0]), 1.5
+    sensor = centre + np.array([0.7, 0.9, 0.5])  # inside: every ray leaves once
+    far = centre + rng.normal(size=(400, 3)) * 3.0
+    far = far[np.linalg.norm(far - centre, axis=1) > radius]
+    cut = _cut_at_sphere(far, sensor, centre, radius)
+    assert len(cut) == len(far)
+    assert np.allclose(np.linalg.norm(cut - centre, axis=1), radius)
+    along = np.einsum("ij,ij->i", cut - sensor, far - sensor) / np.einsum("ij,ij->i", far - sensor, far - sensor)
+    assert np.all((along > 0) & (along < 1))
+    assert np.allclose(sensor + along[:, None] * (far - sensor), cut)
+    # From outside, rays that miss the sphere are dropped.
+    outside = centre + np.array([3.0, 0.0, 0.0])
+    assert len(_cut_at_sphere(np.array([[3.0, 5.0, 0.0], [-3.0, 0.0, 0.0]]) + centre, outside, centre, radius)) == 1
+
+    config = small_run_config(0.2)
+    config.cell.cameras = [c for c in config.cell.cameras if c.name == "kinect_v2_left"]
+    config.cell.person.enabled = False
+    cell = SimulatedCell(config.cell)
+    frames = []
+    while not frames:
+        cell.step()
+        frames = cell.capture()
+    known = {}
+    for clear in (True, False):
+        perception = dataclasses.replace(config.perception, clear_beyond_crop=clear)
+        pipeline = PerceptionPipeline(perception, cell.model)
+        pipeline.process(frames, cell.q, cell.time)
+        known[clear] = pipeline
+    pose = known[True]._pose_of(frames[0])
+    points = known[True]._points_of(frames[0], base_from_camera=pose)
+    base = cell.model.base[:3, 3]
+    beyond = points[np.linalg.norm(points - base, axis=1) > config.perception.crop_radius + 0.1]
+    cut = _cut_at_sphere(beyond, pose[:3, 3], base, config.perception.crop_radius)
+    # 15 cm before each far ray leaves the sphere.
+    probe = cut - 0.15 * (cut - pose[:3, 3]) / np.linalg.norm(cut - pose[:3, 3], axis=1)[:, None]
+    cell.close()
+    assert len(probe) > 100
+    free_with = np.mean(known[True].tree.is_occupied(probe) == 0)
+    free_without = np.mean(known[False].tree.is_occupied(probe) == 0)
+    assert free_with > 0.95 and free_without < 0.2, (free_with, free_without)
+
+
 def test_cli_run_help_and_config_dump(tmp_path):
     import subprocess
     import sys

@@ -47,6 +47,22 @@ class FrameReport:
         return sum(self.timings.values())
 
 
+def _cut_at_sphere(points: np.ndarray, sensor: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
+    """Where the rays from `sensor` to `points` leave the sphere (`center`, `radius`);
+    rays that miss it, or leave it behind the sensor, are dropped."""
+    d = points - sensor
+    w = sensor - center
+    a = np.einsum("ij,ij->i", d, d)
+    b = d @ w
+    disc = b * b - a * (w @ w - radius * radius)
+    ok = (disc >= 0) & (a > 0)
+    t = np.zeros(len(points))
+    t[ok] = (-b[ok] + np.sqrt(disc[ok])) / a[ok]
+    ok &= t > 0
+    t = np.minimum(t, 1.0)
+    return sensor + t[ok, None] * d[ok]
+
+
 def perturb_pose(pose: np.ndarray, translation: float, rotation: float, rng: np.random.Generator) -> np.ndarray:
     """A pose moved by `translation` metres and turned by `rotation` radians in random
     directions (to stand in for calibration error)."""
@@ -175,7 +191,7 @@ class PerceptionPipeline:
         origin = self.robot.base[:3, 3]
         # Per camera: points in the base frame, cropped (Paper II merges the cameras'
         # clouds, then pre-processes the merged cloud once).
-        clouds, origins, columns, lows = [], [], [], []
+        clouds, origins, columns, lows, far = [], [], [], [], []
         tracking = self.track_body is not None
         t0 = time.perf_counter()
         for frame in frames:
@@ -183,12 +199,21 @@ class PerceptionPipeline:
             pts, pixels = self._points_of(frame, base_from_camera=pose, return_pixels=True)
             report.points_in += len(pts)
             t1 = time.perf_counter()
+            all_pts = pts
             pts, idx = earcore.crop(pts, center=origin, radius=c.crop_radius, return_index=True)
+            if c.clear_beyond_crop and len(idx) < len(all_pts):
+                beyond = np.ones(len(all_pts), dtype=bool)
+                beyond[idx] = False
+                far.append(_cut_at_sphere(all_pts[beyond], pose[:3, 3], origin, c.crop_radius))
+            else:
+                far.append(np.zeros((0, 3)))
             if c.min_height is not None:
                 # Low points (the table) only clear the space in front of them.
                 above = pts[:, 2] >= c.min_height
                 lows.append(pts[~above])
                 pts, idx = pts[above], idx[above]
+            else:
+                lows.append(np.zeros((0, 3)))
             robot = np.zeros(len(pts))
             if tracking and frame.segmentation is not None:
                 robot = (frame.segmentation.reshape(-1)[pixels[idx]] == self.track_body).astype(np.float64)
@@ -241,10 +266,13 @@ class PerceptionPipeline:
             report.tracked_inserted += int((tracked & keep).sum())
         pts, camera = pts[keep], camera[keep]
         t5 = time.perf_counter()
-        for sensor_origin, low in zip(origins, lows):
-            if len(low):
-                low = earcore.voxel_downsample(low, self.tree.resolution)
-                self.tree.insert_free_rays(low, sensor_origin, max_range=c.max_range)
+        for sensor_origin, low, beyond in zip(origins, lows, far):
+            # Free rays only: to the table's points and to where far points' rays leave
+            # the crop sphere (one per map cell is enough to clear the cells before it).
+            free = np.vstack([low, beyond]) if len(beyond) else low
+            if len(free):
+                free = earcore.voxel_downsample(free, self.tree.resolution)
+                self.tree.insert_free_rays(free, sensor_origin, max_range=c.max_range)
         for i, sensor_origin in enumerate(origins):
             mine = pts[camera == i]
             if len(mine):

@@ -148,6 +148,10 @@ class PerceptionConfig:
     #: the 5 cm voxels above the top with obstacles that the robot's shoulder brushes.
     #: None inserts every point as a hit.
     min_height: float | None = 0.02
+    #: Rays of the points beyond `crop_radius` still clear the space inside the crop
+    #: sphere (free rays cut where they leave it, no hit). Paper II drops those points
+    #: outright, so space that cameras see only against a far background never decays.
+    clear_beyond_crop: bool = True
     outlier_k: int = 20
     outlier_std_ratio: float = 2.0
     #: Voxel-grid size before insertion (m); 0 disables it.
