@@ -323,6 +323,34 @@ def test_tracker_rates_a_reaching_arm_by_its_hand(ur5):
     assert report.speed == pytest.approx(np.linalg.norm(track.lead_velocity))
 
 
+def test_tracker_follows_a_reach_that_speeds_up(ur5):
+    """A hand accelerating at 6 m/s² towards the tool (seen as 5 cm voxels at 15 Hz):
+    Eq. 2's speed is the hand's at the newest frame, where a plain slope over the
+    window reports the speed of about a frame before (and fired a frame late)."""
+    res = 0.05
+    tracker = ObstacleTracker(ur5, res, beta=1.5)
+    tool = ur5.fk(A)[-1, :3, 3]
+    blob = np.array([[x, y, z] for x in (0, res) for y in (0, res) for z in (0, res)])
+    start = tool + np.array([0.9, 0.0, 0.0])
+    accel = 6.0
+    for k in range(6):
+        t = k / 15
+        centre = start - np.array([0.5 * accel * t * t, 0.0, 0.0])
+        report = tracker.update(t, (np.floor((blob + centre) / res) + 0.5) * res, A)
+    (track,) = tracker.tracks
+    true_speed = accel * 5 / 15  # 2.0 m/s at the newest frame
+    assert report.speed == pytest.approx(true_speed, rel=0.15)
+    lagging = float(np.linalg.norm(track.velocity))  # the slope over the last 4 frames
+    assert lagging < 0.85 * true_speed
+    # A constant speed, coarsely quantised: never read slower than the slope reads it.
+    steady = ObstacleTracker(ur5, res)
+    for k in range(8):
+        centre = start - np.array([1.2 * k / 15, 0.0, 0.0])
+        report = steady.update(k / 15, (np.floor((blob + centre) / res) + 0.5) * res, A)
+        track = steady.tracks[0]
+        assert np.linalg.norm(track.velocity_now) >= np.linalg.norm(track.velocity) - 1e-12
+
+
 def test_a_lead_that_jumps_to_the_other_end_starts_again(ur5):
     """A still L-shaped bar, first seen whole, whose long arm's end the robot hides every
     other frame: the voxel farthest from where the track started switches ends (~0.4 m).

@@ -41,6 +41,9 @@ class ObstacleTrack:
     history: list[tuple[float, np.ndarray]] = field(default_factory=list)
     voxels: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: The centroid's velocity at the newest frame (constant-acceleration fit): the
+    #: slope above lags a reach that speeds up by about a frame.
+    velocity_now: np.ndarray = field(default_factory=lambda: np.zeros(3))
     #: The centroid when first seen, and (time, lead point) of the last few frames: the
     #: lead is the obstacle's part farthest from where it started (a reaching hand).
     anchor: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -62,15 +65,15 @@ class ObstacleTrack:
         if self.lead_history and float(np.linalg.norm(lead - self.lead_history[-1][1])) > jump:
             self.lead_history = []
         self.lead_history = (self.lead_history + [(time_s, lead)])[-window:]
-        self.lead_velocity = _slope(self.lead_history)
+        self.lead_velocity = _velocity_now(self.lead_history)
 
     def approach_velocity(self) -> np.ndarray:
         """The velocity Eq. 2 uses: the centroid's, or the lead's where the lead runs
         ahead in about the same direction (only for an obstacle already moving as a
         whole, so a still one whose visible part flickers stays still), at most
         `LEAD_SPEED_CAP` times the centroid's speed (a hand at the end of a straight arm
-        from a still shoulder moves at twice the centroid's)."""
-        v, lead = self.velocity, self.lead_velocity
+        from a still shoulder moves at twice the centroid's). Both at the newest frame."""
+        v, lead = self.velocity_now, self.lead_velocity
         speed, lead_speed = float(np.linalg.norm(v)), float(np.linalg.norm(lead))
         if lead_speed > speed > 0 and float(v @ lead) >= 0.7 * speed * lead_speed:
             return lead * min(1.0, LEAD_SPEED_CAP * speed / lead_speed)
@@ -145,10 +148,10 @@ class ObstacleTracker:
         gate: float = 0.35,
         window: int = 4,
         still_speed: float = 0.1,
-        lead_window: int = 3,
+        lead_window: int = 4,
         lead_radius: float = 0.08,
     ) -> None:
-        if not (lead_window >= 2 and lead_radius >= 0):
+        if not (lead_window >= 2 and window >= 2 and lead_radius >= 0):
             raise ValueError(f"need lead_window >= 2 and lead_radius >= 0, got {lead_window}, {lead_radius}")
         self.robot = robot
         #: Frames and radius (m) of the lead point's velocity (`ObstacleTrack.observe_lead`).
@@ -254,6 +257,7 @@ class ObstacleTracker:
                 track.history = (track.history + [(time_s, centroids[i])])[-self.window :]
                 track.voxels = clusters[i]
                 track.velocity = _slope(track.history)
+                track.velocity_now = _velocity_now(track.history)
                 kept.append(track)
         for i in unmatched:
             kept.append(ObstacleTrack(self._next_id, [(time_s, centroids[i])], clusters[i], anchor=centroids[i]))
@@ -272,6 +276,23 @@ def _slope(history: list[tuple[float, np.ndarray]]) -> np.ndarray:
     t = t - t.mean()
     denom = float(t @ t)
     return (t @ (p - p.mean(axis=0))) / denom if denom > 0 else np.zeros(3)
+
+
+def _velocity_now(history: list[tuple[float, np.ndarray]]) -> np.ndarray:
+    """A velocity for Eq. 2 that does not lag a reach that speeds up: of the slope and
+    the velocity at the newest sample from a least-squares constant-acceleration fit
+    (four samples or more), the faster. The fit alone follows a hand's acceleration
+    but amplifies voxel quantisation (~3.5x the slope's noise); for safety an
+    underestimate is what must not happen, so the larger one counts."""
+    slope = _slope(history)
+    if len(history) < 4:
+        return slope
+    t = np.array([h[0] for h in history])
+    p = np.array([h[1] for h in history])
+    t = t - t[-1]
+    design = np.stack([np.ones_like(t), t, t * t], axis=1)
+    coef, *_ = np.linalg.lstsq(design, p, rcond=None)
+    return coef[1] if float(np.linalg.norm(coef[1])) > float(np.linalg.norm(slope)) else slope
 
 
 @dataclass
