@@ -206,9 +206,8 @@ class PlanningConfig:
     min_separation: float = 0.06
     #: Beyond the paper: paths keep this much clearance (m) from the tracked moving
     #: obstacles (people) on top of not touching what the map holds of them: the cameras
-    #: see one side of a hand, and a tight path brushed its other side. 0 = off (the
-    #: default: with 4 cm one run of Exp. 3 stalled for over a minute, see NOTES.md).
-    person_margin: float = 0.0
+    #: see one side of a hand, and a tight path brushed its other side. 0 = off.
+    person_margin: float = 0.04
     #: Goal tolerances for end-effector pose goals (m, rad).
     position_tolerance: float = 0.01
     orientation_tolerance: float = 0.1
