@@ -549,3 +549,38 @@ def test_fig7_circles_put_the_tool_on_its_circles():
         assert np.allclose(tool[:, 2], driver.height + 0.1, atol=0.006)
         assert abs(qs[-1, 0] - qs[0, 0]) == pytest.approx(2 * np.pi)
     cell.close()
+
+
+def test_fig7_measures_how_often_fading_voxels_are_seen_free():
+    """The occlusion figure of Fig. 7's bands: of the frames in which a voxel was fading
+    (hit before, not hit now), the share in which its danger went down (a ray saw it
+    free). Fed a scripted danger map: an inner voxel that decays every other frame, an
+    outer one that decays every frame, a voxel hit again (not fading) in between."""
+    pytest.importorskip("pybullet")
+    from types import SimpleNamespace
+
+    from earcore.perception import PerceptionPipeline
+    from earcore.planning.experiments import HIT_DANGER, CirclesDriver
+    from earcore.sim.cell import SimulatedCell
+    from earcore.sim.config import RunConfig
+
+    config = RunConfig()
+    config.cell.person.enabled = False
+    config.cell.camera_scale = 0.1
+    cell = SimulatedCell(config.cell)
+    driver = CirclesDriver(cell, PerceptionPipeline(config.perception, cell.model), repetitions=1)
+    cell.close()
+    inner = np.array([0.2 + 0.025, 0.025, driver.height + 0.025])
+    outer = np.array([0.46 + 0.025, 0.025, driver.height + 0.025])
+    c_inner = [HIT_DANGER, 0.9, 0.9, 0.8, 0.8, 0.7, HIT_DANGER, 0.95]
+    c_outer = [HIT_DANGER, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3]
+    for a, b in zip(c_inner, c_outer):
+        tree = SimpleNamespace(danger_voxels=lambda a=a, b=b: (np.array([inner, outer]), None, np.array([a, b], np.float32)))
+        driver.pipeline = SimpleNamespace(tree=tree)
+        driver.on_frame()
+    bands = {b["radius_m"]: b for b in driver.bands()}
+    # Inner: fading in frames 1-5 and 7 (frame 6 is a hit), decayed in 1, 3, 5, 7.
+    assert bands[0.2]["seen_free_while_fading"] == pytest.approx(4 / 6)
+    assert bands[0.46]["seen_free_while_fading"] == pytest.approx(1.0)
+    assert bands[0.32]["voxels"] == 0 and bands[0.32]["seen_free_while_fading"] == 0.0
+    assert bands[0.2]["mean_danger"] == pytest.approx(np.mean(np.float32(c_inner)), rel=1e-6)

@@ -147,6 +147,10 @@ def format_table(results: dict) -> str:
     return "\n".join(lines)
 
 
+#: The danger of a voxel hit in the frame (0.999, as the map stores it: float32).
+HIT_DANGER = float(np.float32(0.999))
+
+
 class CirclesDriver:
     """Drives the Fig. 7 test: circles of the tool around the base at `height`, the pan
     joint sweeping a full turn per circle (alternating direction so the joint stays
@@ -198,6 +202,12 @@ class CirclesDriver:
         self.shape = np.ceil(np.array([2.4, 2.4, 0.5]) / res).astype(int)
         self.sum = np.zeros(self.shape)
         self.frames = 0
+        # The occlusion effect, measured: per cell, frames in which it was fading (danger
+        # before, not hit now) and, of those, frames in which it decayed (a ray saw it
+        # free: the `observed` decay mode).
+        self.previous = np.zeros(self.shape)
+        self.fading = np.zeros(self.shape)
+        self.seen_free = np.zeros(self.shape)
         self.trips: list = []
 
     @property
@@ -229,7 +239,13 @@ class CirclesDriver:
         centres, _, values = self.pipeline.tree.danger_voxels()
         index = np.floor((centres - self.lo) / self.res).astype(int)
         inside = np.all((index >= 0) & (index < self.shape), axis=1)
-        np.add.at(self.sum, tuple(index[inside].T), values[inside])
+        current = np.zeros(self.shape)
+        current[tuple(index[inside].T)] = values[inside]
+        self.sum += current
+        fading = (self.previous > 0) & (current < HIT_DANGER)
+        self.fading += fading
+        self.seen_free += fading & (current < self.previous)
+        self.previous = current
         self.frames += 1
 
     def average(self) -> tuple[np.ndarray, np.ndarray]:
@@ -244,11 +260,15 @@ class CirclesDriver:
         centres, mean = self.average()
         radius = np.linalg.norm(centres[:, :2] - self.cell.model.base[:2, 3], axis=1)
         edges = np.r_[self.radii[0] - 0.1, [(a + b) / 2 for a, b in zip(self.radii[:-1], self.radii[1:])], self.radii[-1] + 0.12]
+        cells = np.floor((centres - self.lo) / self.res).astype(int)
+        fading, seen = self.fading[tuple(cells.T)], self.seen_free[tuple(cells.T)]
         out = []
         for r, lo, hi in zip(self.radii, edges[:-1], edges[1:]):
             sel = (radius >= lo) & (radius < hi)
             out.append({"radius_m": r, "from_m": float(lo), "to_m": float(hi), "voxels": int(sel.sum()),
-                        "mean_danger": float(mean[sel].mean()) if sel.any() else 0.0})
+                        "mean_danger": float(mean[sel].mean()) if sel.any() else 0.0,
+                        # Occlusion: how often a fading voxel of the band was seen free.
+                        "seen_free_while_fading": float(seen[sel].sum() / fading[sel].sum()) if fading[sel].sum() else 0.0})
         return out
 
     def summary(self) -> dict:
@@ -299,7 +319,10 @@ def _draw_fig7(png: Path, driver: CirclesDriver, result: dict) -> None:
     ax.set_title("average danger per voxel (top view), circles of the plate (dashed)")
     fig.colorbar(sc, ax=ax, shrink=0.8, label="danger averaged over the run")
     bands = result["bands"]
-    bx.bar([f"{b['radius_m']*100:.0f} cm" for b in bands], [b["mean_danger"] for b in bands], color=["#b2182b", "#ef8a62", "#fddbc7"])
+    bars = bx.bar([f"{b['radius_m']*100:.0f} cm" for b in bands], [b["mean_danger"] for b in bands], color=["#b2182b", "#ef8a62", "#fddbc7"])
+    for bar, b in zip(bars, bands):
+        bx.annotate(f"{b['mean_danger']:.2f}\nseen free {100 * b['seen_free_while_fading']:.0f} %\nof fading frames",
+                    (bar.get_x() + bar.get_width() / 2, bar.get_height()), ha="center", va="bottom", fontsize=8)
     bx.set_ylim(0, 1)
     bx.set_ylabel("mean of the voxels' average danger")
     bx.set_title(f"per band, {result['repetitions']} repetitions\n(Paper II: inner 0.5-1, middle 0.2-0.5, outer 0-0.2)")
@@ -327,7 +350,8 @@ def main(argv: list[str] | None = None) -> int:
         result = fig7(args.repetitions, args.camera_scale, out, args.seed)
         for b in result["bands"]:
             print(f"  circle {100 * b['radius_m']:.0f} cm (band {100 * b['from_m']:.0f}-{100 * b['to_m']:.0f} cm): "
-                  f"mean danger {b['mean_danger']:.3f} over {b['voxels']} voxels")
+                  f"mean danger {b['mean_danger']:.3f} over {b['voxels']} voxels, "
+                  f"seen free in {100 * b['seen_free_while_fading']:.0f} % of the frames they were fading")
         print(f"picture: {out / 'fig7.png'}")
         return 0
     results = table2(args.trips, args.seed, args.camera_scale, args.out, args.only)
