@@ -169,7 +169,8 @@ def main() -> None:
     args = parser.parse_args()
     data = load_frames(args.sets)
     earcore.set_num_threads(args.threads)
-    config = PerceptionConfig(min_height=None)  # the same pipeline on both sides (see above)
+    # The same pipeline on both sides (see above): no free-rays-only insertion.
+    config = PerceptionConfig(min_height=None, clear_beyond_crop=False)
     robot = earcore.robots.load("ur5")
     pixels = int(np.prod(data["depth"].shape[1:]))
     valid = int((data["depth"] > 0).sum() / len(data["depth"]))

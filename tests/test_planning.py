@@ -342,13 +342,17 @@ def test_tracker_follows_a_reach_that_speeds_up(ur5):
     assert report.speed == pytest.approx(true_speed, rel=0.15)
     lagging = float(np.linalg.norm(track.velocity))  # the slope over the last 4 frames
     assert lagging < 0.85 * true_speed
-    # A constant speed, coarsely quantised: never read slower than the slope reads it.
+    # A constant 1.2 m/s, coarsely quantised (8 cm a frame in 5 cm voxels): never read
+    # slower than the slope reads it, and over-read by at most about half (the price of
+    # following accelerations; measured 1.53x at worst for this blob).
     steady = ObstacleTracker(ur5, res)
     for k in range(8):
         centre = start - np.array([1.2 * k / 15, 0.0, 0.0])
         report = steady.update(k / 15, (np.floor((blob + centre) / res) + 0.5) * res, A)
         track = steady.tracks[0]
         assert np.linalg.norm(track.velocity_now) >= np.linalg.norm(track.velocity) - 1e-12
+        if k >= 3:
+            assert np.linalg.norm(track.velocity_now) < 1.6 * 1.2
 
 
 def test_a_lead_that_jumps_to_the_other_end_starts_again(ur5):

@@ -285,9 +285,11 @@ def test_far_points_clear_the_space_inside_the_crop_sphere():
     along = np.einsum("ij,ij->i", cut - sensor, far - sensor) / np.einsum("ij,ij->i", far - sensor, far - sensor)
     assert np.all((along > 0) & (along < 1))
     assert np.allclose(sensor + along[:, None] * (far - sensor), cut)
-    # From outside, rays that miss the sphere are dropped.
+    # From outside: a segment through the sphere is cut where it leaves it; one that
+    # misses it, or ends before reaching it, is dropped.
     outside = centre + np.array([3.0, 0.0, 0.0])
-    assert len(_cut_at_sphere(np.array([[3.0, 5.0, 0.0], [-3.0, 0.0, 0.0]]) + centre, outside, centre, radius)) == 1
+    ends = centre + np.array([[3.0, 5.0, 0.0], [-3.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    assert np.allclose(_cut_at_sphere(ends, outside, centre, radius), [centre + [-radius, 0.0, 0.0]])
 
     config = small_run_config(0.2)
     config.cell.cameras = [c for c in config.cell.cameras if c.name == "kinect_v2_left"]

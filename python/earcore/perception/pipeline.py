@@ -48,19 +48,19 @@ class FrameReport:
 
 
 def _cut_at_sphere(points: np.ndarray, sensor: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
-    """Where the rays from `sensor` to `points` leave the sphere (`center`, `radius`);
-    rays that miss it, or leave it behind the sensor, are dropped."""
+    """Where the segments from `sensor` to `points` leave the sphere (`center`,
+    `radius`); segments that do not pass through it are dropped."""
     d = points - sensor
     w = sensor - center
     a = np.einsum("ij,ij->i", d, d)
     b = d @ w
     disc = b * b - a * (w @ w - radius * radius)
-    ok = (disc >= 0) & (a > 0)
-    t = np.zeros(len(points))
-    t[ok] = (-b[ok] + np.sqrt(disc[ok])) / a[ok]
-    ok &= t > 0
-    t = np.minimum(t, 1.0)
-    return sensor + t[ok, None] * d[ok]
+    ok = (disc > 0) & (a > 0)
+    root = np.sqrt(np.where(ok, disc, 0.0))
+    safe = np.where(ok, a, 1.0)
+    t_in, t_out = (-b - root) / safe, (-b + root) / safe
+    ok &= (t_out > 0) & (t_in < 1)  # the segment meets the sphere
+    return sensor + np.minimum(t_out[ok], 1.0)[:, None] * d[ok]
 
 
 def perturb_pose(pose: np.ndarray, translation: float, rotation: float, rng: np.random.Generator) -> np.ndarray:
@@ -234,6 +234,9 @@ class PerceptionPipeline:
             origins.append(pose[:3, 3])
             columns.append(robot)
         if not clouds or not sum(len(p) for p in clouds):
+            t5 = time.perf_counter()
+            self._insert_free_rays(origins, lows, far)
+            report.timings["insert"] += time.perf_counter() - t5
             return self._close_frame(report, time_s)
         # One voxel grid over the merged cloud; each centroid remembers which camera
         # contributed most of its points (its ray is cast from there) and, in
@@ -266,13 +269,7 @@ class PerceptionPipeline:
             report.tracked_inserted += int((tracked & keep).sum())
         pts, camera = pts[keep], camera[keep]
         t5 = time.perf_counter()
-        for sensor_origin, low, beyond in zip(origins, lows, far):
-            # Free rays only: to the table's points and to where far points' rays leave
-            # the crop sphere (one per map cell is enough to clear the cells before it).
-            free = np.vstack([low, beyond]) if len(beyond) else low
-            if len(free):
-                free = earcore.voxel_downsample(free, self.tree.resolution)
-                self.tree.insert_free_rays(free, sensor_origin, max_range=c.max_range)
+        self._insert_free_rays(origins, lows, far)
         for i, sensor_origin in enumerate(origins):
             mine = pts[camera == i]
             if len(mine):
@@ -286,6 +283,16 @@ class PerceptionPipeline:
         self._clear_robot_volume(q)
         report.timings["self_filter"] += time.perf_counter() - t7
         return report
+
+    def _insert_free_rays(self, origins, lows, far) -> None:
+        """Per camera, rays that only clear space: to the table's points and to where far
+        points' rays leave the crop sphere, thinned to one per map cell at their end
+        (neighbouring rays cross nearly the same cells)."""
+        for sensor_origin, low, beyond in zip(origins, lows, far):
+            free = np.vstack([low, beyond]) if len(beyond) else low
+            if len(free):
+                free = earcore.voxel_downsample(free, self.tree.resolution)
+                self.tree.insert_free_rays(free, sensor_origin, max_range=self.config.max_range)
 
     def _clear_robot_volume(self, q: np.ndarray) -> int:
         """Free the occupied voxels that touch the robot's bodies and were not seen in

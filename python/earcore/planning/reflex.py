@@ -41,8 +41,10 @@ class ObstacleTrack:
     history: list[tuple[float, np.ndarray]] = field(default_factory=list)
     voxels: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    #: The centroid's velocity at the newest frame (constant-acceleration fit): the
-    #: slope above lags a reach that speeds up by about a frame.
+    #: The centroid's velocity for Eq. 2 (`_velocity_now`: the faster of the slope and
+    #: a constant-acceleration fit at the newest frame; the slope lags a reach that speeds
+    #: up by 1-1.5 frames). `velocity`, the slope, decides whether the track moves at all
+    #: (`still_speed`): the fit's extra noise would make flickering still obstacles move.
     velocity_now: np.ndarray = field(default_factory=lambda: np.zeros(3))
     #: The centroid when first seen, and (time, lead point) of the last few frames: the
     #: lead is the obstacle's part farthest from where it started (a reaching hand).
@@ -72,7 +74,7 @@ class ObstacleTrack:
         ahead in about the same direction (only for an obstacle already moving as a
         whole, so a still one whose visible part flickers stays still), at most
         `LEAD_SPEED_CAP` times the centroid's speed (a hand at the end of a straight arm
-        from a still shoulder moves at twice the centroid's). Both at the newest frame."""
+        from a still shoulder moves at twice the centroid's). Both from `_velocity_now`."""
         v, lead = self.velocity_now, self.lead_velocity
         speed, lead_speed = float(np.linalg.norm(v)), float(np.linalg.norm(lead))
         if lead_speed > speed > 0 and float(v @ lead) >= 0.7 * speed * lead_speed:
@@ -152,7 +154,9 @@ class ObstacleTracker:
         lead_radius: float = 0.08,
     ) -> None:
         if not (lead_window >= 2 and window >= 2 and lead_radius >= 0):
-            raise ValueError(f"need lead_window >= 2 and lead_radius >= 0, got {lead_window}, {lead_radius}")
+            raise ValueError(
+                f"need window >= 2, lead_window >= 2 and lead_radius >= 0, got {window}, {lead_window}, {lead_radius}"
+            )
         self.robot = robot
         #: Frames and radius (m) of the lead point's velocity (`ObstacleTrack.observe_lead`).
         self.lead_window = lead_window
@@ -283,7 +287,8 @@ def _velocity_now(history: list[tuple[float, np.ndarray]]) -> np.ndarray:
     the velocity at the newest sample from a least-squares constant-acceleration fit
     (four samples or more), the faster. The fit alone follows a hand's acceleration
     but amplifies voxel quantisation (~3.5x the slope's noise); for safety an
-    underestimate is what must not happen, so the larger one counts."""
+    underestimate is what must not happen, so the larger one counts, at the price of an
+    upward bias (a steady 1.2 m/s blob of 5 cm voxels reads up to ~1.5x, more reflexes)."""
     slope = _slope(history)
     if len(history) < 4:
         return slope
