@@ -576,15 +576,22 @@ def test_fig7_measures_how_often_fading_voxels_are_seen_free():
     cell.close()
     inner = np.array([0.2 + 0.025, 0.025, driver.height + 0.025])
     outer = np.array([0.46 + 0.025, 0.025, driver.height + 0.025])
+    middle = np.array([0.32 + 0.025, 0.025, driver.height + 0.025])
     c_inner = [HIT_DANGER, 0.9, 0.9, 0.8, 0.8, 0.7, HIT_DANGER, 0.95]
     c_outer = [HIT_DANGER, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3]
-    for a, b in zip(c_inner, c_outer):
-        tree = SimpleNamespace(danger_voxels=lambda a=a, b=b: (np.array([inner, outer]), None, np.array([a, b], np.float32)))
+    c_middle = [0.5, 0.4, 0.3, 0.2, 0.1, 0.0, 0.0, 0.0]  # danger, but never hit: not the sweep
+    for a, b, m in zip(c_inner, c_outer, c_middle):
+        tree = SimpleNamespace(
+            danger_voxels=lambda a=a, b=b, m=m: (np.array([inner, outer, middle]), None, np.array([a, b, m], np.float32))
+        )
         driver.pipeline = SimpleNamespace(tree=tree)
         driver.on_frame()
     bands = {b["radius_m"]: b for b in driver.bands()}
     # Inner: fading in frames 1-5 and 7 (frame 6 is a hit), decayed in 1, 3, 5, 7.
     assert bands[0.2]["seen_free_while_fading"] == pytest.approx(4 / 6)
     assert bands[0.46]["seen_free_while_fading"] == pytest.approx(1.0)
-    assert bands[0.32]["voxels"] == 0 and bands[0.32]["seen_free_while_fading"] == 0.0
     assert bands[0.2]["mean_danger"] == pytest.approx(np.mean(np.float32(c_inner)), rel=1e-6)
+    # The sweep (hit in at least half of the one repetition): inner and outer, not middle.
+    assert bands[0.2]["swept_voxels"] == 1 and bands[0.2]["mean_danger_swept"] == bands[0.2]["mean_danger"]
+    assert bands[0.32]["voxels"] == 1 and bands[0.32]["swept_voxels"] == 0 and bands[0.32]["mean_danger_swept"] == 0.0
+    assert bands[0.32]["mean_danger"] == pytest.approx(np.mean(np.float32(c_middle)), rel=1e-6)
