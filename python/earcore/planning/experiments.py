@@ -16,8 +16,10 @@ minimum true robot-person distance.
 
 Fig. 7: the obstacle plate (10 × 20 cm) on the end-effector runs horizontal circles of
 radius 20, 32 and 46 cm around the robot's base (9.1, 14.69, 21.06 s each), the whole
-sequence repeated; the danger of every voxel is averaged over the run and reported per
-band of radius, with a picture.
+sequence repeated, the overhead camera straight above the base; the danger of every voxel
+is averaged over the run and reported per band of radius (over the plate's sweep, the
+voxels hit in at least half of the repetitions, and over every voxel that held danger),
+with how often the band's fading voxels were seen free (the occlusion), and a picture.
 
     earcore experiment fig7 [--repetitions 20] [--camera-scale 0.25] [--out out/fig7]
 """
