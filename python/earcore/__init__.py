@@ -9,6 +9,7 @@ from __future__ import annotations
 
 try:
     from earcore._earcore import (
+        DANGER_ON_HIT,
         EarcoreError,
         FrameReport,
         InsertReport,
@@ -49,6 +50,7 @@ from earcore.cloud import (  # noqa: E402
 )
 
 __all__ = [
+    "DANGER_ON_HIT",
     "DegenerateAlignmentWarning",
     "EarcoreError",
     "IcpResult",

@@ -39,6 +39,7 @@ __all__ = [
 ]
 
 __version__: str
+DANGER_ON_HIT: float
 
 class EarcoreError(Exception): ...
 class OutOfMapError(EarcoreError): ...

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from earcore import OcTree
+from earcore import DANGER_ON_HIT, OcTree
 from earcore._earcore import render_depth_points
 from earcore.synthetic import look_at
 
@@ -54,7 +54,7 @@ SNAPSHOTS_S = (0.5, 10.0, 20.0)
 def left_behind(tree: OcTree) -> tuple[np.ndarray, np.ndarray]:
     """Dangerous voxels that no camera hits now (C below the hit value 0.999)."""
     centres, _, values = tree.danger_voxels()
-    keep = values < np.float32(0.999)
+    keep = values < DANGER_ON_HIT
     return centres[keep], values[keep]
 
 

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from earcore import DANGER_ON_HIT
 from earcore.sim.config import RunConfig
 
 __all__ = ["CirclesDriver", "experiment_configs", "fig7", "main", "table2"]
@@ -150,8 +151,8 @@ def format_table(results: dict) -> str:
     return "\n".join(lines)
 
 
-#: The danger of a voxel hit in the frame (0.999, as the map stores it: float32).
-HIT_DANGER = float(np.float32(0.999))
+#: The danger of a voxel hit in the frame.
+HIT_DANGER = DANGER_ON_HIT
 
 
 class CirclesDriver:

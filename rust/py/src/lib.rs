@@ -26,6 +26,11 @@ fn get_num_threads() -> usize {
 fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    // The danger a voxel is reset to when hit (Eq. 1), as the map stores it (float32).
+    m.add(
+        "DANGER_ON_HIT",
+        f64::from(earcore_core::octree::DANGER_ON_HIT),
+    )?;
     m.add_class::<octree::PyOcTree>()?;
     m.add_class::<octree::PyInsertReport>()?;
     m.add_class::<octree::PyFrameReport>()?;
