@@ -10,6 +10,7 @@ import numpy.typing as npt
 
 __all__ = [
     "__version__",
+    "DANGER_ON_HIT",
     "OcTree",
     "SurfaceMap",
     "PlaneTarget",
