@@ -2,7 +2,7 @@
 //! in URDF), forward kinematics for one or many configurations.
 
 use crate::error::{Error, Result};
-use crate::na::{Matrix3, Matrix4, Rotation3, Unit, Vector3};
+use crate::na::{Matrix3, Matrix4, Rotation3, Vector3};
 
 /// A rigid transform kept as rotation matrix + translation (cheaper to compose and to
 /// apply to points than a quaternion, and what the 4×4 outputs need anyway).
@@ -90,22 +90,6 @@ impl Joint {
     pub fn is_movable(&self) -> bool {
         self.kind != JointKind::Fixed
     }
-
-    /// joint_from_child for position `q`.
-    #[inline]
-    fn motion(&self, q: f64) -> Frame {
-        match self.kind {
-            JointKind::Fixed => Frame::identity(),
-            JointKind::Prismatic => Frame {
-                rotation: Matrix3::identity(),
-                translation: self.axis * q,
-            },
-            JointKind::Revolute | JointKind::Continuous => Frame {
-                rotation: *Rotation3::from_axis_angle(&Unit::new_unchecked(self.axis), q).matrix(),
-                translation: Vector3::zeros(),
-            },
-        }
-    }
 }
 
 /// Links and joints of a robot; link 0 is the root, every joint's parent comes before
@@ -118,6 +102,73 @@ pub struct Chain {
     movable: Vec<usize>,
     /// For each joint, its coordinate in q (None for fixed joints).
     coordinate: Vec<Option<usize>>,
+    /// For each joint, parent_from_child as a function of q, precomputed.
+    local: Vec<LocalTransform>,
+}
+
+/// parent_from_child of a joint with the origin folded in, so forward kinematics
+/// costs one frame product per joint instead of two. A revolute joint's
+/// origin · R(axis, q) is cos q · C + sin q · S + K (Rodrigues' formula multiplied out).
+#[derive(Clone, Debug)]
+enum LocalTransform {
+    Fixed(Frame),
+    Revolute {
+        cos: Matrix3<f64>,
+        sin: Matrix3<f64>,
+        constant: Matrix3<f64>,
+        translation: Vector3<f64>,
+    },
+    Prismatic {
+        origin: Frame,
+        /// origin.rotation · axis: the child's displacement per unit q.
+        step: Vector3<f64>,
+    },
+}
+
+impl LocalTransform {
+    fn of(joint: &Joint) -> Self {
+        let o = &joint.origin;
+        match joint.kind {
+            JointKind::Fixed => LocalTransform::Fixed(*o),
+            JointKind::Prismatic => LocalTransform::Prismatic {
+                origin: *o,
+                step: o.rotation * joint.axis,
+            },
+            JointKind::Revolute | JointKind::Continuous => {
+                let a = joint.axis;
+                let outer = a * a.transpose();
+                LocalTransform::Revolute {
+                    cos: o.rotation * (Matrix3::identity() - outer),
+                    sin: o.rotation * a.cross_matrix(),
+                    constant: o.rotation * outer,
+                    translation: o.translation,
+                }
+            }
+        }
+    }
+
+    #[inline]
+    fn at(&self, q: f64) -> Frame {
+        match self {
+            LocalTransform::Fixed(f) => *f,
+            LocalTransform::Prismatic { origin, step } => Frame {
+                rotation: origin.rotation,
+                translation: origin.translation + step * q,
+            },
+            LocalTransform::Revolute {
+                cos,
+                sin,
+                constant,
+                translation,
+            } => {
+                let (s, c) = q.sin_cos();
+                Frame {
+                    rotation: cos * c + sin * s + constant,
+                    translation: *translation,
+                }
+            }
+        }
+    }
 }
 
 impl Chain {
@@ -225,11 +276,13 @@ impl Chain {
         for (c, &j) in movable.iter().enumerate() {
             coordinate[j] = Some(c);
         }
+        let local = sorted.iter().map(LocalTransform::of).collect();
         Ok(Chain {
             link_names,
             joints: sorted,
             movable,
             coordinate,
+            local,
         })
     }
 
@@ -302,12 +355,8 @@ impl Chain {
     pub fn forward_kinematics_into(&self, base: &Frame, q: &[f64], out: &mut [Frame]) {
         out[0] = *base;
         for (j, joint) in self.joints.iter().enumerate() {
-            let parent = out[joint.parent];
-            let local = match self.coordinate[j] {
-                Some(c) => joint.origin.compose(&joint.motion(q[c])),
-                None => joint.origin,
-            };
-            out[joint.child] = parent.compose(&local);
+            let local = self.local[j].at(self.coordinate[j].map_or(0.0, |c| q[c]));
+            out[joint.child] = out[joint.parent].compose(&local);
         }
     }
 
