@@ -1,7 +1,9 @@
 //! A link body: a capsule or a flat-ended cylinder around the segment `a`–`b`.
 //!
-//! Capsules have closed-form distances (segment geometry); cylinders (Paper II's
-//! choice, tighter for stubby links such as a UR shoulder) use parry's GJK queries.
+//! Capsules have closed-form distances (segment geometry). Cylinders (Paper II's
+//! choice, tighter for stubby links such as a UR shoulder) have closed-form overlap
+//! tests with boxes; their distances to a box near a flat end, and cylinder pairs,
+//! use parry's GJK queries.
 //! Every cylinder lies inside the capsule with the same axis and radius, which the
 //! fast conservative tests exploit.
 
@@ -34,6 +36,83 @@ pub struct BodyBoxContact {
     pub distance: f64,
     pub on_body: [f64; 3],
     pub on_box: [f64; 3],
+}
+
+/// See `Body::box_contact_step`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ContactStep {
+    Exact(BodyBoxContact),
+    Iterative {
+        lower_bound: f64,
+        capsule: BodyBoxContact,
+    },
+}
+
+/// The nearest of many body–box pairs, offered in any order: closed-form contacts
+/// count at once; iterative ones wait, and in the end only those whose lower bound
+/// can still beat the best are computed, most promising first.
+pub struct NearestContact<T: Copy> {
+    best: Option<(T, BodyBoxContact)>,
+    waiting: Vec<(f64, T, Body, [f64; 3], BodyBoxContact)>,
+}
+
+impl<T: Copy> Default for NearestContact<T> {
+    fn default() -> Self {
+        NearestContact {
+            best: None,
+            waiting: Vec::new(),
+        }
+    }
+}
+
+impl<T: Copy> NearestContact<T> {
+    /// Start over, keeping the allocation.
+    pub fn clear(&mut self) {
+        self.best = None;
+        self.waiting.clear();
+    }
+
+    /// The best exact distance so far (∞ before any): pairs whose lower bound reaches
+    /// it need not be offered.
+    pub fn limit(&self) -> f64 {
+        self.best.map_or(f64::INFINITY, |(_, c)| c.distance)
+    }
+
+    fn consider(&mut self, tag: T, contact: BodyBoxContact) {
+        if contact.distance < self.limit() {
+            self.best = Some((tag, contact));
+        }
+    }
+
+    pub fn offer(&mut self, tag: T, body: &Body, center: &[f64; 3], half: &[f64; 3]) {
+        match body.box_contact_step(center, half) {
+            ContactStep::Exact(contact) => self.consider(tag, contact),
+            ContactStep::Iterative {
+                lower_bound,
+                capsule,
+            } => {
+                if lower_bound < self.limit() {
+                    self.waiting
+                        .push((lower_bound, tag, *body, *center, capsule));
+                }
+            }
+        }
+    }
+
+    /// The nearest pair: its tag and contact (None if nothing was offered).
+    pub fn finish(&mut self, half: &[f64; 3]) -> Option<(T, BodyBoxContact)> {
+        self.waiting.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        for &(bound, tag, body, center, capsule) in &self.waiting {
+            if bound >= self.best.map_or(f64::INFINITY, |(_, c)| c.distance) {
+                break;
+            }
+            let contact = body.cylinder_end_contact(&center, half, capsule);
+            if contact.distance < self.best.map_or(f64::INFINITY, |(_, c)| c.distance) {
+                self.best = Some((tag, contact));
+            }
+        }
+        self.best
+    }
 }
 
 impl Body {
@@ -153,10 +232,9 @@ impl Body {
         Cylinder::new(0.5 * self.axis.length(), self.axis.radius.max(0.0))
     }
 
-    /// Does the body meet the axis-aligned box (touching counts)? Exact for capsules;
-    /// for cylinders, cheap exact answers first (the enclosing capsule misses, the box
-    /// lies beyond an end plane, or a ball inside the cylinder reaches it) and parry's
-    /// GJK (tolerance ~1e-10 m) only for what remains.
+    /// Does the body meet the axis-aligned box (touching counts)? Exact, in closed
+    /// form: for cylinders the enclosing capsule's closest approach decides, unless it
+    /// is at a flat end, where the end disc decides.
     pub fn overlaps_box(&self, center: &[f64; 3], half: &[f64; 3]) -> bool {
         let c = &self.axis;
         let r = c.radius;
@@ -174,31 +252,62 @@ impl Body {
         if centre_inside {
             return true;
         }
-        let (d2, t, _) = segment_box_closest(&c.a, &c.b, center, half);
+        let (d2, t, q) = segment_box_closest(&c.a, &c.b, center, half);
         if d2 > r * r {
             return false;
         }
         if self.shape == BodyShape::Capsule {
             return true;
         }
-        let inner = self.inner_radius_at(t);
-        if d2 <= inner * inner {
+        // Reached from inside the axis, the closest box point lies in the cross-section
+        // disc there (the squared distance is smooth, so at an interior minimum the
+        // offset is perpendicular to the axis): it is inside the cylinder.
+        if t > 0.0 && t < 1.0 {
             return true;
         }
-        // The box's extent along the axis against the end planes.
-        let d = [c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]];
-        let mid: f64 = (0..3).map(|i| (center[i] - c.a[i]) * d[i]).sum();
-        let spread: f64 = (0..3).map(|i| d[i].abs() * half[i]).sum();
-        let len2: f64 = d.iter().map(|x| x * x).sum();
-        if mid + spread < 0.0 || mid - spread > len2 {
+        // Reached at an end: a box that meets the cylinder meets its end disc there
+        // (the segment from a shared point to the closest box point, which lies within r
+        // of the end and not inside the cylinder's slab, crosses the disc), so the disc
+        // decides. First the cheap case: the closest box point moved onto the disc's
+        // plane is still in the box.
+        let d = Vector3::new(c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]);
+        let len = d.norm();
+        if len == 0.0 {
             return false;
         }
-        cylinder_meets_box(&c.a, &c.b, r, center, half)
+        let u = d / len;
+        let end = Vector3::from(if t <= 0.0 { c.a } else { c.b });
+        // Most often the box lies wholly beyond the end plane, in the enclosing
+        // capsule's cap.
+        let height = u.dot(&(Vector3::from(*center) - end));
+        let spread = u.x.abs() * half[0] + u.y.abs() * half[1] + u.z.abs() * half[2];
+        if height.abs() > spread {
+            return false;
+        }
+        let w = Vector3::from(q) - end;
+        let on_plane = end + w - u * u.dot(&w);
+        if (0..3).all(|i| (on_plane[i] - center[i]).abs() <= half[i]) {
+            return true;
+        }
+        disc_meets_box(&end, &u, r, center, half)
     }
 
     /// Distance to the box and the closest points; negative when they overlap (then
     /// the depth is the enclosing capsule's, an over-estimate for cylinders).
     pub fn box_contact(&self, center: &[f64; 3], half: &[f64; 3]) -> BodyBoxContact {
+        match self.box_contact_step(center, half) {
+            ContactStep::Exact(contact) => contact,
+            ContactStep::Iterative { capsule, .. } => {
+                self.cylinder_end_contact(center, half, capsule)
+            }
+        }
+    }
+
+    /// `box_contact` as far as closed forms go: every capsule, and a cylinder reached
+    /// from inside its axis or overlapping the box, is exact; a cylinder reached at a
+    /// flat end needs `cylinder_end_contact` (iterative), and comes with a cheap lower
+    /// bound on what that finds.
+    pub fn box_contact_step(&self, center: &[f64; 3], half: &[f64; 3]) -> ContactStep {
         let (d2, t, q) = segment_box_closest(&self.axis.a, &self.axis.b, center, half);
         let on_axis = self.axis.axis_point(t);
         let d = d2.sqrt();
@@ -217,12 +326,27 @@ impl Body {
         // reached from inside the axis (the offset is then perpendicular to the axis).
         let interior = t > 0.0 && t < 1.0;
         if self.shape == BodyShape::Capsule || (interior && capsule.distance > 0.0) {
-            return capsule;
+            return ContactStep::Exact(capsule);
         }
         if capsule.distance <= 0.0 && self.overlaps_box(center, half) {
-            return capsule;
+            return ContactStep::Exact(capsule);
         }
-        // A cylinder near its flat end: its own closest points (GJK, no penetration).
+        // The enclosing capsule's distance is a lower bound; so is the box's gap to
+        // the end plane it is reached at.
+        ContactStep::Iterative {
+            lower_bound: capsule.distance.max(self.end_plane_gap(t, center, half)),
+            capsule,
+        }
+    }
+
+    /// A cylinder's closest points to a box near its flat end (GJK, no penetration);
+    /// `capsule` is the enclosing capsule's contact, the answer when they touch.
+    pub fn cylinder_end_contact(
+        &self,
+        center: &[f64; 3],
+        half: &[f64; 3],
+        capsule: BodyBoxContact,
+    ) -> BodyBoxContact {
         let cuboid = Cuboid::new(Vector3::from(*half));
         let box_pose = Isometry3::translation(center[0], center[1], center[2]);
         match query::closest_points(
@@ -240,6 +364,21 @@ impl Body {
             // Touching (or unsupported): the capsule's answer never overstates the gap.
             _ => capsule,
         }
+    }
+
+    /// How far the box lies beyond the cylinder's end plane at `t` (0: end a, 1: end b),
+    /// 0 when it reaches the slab between the planes.
+    fn end_plane_gap(&self, t: f64, center: &[f64; 3], half: &[f64; 3]) -> f64 {
+        let c = &self.axis;
+        let d = [c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]];
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        if len == 0.0 {
+            return 0.0;
+        }
+        let (end, outward) = if t <= 0.0 { (&c.a, -1.0) } else { (&c.b, 1.0) };
+        let height: f64 = (0..3).map(|i| (center[i] - end[i]) * d[i]).sum::<f64>() * outward / len;
+        let spread: f64 = (0..3).map(|i| d[i].abs() * half[i]).sum::<f64>() / len;
+        (height - spread).max(0.0)
     }
 
     /// Do two bodies touch?
@@ -280,25 +419,17 @@ impl Body {
     }
 }
 
-/// Exact cylinder–box overlap without iteration: the cylinder is the slab between its
-/// end planes intersected with the infinite cylinder around its axis, so they meet
-/// exactly when the part of the box inside the slab (a convex polytope), projected
-/// along the axis, comes within the radius of the axis's projected point.
-fn cylinder_meets_box(
-    a: &[f64; 3],
-    b: &[f64; 3],
+/// Does the disc (centre `e`, unit normal `u`, radius `r`) meet the box? The box's
+/// section by the disc's plane is a convex polygon whose vertices are where the box's
+/// edges cross the plane (and corners on it); they meet when that polygon comes within
+/// r of the centre.
+fn disc_meets_box(
+    e: &Vector3<f64>,
+    u: &Vector3<f64>,
     r: f64,
     center: &[f64; 3],
     half: &[f64; 3],
 ) -> bool {
-    let d = Vector3::new(b[0] - a[0], b[1] - a[1], b[2] - a[2]);
-    let len = d.norm();
-    if len == 0.0 {
-        return false;
-    }
-    let u = d / len;
-    let origin = Vector3::from(*a);
-    // Box corners and their heights along the axis.
     let mut corners = [Vector3::zeros(); 8];
     let mut heights = [0.0; 8];
     for (i, corner) in corners.iter_mut().enumerate() {
@@ -308,36 +439,8 @@ fn cylinder_meets_box(
             center[1] + sign(2) * half[1],
             center[2] + sign(4) * half[2],
         );
-        heights[i] = u.dot(&(*corner - origin));
+        heights[i] = u.dot(&(*corner - e));
     }
-    // Vertices of box ∩ slab: corners inside, and edge crossings of the two planes.
-    let mut polygon: [Vector3<f64>; 20] = [Vector3::zeros(); 20];
-    let mut n = 0;
-    for i in 0..8 {
-        if heights[i] >= 0.0 && heights[i] <= len {
-            polygon[n] = corners[i];
-            n += 1;
-        }
-    }
-    for i in 0..8 {
-        for bit in [1, 2, 4] {
-            let j = i | bit;
-            if j == i {
-                continue;
-            }
-            for level in [0.0, len] {
-                let (hi, hj) = (heights[i] - level, heights[j] - level);
-                if (hi < 0.0 && hj > 0.0) || (hi > 0.0 && hj < 0.0) {
-                    polygon[n] = corners[i] + (corners[j] - corners[i]) * (hi / (hi - hj));
-                    n += 1;
-                }
-            }
-        }
-    }
-    if n == 0 {
-        return false;
-    }
-    // Project across the axis (2D coordinates relative to the axis point).
     let helper = if u.x.abs() < 0.9 {
         Vector3::x()
     } else {
@@ -346,11 +449,25 @@ fn cylinder_meets_box(
     let e1 = u.cross(&helper).normalize();
     let e2 = u.cross(&e1);
     let mut flat = [(0.0f64, 0.0f64); 20];
-    for k in 0..n {
-        let v = polygon[k] - origin;
-        flat[k] = (e1.dot(&v), e2.dot(&v));
+    let mut n = 0;
+    let mut add = |p: Vector3<f64>| {
+        let v = p - e;
+        flat[n] = (e1.dot(&v), e2.dot(&v));
+        n += 1;
+    };
+    for i in 0..8 {
+        if heights[i] == 0.0 {
+            add(corners[i]);
+        }
+        for bit in [1, 2, 4] {
+            let j = i | bit;
+            let (hi, hj) = (heights[i], heights[j]);
+            if j != i && ((hi < 0.0 && hj > 0.0) || (hi > 0.0 && hj < 0.0)) {
+                add(corners[i] + (corners[j] - corners[i]) * (hi / (hi - hj)));
+            }
+        }
     }
-    point_to_hull_distance_squared(&mut flat[..n]) <= r * r
+    n > 0 && point_to_hull_distance_squared(&mut flat[..n]) <= r * r
 }
 
 /// Squared distance from the origin to the convex hull of 2D points (0 inside).
@@ -467,7 +584,7 @@ mod tests {
     }
 
     #[test]
-    fn projected_test_equals_gjk() {
+    fn cylinder_box_test_equals_gjk() {
         let mut rng = Rng::new(21);
         let mut disagreements = 0;
         let mut hits = 0;
@@ -477,8 +594,8 @@ mod tests {
             let r = v().abs() * 0.3 + 0.005;
             let center = [v(), v(), v()];
             let half = [0.025 + v().abs() * 0.1, 0.025, 0.025 + v().abs() * 0.05];
-            let ours = cylinder_meets_box(&a, &b, r, &center, &half);
             let body = Body::cylinder(a, b, r);
+            let ours = body.overlaps_box(&center, &half);
             let cuboid = Cuboid::new(Vector3::from(half));
             let pose = Isometry3::translation(center[0], center[1], center[2]);
             let gap = query::distance(&body.parry_pose(), &body.cylinder_shape(), &pose, &cuboid)

@@ -99,8 +99,10 @@ pub fn point_segment_distance_squared(a: &[f64; 3], b: &[f64; 3], p: &[f64; 3]) 
 
 /// Closest approach of a segment and an axis-aligned box (`center`, `half` sizes):
 /// (squared distance, parameter on the segment, closest point on the box). Exact:
-/// the squared distance is a convex piecewise quadratic in the parameter whose pieces
-/// change where the segment crosses a face plane, so each piece is minimised in closed form.
+/// the squared distance f(t) is convex, smooth and piecewise quadratic, its pieces
+/// changing where the segment crosses a face plane, so f' is continuous, increasing and
+/// linear between those crossings. The crossings' slopes bracket the root (no sorting
+/// needed), and on the bracket f' is one line whose root is read off its end values.
 pub fn segment_box_closest(
     a: &[f64; 3],
     b: &[f64; 3],
@@ -109,58 +111,39 @@ pub fn segment_box_closest(
 ) -> (f64, f64, [f64; 3]) {
     let p0 = sub(a, center);
     let d = sub(b, a);
-    let mut cuts = [0.0f64; 8];
-    let mut n = 0;
-    cuts[n] = 0.0;
-    n += 1;
-    for i in 0..3 {
-        if d[i] != 0.0 {
-            for bound in [-half[i], half[i]] {
-                let t = (bound - p0[i]) / d[i];
-                if t > 0.0 && t < 1.0 {
-                    cuts[n] = t;
-                    n += 1;
+    // f'(t) / 2.
+    let slope = |t: f64| -> f64 {
+        let mut s = 0.0;
+        for i in 0..3 {
+            let x = p0[i] + t * d[i];
+            s += d[i] * (x - x.clamp(-half[i], half[i]));
+        }
+        s
+    };
+    let (s0, s1) = (slope(0.0), slope(1.0));
+    let t = if s0 >= 0.0 {
+        0.0
+    } else if s1 <= 0.0 {
+        1.0
+    } else {
+        let (mut lo, mut hi, mut s_lo, mut s_hi) = (0.0, 1.0, s0, s1);
+        for i in 0..3 {
+            if d[i] != 0.0 {
+                for bound in [-half[i], half[i]] {
+                    let t = (bound - p0[i]) / d[i];
+                    if t > lo && t < hi {
+                        let s = slope(t);
+                        if s < 0.0 {
+                            (lo, s_lo) = (t, s);
+                        } else {
+                            (hi, s_hi) = (t, s);
+                        }
+                    }
                 }
             }
         }
-    }
-    cuts[n] = 1.0;
-    n += 1;
-    cuts[..n].sort_unstable_by(|x, y| x.total_cmp(y));
-    let mut best = (f64::INFINITY, 0.0);
-    for w in cuts[..n].windows(2) {
-        let (t0, t1) = (w[0], w[1]);
-        let tm = 0.5 * (t0 + t1);
-        // f(t) = A t² + B t + C over the axes outside the slab at the midpoint.
-        let (mut qa, mut qb, mut qc) = (0.0, 0.0, 0.0);
-        for i in 0..3 {
-            let x = p0[i] + tm * d[i];
-            let bound = if x > half[i] {
-                half[i]
-            } else if x < -half[i] {
-                -half[i]
-            } else {
-                continue;
-            };
-            let e = p0[i] - bound;
-            qa += d[i] * d[i];
-            qb += 2.0 * d[i] * e;
-            qc += e * e;
-        }
-        let t = if qa > 0.0 {
-            (-qb / (2.0 * qa)).clamp(t0, t1)
-        } else {
-            t0
-        };
-        let f = (qa * t + qb) * t + qc;
-        if f < best.0 {
-            best = (f, t);
-        }
-        if w[1] >= 1.0 {
-            break;
-        }
-    }
-    let t = best.1;
+        (lo - s_lo * (hi - lo) / (s_hi - s_lo)).clamp(lo, hi)
+    };
     let mut q = [0.0; 3];
     let mut dist2 = 0.0;
     for i in 0..3 {

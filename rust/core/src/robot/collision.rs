@@ -3,11 +3,13 @@
 
 use crate::error::{Error, Result};
 use crate::octree::OcTree;
-use crate::robot::body::Body;
+use crate::robot::body::{Body, NearestContact};
 use crate::robot::capsule::point_segment_distance_squared;
 use crate::robot::chain::Frame;
 use crate::robot::model::{PlacedBodies, RobotModel};
-use crate::robot::voxel_index::{Clearance, SampleVerdict, UndecidedRuns, VoxelIndex};
+use crate::robot::voxel_index::{
+    Clearance, ClearanceScratch, SampleVerdict, UndecidedRuns, VoxelIndex,
+};
 use crate::threads::map_parts;
 
 /// What a configuration hits first.
@@ -258,21 +260,25 @@ pub fn clearances(
     let dof = model.dof();
     chunked(qs, dof, |part| {
         let mut scratch = Scratch::new(model);
-        let mut candidates = Vec::new();
+        let mut buffers = ClearanceScratch::default();
+        let mut links = Vec::new();
+        let mut bodies = Vec::new();
         part.chunks(dof)
             .map(|q| {
                 model.place_into(q, &mut scratch.frames, &mut scratch.placed);
                 let placed = &scratch.placed;
-                let (links, bodies): (Vec<usize>, Vec<&Body>) = placed
-                    .links
-                    .iter()
-                    .zip(&placed.bodies)
-                    .zip(&placed.moving)
-                    .filter(|(_, m)| **m)
-                    .map(|((l, b), _)| (*l, b))
-                    .unzip();
+                links.clear();
+                bodies.clear();
+                for ((link, body), moving) in
+                    placed.links.iter().zip(&placed.bodies).zip(&placed.moving)
+                {
+                    if *moving {
+                        links.push(*link);
+                        bodies.push(*body);
+                    }
+                }
                 Ok(index
-                    .bodies_clearance(&bodies, &mut candidates)?
+                    .bodies_clearance(&bodies, &mut buffers)?
                     .map(|(tag, c)| (links[tag], c)))
             })
             .collect()
@@ -309,11 +315,12 @@ pub fn clearances_to_boxes(
     let dof = model.dof();
     chunked(qs, dof, |part| {
         let mut scratch = Scratch::new(model);
+        let mut nearest = NearestContact::default();
         part.chunks(dof)
             .map(|q| {
                 model.place_into(q, &mut scratch.frames, &mut scratch.placed);
                 let placed = &scratch.placed;
-                let mut best: Option<(usize, Clearance)> = None;
+                nearest.clear();
                 for ((link, body), moving) in
                     placed.links.iter().zip(&placed.bodies).zip(&placed.moving)
                 {
@@ -325,23 +332,21 @@ pub fn clearances_to_boxes(
                         let bound = point_segment_distance_squared(&axis.a, &axis.b, c).sqrt()
                             - reach
                             - axis.radius;
-                        if best.is_some_and(|(_, b)| bound >= b.distance) {
-                            continue;
-                        }
-                        let contact = body.box_contact(c, &half);
-                        if best.is_none_or(|(_, b)| contact.distance < b.distance) {
-                            best = Some((
-                                *link,
-                                Clearance {
-                                    distance: contact.distance,
-                                    on_body: contact.on_body,
-                                    on_obstacle: contact.on_box,
-                                },
-                            ));
+                        if bound < nearest.limit() {
+                            nearest.offer(*link, body, c, &half);
                         }
                     }
                 }
-                Ok(best)
+                Ok(nearest.finish(&half).map(|(link, contact)| {
+                    (
+                        link,
+                        Clearance {
+                            distance: contact.distance,
+                            on_body: contact.on_body,
+                            on_obstacle: contact.on_box,
+                        },
+                    )
+                }))
             })
             .collect()
     })

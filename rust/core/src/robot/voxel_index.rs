@@ -11,7 +11,7 @@
 use crate::error::{Error, Result};
 use crate::floor::fast_floor;
 use crate::octree::{OcTree, OcTreeKey, TREE_DEPTH};
-use crate::robot::body::Body;
+use crate::robot::body::{Body, NearestContact};
 use crate::robot::capsule::point_segment_distance_squared;
 
 const NONE: u32 = u32::MAX;
@@ -69,6 +69,13 @@ impl UndecidedRuns {
     }
 }
 
+/// Reusable buffers of clearance queries.
+#[derive(Default)]
+pub struct ClearanceScratch {
+    candidates: Vec<(f64, usize, u32)>,
+    nearest: NearestContact<usize>,
+}
+
 #[derive(Clone, Debug)]
 pub struct VoxelIndex {
     resolution: f64,
@@ -77,15 +84,30 @@ pub struct VoxelIndex {
     dims: [usize; 3],
     occupied: Vec<bool>,
     num_occupied: usize,
-    /// Metres from each cell centre to the nearest occupied cell centre (∞ if none).
-    distance: Vec<f32>,
-    /// Linear index of that occupied cell (NONE if none).
-    nearest: Vec<u32>,
+    /// What the body tests read per cell, kept together so a lookup touches one
+    /// cache line.
+    field: Vec<CellField>,
+}
+
+/// The distance fields at one cell.
+#[derive(Clone, Copy, Debug)]
+struct CellField {
+    /// Linear index of the occupied cell whose centre is nearest this cell's centre
+    /// (NONE if none).
+    nearest: u32,
     /// Lower bounds on the distance to the nearest occupied voxel box, exact within a
-    /// window of cells and clamped beyond: from each cell's centre, and from anywhere
-    /// in the cell (the gap between the two cells as boxes).
-    box_distance: Vec<f32>,
-    cell_distance: Vec<f32>,
+    /// window of cells and clamped beyond: from the cell's centre (`box_distance`), and
+    /// from anywhere in the cell (`cell_distance`, the gap between the two cells as boxes).
+    box_distance: f32,
+    cell_distance: f32,
+}
+
+impl CellField {
+    const EMPTY: CellField = CellField {
+        nearest: NONE,
+        box_distance: f32::INFINITY,
+        cell_distance: f32::INFINITY,
+    };
 }
 
 impl VoxelIndex {
@@ -124,10 +146,7 @@ impl VoxelIndex {
             dims,
             occupied: vec![false; cells],
             num_occupied: 0,
-            distance: vec![f32::INFINITY; cells],
-            nearest: vec![NONE; cells],
-            box_distance: vec![f32::INFINITY; cells],
-            cell_distance: vec![f32::INFINITY; cells],
+            field: vec![CellField::EMPTY; cells],
         })
     }
 
@@ -218,7 +237,7 @@ impl VoxelIndex {
     }
 
     pub fn memory_usage(&self) -> usize {
-        self.occupied.len() * (1 + 4 + 4 + 4 + 4)
+        self.occupied.len() * (1 + std::mem::size_of::<CellField>())
     }
 
     /// Centres of the occupied cells (for tests and pictures).
@@ -303,11 +322,15 @@ impl VoxelIndex {
                 }
             }
         }
-        let res = self.resolution;
-        self.distance = sq.iter().map(|&d| (d.sqrt() * res) as f32).collect();
-        self.nearest = site;
-        self.box_distance = self.windowed_box_distance(0.5);
-        self.cell_distance = self.windowed_box_distance(1.0);
+        let from_centre = self.windowed_box_distance(0.5);
+        let from_cell = self.windowed_box_distance(1.0);
+        self.field = (0..n)
+            .map(|i| CellField {
+                nearest: site[i],
+                box_distance: from_centre[i],
+                cell_distance: from_cell[i],
+            })
+            .collect();
     }
 
     /// The grid's lines along `axis` as (first cell, stride, length): the separable
@@ -413,16 +436,17 @@ impl VoxelIndex {
             let Some((cell, centre)) = self.cell_of(&p) else {
                 return Err(self.outside_error(&p));
             };
-            if self.nearest[cell] == NONE {
+            let field = self.field[cell];
+            if field.nearest == NONE {
                 s += 1;
                 continue;
             }
             // Every box is ≥ cell_distance from p (p is in the cell) and ≥ box_distance
             // − offset (the centre's bound moved by at most the offset).
-            let mut clear = self.cell_distance[cell] as f64;
+            let mut clear = field.cell_distance as f64;
             if clear <= needed {
                 let offset = crate::geometry::distance_squared(&p, &centre).sqrt();
-                clear = clear.max(self.box_distance[cell] as f64 - offset);
+                clear = clear.max(field.box_distance as f64 - offset);
             }
             if clear > needed {
                 // Sphere tracing: a sample m spacings further on is ≥ clear − m·spacing
@@ -433,7 +457,7 @@ impl VoxelIndex {
             // A ball inside the body that reaches the nearest box proves a collision; so
             // does that box overlapping the body (one exact test that usually spares
             // the scan of a colliding body).
-            let near = self.center_of(self.nearest[cell] as usize);
+            let near = self.center_of(field.nearest as usize);
             let inner = body.inner_radius_at(t);
             if point_box_distance_squared(&p, &near, &half) <= inner * inner
                 || body.overlaps_box(&near, &half)
@@ -538,7 +562,7 @@ impl VoxelIndex {
             let Some((cell, _)) = self.cell_of(&p) else {
                 return Err(self.outside_error(&p));
             };
-            let near = self.nearest[cell];
+            let near = self.field[cell].nearest;
             if near == NONE || near == last {
                 continue;
             }
@@ -553,47 +577,51 @@ impl VoxelIndex {
     }
 
     /// The closest of `bodies` to the candidates' boxes: candidates are taken in
-    /// order of their lower bound and the exact distance is computed until the bound
-    /// passes the best found (usually one or two exact queries). Returns the index
-    /// into `bodies` and the clearance; None when the index holds no occupied cell.
+    /// order of their lower bound until it passes the best found, closed-form contacts
+    /// at once and cylinder-end ones at the end, only while they can still win (usually
+    /// a few exact queries). Returns the index into `bodies` and the clearance; None
+    /// when the index holds no occupied cell.
     pub fn bodies_clearance(
         &self,
-        bodies: &[&Body],
-        scratch: &mut Vec<(f64, usize, u32)>,
+        bodies: &[Body],
+        scratch: &mut ClearanceScratch,
     ) -> Result<Option<(usize, Clearance)>> {
         if self.num_occupied == 0 {
             return Ok(None);
         }
-        scratch.clear();
+        let ClearanceScratch {
+            candidates,
+            nearest,
+        } = scratch;
+        candidates.clear();
+        nearest.clear();
         for (tag, body) in bodies.iter().enumerate() {
-            self.clearance_candidates(body, tag, scratch)?;
+            self.clearance_candidates(body, tag, candidates)?;
         }
-        scratch.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        candidates.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         let half = self.half();
-        let mut best: Option<(usize, Clearance)> = None;
-        for &(bound, tag, cell) in scratch.iter() {
-            if best.is_some_and(|(_, b)| bound >= b.distance) {
+        for &(bound, tag, cell) in candidates.iter() {
+            if bound >= nearest.limit() {
                 break;
             }
-            let contact = bodies[tag].box_contact(&self.center_of(cell as usize), &half);
-            if best.is_none_or(|(_, b)| contact.distance < b.distance) {
-                best = Some((
-                    tag,
-                    Clearance {
-                        distance: contact.distance,
-                        on_body: contact.on_body,
-                        on_obstacle: contact.on_box,
-                    },
-                ));
-            }
+            nearest.offer(tag, &bodies[tag], &self.center_of(cell as usize), &half);
         }
-        Ok(best)
+        Ok(nearest.finish(&half).map(|(tag, contact)| {
+            (
+                tag,
+                Clearance {
+                    distance: contact.distance,
+                    on_body: contact.on_body,
+                    on_obstacle: contact.on_box,
+                },
+            )
+        }))
     }
 
     /// Clearance of one body (see `bodies_clearance`).
     pub fn body_clearance(&self, body: &Body) -> Result<Option<Clearance>> {
         Ok(self
-            .bodies_clearance(&[body], &mut Vec::new())?
+            .bodies_clearance(&[*body], &mut ClearanceScratch::default())?
             .map(|(_, c)| c))
     }
 
@@ -710,8 +738,7 @@ mod tests {
                 .iter()
                 .map(|o| crate::geometry::distance_squared(o, &c).sqrt())
                 .fold(f64::INFINITY, f64::min);
-            assert!((index.distance[i] as f64 - brute).abs() < 1e-5);
-            let near = index.center_of(index.nearest[i] as usize);
+            let near = index.center_of(index.field[i].nearest as usize);
             assert!((crate::geometry::distance_squared(&near, &c).sqrt() - brute).abs() < 1e-9);
         }
     }
@@ -728,7 +755,7 @@ mod tests {
                 .iter()
                 .map(|o| point_box_distance_squared(&c, o, &half).sqrt())
                 .fold(f64::INFINITY, f64::min);
-            let got = index.box_distance[i] as f64;
+            let got = index.field[i].box_distance as f64;
             assert!(got <= brute + 1e-6, "{got} > {brute}");
             if brute < 0.25 {
                 assert!((got - brute).abs() < 1e-6, "{got} vs {brute}");
@@ -776,6 +803,58 @@ mod tests {
                 - c.radius();
             assert!(got.distance >= brute - 1e-9, "{} < {brute}", got.distance);
             assert!(got.distance - brute <= index.clearance_error_bound());
+        }
+    }
+
+    #[test]
+    fn pruned_clearance_equals_every_box_tried() {
+        // Mixed capsules and cylinders (whose flat ends take the deferred, iterative
+        // path): the pruning must not change the nearest pair's distance.
+        let mut rng = Rng::new(8);
+        let index = random_index(&mut rng, 0.05, 60);
+        let half = index.half();
+        let occupied = index.occupied_centers();
+        let mut scratch = ClearanceScratch::default();
+        for i in 0..300 {
+            let mut v = || rng.uniform(-0.4, 0.4);
+            let bodies: Vec<Body> = (0..3)
+                .map(|k| {
+                    let (a, b) = ([v(), v(), v()], [v(), v(), v()]);
+                    let r = 0.02 + 0.03 * v().abs();
+                    if (i + k) % 2 == 0 {
+                        Body::cylinder(a, b, r)
+                    } else {
+                        Body::capsule(a, b, r)
+                    }
+                })
+                .collect();
+            let (_, got) = index
+                .bodies_clearance(&bodies, &mut scratch)
+                .unwrap()
+                .unwrap();
+            // Every candidate box tried, no pruning.
+            let mut candidates = Vec::new();
+            for (k, b) in bodies.iter().enumerate() {
+                index.clearance_candidates(b, k, &mut candidates).unwrap();
+            }
+            let unpruned = candidates
+                .iter()
+                .map(|&(_, k, cell)| {
+                    bodies[k]
+                        .box_contact(&index.center_of(cell as usize), &half)
+                        .distance
+                })
+                .fold(f64::INFINITY, f64::min);
+            assert_eq!(got.distance, unpruned, "case {i}");
+            // And never above the distance to any occupied box by more than the bound.
+            let brute = bodies
+                .iter()
+                .flat_map(|b| occupied.iter().map(|o| b.box_contact(o, &half).distance))
+                .fold(f64::INFINITY, f64::min);
+            assert!(
+                got.distance >= brute - 1e-12
+                    && got.distance <= brute + index.clearance_error_bound()
+            );
         }
     }
 
