@@ -252,7 +252,7 @@ impl Body {
         if centre_inside {
             return true;
         }
-        let (d2, t, q) = segment_box_closest(&c.a, &c.b, center, half);
+        let (d2, t, _) = segment_box_closest(&c.a, &c.b, center, half);
         if d2 > r * r {
             return false;
         }
@@ -268,8 +268,7 @@ impl Body {
         // Reached at an end: a box that meets the cylinder meets its end disc there
         // (the segment from a shared point to the closest box point, which lies within r
         // of the end and not inside the cylinder's slab, crosses the disc), so the disc
-        // decides. First the cheap case: the closest box point moved onto the disc's
-        // plane is still in the box.
+        // decides.
         let d = Vector3::new(c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]);
         let len = d.norm();
         if len == 0.0 {
@@ -283,11 +282,6 @@ impl Body {
         let spread = u.x.abs() * half[0] + u.y.abs() * half[1] + u.z.abs() * half[2];
         if height.abs() > spread {
             return false;
-        }
-        let w = Vector3::from(q) - end;
-        let on_plane = end + w - u * u.dot(&w);
-        if (0..3).all(|i| (on_plane[i] - center[i]).abs() <= half[i]) {
-            return true;
         }
         disc_meets_box(&end, &u, r, center, half)
     }
@@ -419,10 +413,13 @@ impl Body {
     }
 }
 
-/// Does the disc (centre `e`, unit normal `u`, radius `r`) meet the box? The box's
-/// section by the disc's plane is a convex polygon whose vertices are where the box's
-/// edges cross the plane (and corners on it); they meet when that polygon comes within
-/// r of the centre.
+/// Does the disc (centre `e`, unit normal `u`, radius `r`) meet the box? It does when
+/// the point of the box's section by the disc's plane nearest `e` lies within r. That
+/// point solves min |x − e|² over the box with u·(x − e) = 0, whose Lagrange dual is
+/// one-dimensional: for a multiplier λ the minimiser over the box is the clamp of
+/// e − λu, and u·(x(λ) − e) falls with λ, piecewise linearly between the λ where an
+/// axis starts or stops clamping. Those breakpoints bracket its root (as in
+/// `segment_box_closest`), and no root means the plane misses the box.
 fn disc_meets_box(
     e: &Vector3<f64>,
     u: &Vector3<f64>,
@@ -430,93 +427,40 @@ fn disc_meets_box(
     center: &[f64; 3],
     half: &[f64; 3],
 ) -> bool {
-    let mut corners = [Vector3::zeros(); 8];
-    let mut heights = [0.0; 8];
-    for (i, corner) in corners.iter_mut().enumerate() {
-        let sign = |bit: usize| if i & bit != 0 { 1.0 } else { -1.0 };
-        *corner = Vector3::new(
-            center[0] + sign(1) * half[0],
-            center[1] + sign(2) * half[1],
-            center[2] + sign(4) * half[2],
-        );
-        heights[i] = u.dot(&(*corner - e));
-    }
-    let helper = if u.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
+    let at = |lambda: f64| -> [f64; 3] {
+        [0, 1, 2].map(|i| (e[i] - lambda * u[i]).clamp(center[i] - half[i], center[i] + half[i]))
     };
-    let e1 = u.cross(&helper).normalize();
-    let e2 = u.cross(&e1);
-    let mut flat = [(0.0f64, 0.0f64); 20];
-    let mut n = 0;
-    let mut add = |p: Vector3<f64>| {
-        let v = p - e;
-        flat[n] = (e1.dot(&v), e2.dot(&v));
-        n += 1;
-    };
-    for i in 0..8 {
-        if heights[i] == 0.0 {
-            add(corners[i]);
+    let gap = |x: &[f64; 3]| -> f64 { (0..3).map(|i| u[i] * (x[i] - e[i])).sum() };
+    // (λ, gap) at the breakpoints, bracketing the root from both sides.
+    let (mut lo, mut gap_lo) = (f64::NEG_INFINITY, f64::NAN);
+    let (mut hi, mut gap_hi) = (f64::INFINITY, f64::NAN);
+    for i in 0..3 {
+        if u[i] == 0.0 {
+            continue;
         }
-        for bit in [1, 2, 4] {
-            let j = i | bit;
-            let (hi, hj) = (heights[i], heights[j]);
-            if j != i && ((hi < 0.0 && hj > 0.0) || (hi > 0.0 && hj < 0.0)) {
-                add(corners[i] + (corners[j] - corners[i]) * (hi / (hi - hj)));
+        for bound in [center[i] - half[i], center[i] + half[i]] {
+            let lambda = (e[i] - bound) / u[i];
+            let g = gap(&at(lambda));
+            if g >= 0.0 && lambda > lo {
+                (lo, gap_lo) = (lambda, g);
+            }
+            if g <= 0.0 && lambda < hi {
+                (hi, gap_hi) = (lambda, g);
             }
         }
     }
-    n > 0 && point_to_hull_distance_squared(&mut flat[..n]) <= r * r
-}
-
-/// Squared distance from the origin to the convex hull of 2D points (0 inside).
-fn point_to_hull_distance_squared(points: &mut [(f64, f64)]) -> f64 {
-    points.sort_unstable_by(|p, q| p.0.total_cmp(&q.0).then(p.1.total_cmp(&q.1)));
-    // Andrew's monotone chain.
-    let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
-        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+    // Beyond the outermost breakpoints the gap is constant: without a breakpoint on
+    // each side of zero the plane misses the box.
+    if lo == f64::NEG_INFINITY || hi == f64::INFINITY {
+        return false;
+    }
+    let lambda = if gap_lo == gap_hi {
+        lo
+    } else {
+        lo + gap_lo * (hi - lo) / (gap_lo - gap_hi)
     };
-    let mut hull: [(f64, f64); 41] = [(0.0, 0.0); 41];
-    let mut k = 0;
-    for &p in points.iter() {
-        while k >= 2 && cross(hull[k - 2], hull[k - 1], p) <= 0.0 {
-            k -= 1;
-        }
-        hull[k] = p;
-        k += 1;
-    }
-    let lower = k + 1;
-    for &p in points.iter().rev().skip(1) {
-        while k >= lower && cross(hull[k - 2], hull[k - 1], p) <= 0.0 {
-            k -= 1;
-        }
-        hull[k] = p;
-        k += 1;
-    }
-    let hull = &hull[..k.saturating_sub(1).max(1)];
-    let segment = |p: (f64, f64), q: (f64, f64)| {
-        let (dx, dy) = (q.0 - p.0, q.1 - p.1);
-        let len2 = dx * dx + dy * dy;
-        let t = if len2 > 0.0 {
-            (-(p.0 * dx + p.1 * dy) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let (x, y) = (p.0 + t * dx, p.1 + t * dy);
-        x * x + y * y
-    };
-    if hull.len() >= 3 {
-        // Counter-clockwise hull: the origin is inside when left of every edge.
-        let inside =
-            (0..hull.len()).all(|i| cross(hull[i], hull[(i + 1) % hull.len()], (0.0, 0.0)) >= 0.0);
-        if inside {
-            return 0.0;
-        }
-    }
-    (0..hull.len())
-        .map(|i| segment(hull[i], hull[(i + 1) % hull.len()]))
-        .fold(f64::INFINITY, f64::min)
+    let x = at(lambda);
+    (0..3).map(|i| (x[i] - e[i]) * (x[i] - e[i])).sum::<f64>() <= r * r
 }
 
 #[cfg(test)]
@@ -608,6 +552,48 @@ mod tests {
             }
         }
         assert!(hits > 500 && disagreements < 20, "{hits} {disagreements}");
+    }
+
+    #[test]
+    fn disc_box_test_agrees_with_sampling() {
+        let mut rng = Rng::new(31);
+        let (mut hits, mut misses) = (0, 0);
+        for _ in 0..3000 {
+            let mut v = || rng.uniform(-0.2, 0.2);
+            let e = Vector3::new(v(), v(), v());
+            let u = Vector3::new(v(), v(), v()).normalize();
+            let r = 0.02 + v().abs() * 0.3;
+            let half = [0.025 + v().abs() * 0.1, 0.025, 0.025 + v().abs() * 0.05];
+            // Boxes around the disc's rim and plane, where the answer is in doubt.
+            let e1 = u.cross(&Vector3::x()).normalize();
+            let e2 = u.cross(&e1);
+            let c = e + e1 * (r * 5.0 * v()) + e2 * (r * 5.0 * v()) + u * (0.5 * v());
+            let center = [c.x, c.y, c.z];
+            let meets = disc_meets_box(&e, &u, r, &center, &half);
+            // Dense polar samples of the disc: their nearest gap to the box.
+            let mut min_gap = f64::INFINITY;
+            for i in 0..=60 {
+                for j in 0..96 {
+                    let ang = j as f64 / 96.0 * std::f64::consts::TAU;
+                    let p = e + (e1 * ang.cos() + e2 * ang.sin()) * (r * i as f64 / 60.0);
+                    let gap: f64 = (0..3)
+                        .map(|a| ((p[a] - center[a]).abs() - half[a]).max(0.0).powi(2))
+                        .sum::<f64>()
+                        .sqrt();
+                    min_gap = min_gap.min(gap);
+                }
+            }
+            // Samples are within r·π/96 of every disc point.
+            let spacing = r * std::f64::consts::PI / 96.0 + r / 60.0;
+            if meets {
+                assert!(min_gap <= spacing, "meets, but samples are {min_gap} away");
+                hits += 1;
+            } else {
+                assert!(min_gap > 0.0, "a disc sample lies in the box");
+                misses += 1;
+            }
+        }
+        assert!(hits > 300 && misses > 300, "{hits} {misses}");
     }
 
     #[test]

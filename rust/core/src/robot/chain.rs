@@ -354,10 +354,49 @@ impl Chain {
     #[inline]
     pub fn forward_kinematics_into(&self, base: &Frame, q: &[f64], out: &mut [Frame]) {
         out[0] = *base;
-        for (j, joint) in self.joints.iter().enumerate() {
-            let local = self.local[j].at(self.coordinate[j].map_or(0.0, |c| q[c]));
-            out[joint.child] = out[joint.parent].compose(&local);
+        for j in 0..self.joints.len() {
+            self.place_child(j, q, out);
         }
+    }
+
+    /// `forward_kinematics_into` for the child links of `joints` only (indices into
+    /// `joints()`, parent-first, e.g. from `joints_reaching`); other frames are left as
+    /// they were.
+    #[inline]
+    pub fn forward_kinematics_of(
+        &self,
+        base: &Frame,
+        q: &[f64],
+        out: &mut [Frame],
+        joints: &[usize],
+    ) {
+        out[0] = *base;
+        for &j in joints {
+            self.place_child(j, q, out);
+        }
+    }
+
+    /// Set the frame of joint `j`'s child from its parent's (already set).
+    #[inline]
+    pub fn place_child(&self, j: usize, q: &[f64], out: &mut [Frame]) {
+        let joint = &self.joints[j];
+        let local = self.local[j].at(self.coordinate[j].map_or(0.0, |c| q[c]));
+        out[joint.child] = out[joint.parent].compose(&local);
+    }
+
+    /// The joints (indices into `joints()`, parent-first) on the way from the root to
+    /// any link marked in `wanted`: all forward kinematics needs to place those links.
+    pub fn joints_reaching(&self, wanted: &[bool]) -> Vec<usize> {
+        let mut needed = wanted.to_vec();
+        // Children come after parents, so a backward pass marks every ancestor.
+        for joint in self.joints.iter().rev() {
+            if needed[joint.child] {
+                needed[joint.parent] = true;
+            }
+        }
+        (0..self.joints.len())
+            .filter(|&j| needed[self.joints[j].child])
+            .collect()
     }
 
     pub fn forward_kinematics(&self, base: &Frame, q: &[f64]) -> Result<Vec<Frame>> {
@@ -409,6 +448,54 @@ mod tests {
             ],
         )
         .unwrap()
+    }
+
+    #[test]
+    fn partial_kinematics_places_what_the_wanted_links_need() {
+        // base → a → b, and a branch base → c (fixed).
+        let mut joints = vec![
+            Joint {
+                name: "j1".into(),
+                kind: JointKind::Revolute,
+                parent: 0,
+                child: 1,
+                origin: Frame::from_xyz_rpy([0.0, 0.0, 0.5], [0.0; 3]),
+                axis: Vector3::z(),
+                lower: -3.0,
+                upper: 3.0,
+            },
+            Joint {
+                name: "j2".into(),
+                kind: JointKind::Revolute,
+                parent: 1,
+                child: 2,
+                origin: Frame::from_xyz_rpy([1.0, 0.0, 0.0], [0.2, 0.0, 0.0]),
+                axis: Vector3::y(),
+                lower: -3.0,
+                upper: 3.0,
+            },
+        ];
+        joints.push(Joint {
+            name: "c".into(),
+            kind: JointKind::Fixed,
+            parent: 0,
+            child: 3,
+            origin: Frame::from_xyz_rpy([0.0, 1.0, 0.0], [0.0; 3]),
+            axis: Vector3::z(),
+            lower: 0.0,
+            upper: 0.0,
+        });
+        let names = ["base", "a", "b", "c"].map(String::from).to_vec();
+        let chain = Chain::new(names, joints).unwrap();
+        let wanted = chain.joints_reaching(&[false, false, true, false]);
+        let children: Vec<usize> = wanted.iter().map(|&j| chain.joints()[j].child).collect();
+        assert_eq!(children, vec![1, 2]);
+        let q = [0.4, -0.7];
+        let full = chain.forward_kinematics(&Frame::identity(), &q).unwrap();
+        let mut part = vec![Frame::identity(); 4];
+        chain.forward_kinematics_of(&Frame::identity(), &q, &mut part, &wanted);
+        assert_eq!(part[2], full[2]);
+        assert_eq!(part[3], Frame::identity());
     }
 
     #[test]

@@ -6,7 +6,7 @@ use crate::octree::OcTree;
 use crate::robot::body::{Body, NearestContact};
 use crate::robot::capsule::point_segment_distance_squared;
 use crate::robot::chain::Frame;
-use crate::robot::model::{PlacedBodies, RobotModel};
+use crate::robot::model::{LazyPlacement, PlacedBodies, RobotModel};
 use crate::robot::voxel_index::{
     Clearance, ClearanceScratch, SampleVerdict, UndecidedRuns, VoxelIndex,
 };
@@ -74,6 +74,7 @@ fn check_all(model: &RobotModel, qs: &[f64]) -> Result<usize> {
 struct Scratch {
     frames: Vec<Frame>,
     placed: PlacedBodies,
+    lazy: LazyPlacement,
     undecided: Vec<(usize, Body, UndecidedRuns)>,
     /// The order in which bodies meet the distance-field pass: a body that collides
     /// moves one place forward, so in a batch the bodies that usually collide come
@@ -86,6 +87,7 @@ impl Scratch {
         Scratch {
             frames: vec![Frame::identity(); model.chain().num_links()],
             placed: PlacedBodies::default(),
+            lazy: model.lazy_placement(),
             undecided: Vec::new(),
             order: Vec::new(),
         }
@@ -99,21 +101,21 @@ fn contact_of(
     q: &[f64],
     scratch: &mut Scratch,
 ) -> Result<Contact> {
-    model.place_into(q, &mut scratch.frames, &mut scratch.placed);
-    let placed = &scratch.placed;
+    // Bodies are placed as the checks reach them: a collision found early spares the
+    // rest of the forward kinematics.
+    let lazy = &mut scratch.lazy;
+    lazy.reset();
     // First the cheap distance-field pass over every body (a certain collision ends
     // it), then exact scans where it left doubt. The verdict does not depend on the
     // order; which colliding link is reported (or whether a body outside the index is
     // reported before a collision is found) does.
     scratch.undecided.clear();
     if scratch.order.is_empty() {
-        scratch.order = (0..placed.bodies.len())
-            .filter(|&b| placed.moving[b])
-            .collect();
+        scratch.order = (0..lazy.links.len()).filter(|&b| lazy.moving[b]).collect();
     }
     for at in 0..scratch.order.len() {
         let b = scratch.order[at];
-        let (link, body) = (placed.links[b], placed.bodies[b]);
+        let (link, body) = (lazy.links[b], lazy.body(model, q, b));
         match index.body_samples(&body)? {
             SampleVerdict::Collides => {
                 scratch.order.swap(at, at.saturating_sub(1));
@@ -129,7 +131,8 @@ fn contact_of(
         }
     }
     if params.self_collision {
-        if let Some((a, b)) = model.self_collision(placed, model.self_collision_pairs()) {
+        scratch.lazy.fill(model, q, &mut scratch.placed);
+        if let Some((a, b)) = model.self_collision(&scratch.placed, model.self_collision_pairs()) {
             return Ok(Contact::SelfCollision(a, b));
         }
     }

@@ -18,6 +18,6 @@ pub use collision::{
     motion_danger, CheckParams, Contact,
 };
 pub use fit::{fit_body, fit_capsule, fit_cylinder, FitShape};
-pub use model::{PlacedBodies, RobotModel};
+pub use model::{LazyPlacement, PlacedBodies, RobotModel};
 pub use self_filter::self_filter;
 pub use voxel_index::{Clearance, SampleVerdict, UndecidedRuns, VoxelIndex, VoxelSource};

@@ -18,6 +18,9 @@ pub struct RobotModel {
     /// Links rigidly attached to the root (no movable joint on the way): they never
     /// move, so whatever they touch is the robot's own stand and is not an obstacle.
     fixed_to_root: Vec<bool>,
+    /// The joints forward kinematics needs to place the bodies (not those leading
+    /// only to frames without bodies, such as a tool flange).
+    placement_joints: Vec<usize>,
 }
 
 /// The robot's bodies placed for one configuration (world frame), with their links.
@@ -27,6 +30,64 @@ pub struct PlacedBodies {
     pub bodies: Vec<Body>,
     /// False for bodies fixed to the root (skipped by obstacle checks and clearance).
     pub moving: Vec<bool>,
+}
+
+/// Bodies placed on demand for one configuration: forward kinematics runs only as far
+/// as the bodies asked for need, so a check that ends at its first body skips the rest
+/// of the chain. Slots are those of `PlacedBodies` (links with bodies, in link order).
+#[derive(Clone, Debug)]
+pub struct LazyPlacement {
+    frames: Vec<Frame>,
+    /// Placement joints run so far for this configuration.
+    joints_done: usize,
+    bodies: Vec<Option<Body>>,
+    pub links: Vec<usize>,
+    pub moving: Vec<bool>,
+    joints_needed: Vec<usize>,
+}
+
+impl LazyPlacement {
+    /// Forget the last configuration's placements.
+    pub fn reset(&mut self) {
+        self.joints_done = 0;
+        self.bodies.fill(None);
+    }
+
+    /// The body in `slot` placed for `q` (checked by the caller; the same `q` since the
+    /// last `reset`).
+    #[inline]
+    pub fn body(&mut self, model: &RobotModel, q: &[f64], slot: usize) -> Body {
+        if let Some(body) = self.bodies[slot] {
+            return body;
+        }
+        if self.joints_done == 0 {
+            self.frames[0] = model.base;
+        }
+        let needed = self.joints_needed[slot];
+        while self.joints_done < needed {
+            let joint = model.placement_joints[self.joints_done];
+            model.chain.place_child(joint, q, &mut self.frames);
+            self.joints_done += 1;
+        }
+        let link = self.links[slot];
+        let body = model.bodies[link]
+            .expect("slots are links with bodies")
+            .placed(&self.frames[link]);
+        self.bodies[slot] = Some(body);
+        body
+    }
+
+    /// Every body placed for `q`, as `place_into` would give them.
+    pub fn fill(&mut self, model: &RobotModel, q: &[f64], out: &mut PlacedBodies) {
+        out.links.clear();
+        out.bodies.clear();
+        out.moving.clear();
+        for slot in 0..self.links.len() {
+            out.bodies.push(self.body(model, q, slot));
+        }
+        out.links.extend_from_slice(&self.links);
+        out.moving.extend_from_slice(&self.moving);
+    }
 }
 
 impl PlacedBodies {
@@ -73,12 +134,15 @@ impl RobotModel {
         for joint in chain.joints() {
             fixed_to_root[joint.child] = fixed_to_root[joint.parent] && !joint.is_movable();
         }
+        let has_body: Vec<bool> = bodies.iter().map(|b| b.is_some()).collect();
+        let placement_joints = chain.joints_reaching(&has_body);
         let mut model = RobotModel {
             chain,
             bodies,
             base: Frame::identity(),
             self_pairs: Vec::new(),
             fixed_to_root,
+            placement_joints,
         };
         model.self_pairs = model.default_self_collision_pairs(1000, 1);
         Ok(model)
@@ -143,10 +207,11 @@ impl RobotModel {
     }
 
     /// Place every body for configuration `q` (checked by the caller); `frames` is
-    /// scratch space with one frame per link.
+    /// scratch space with one frame per link (only links on the way to a body are set).
     #[inline]
     pub fn place_into(&self, q: &[f64], frames: &mut [Frame], out: &mut PlacedBodies) {
-        self.chain.forward_kinematics_into(&self.base, q, frames);
+        self.chain
+            .forward_kinematics_of(&self.base, q, frames, &self.placement_joints);
         out.links.clear();
         out.bodies.clear();
         out.moving.clear();
@@ -156,6 +221,35 @@ impl RobotModel {
                 out.bodies.push(c.placed(&frames[l]));
                 out.moving.push(!self.fixed_to_root[l]);
             }
+        }
+    }
+
+    /// The links that carry bodies, in the order `place_into` lists them (body slots).
+    pub fn body_links(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.bodies.len()).filter(|&l| self.bodies[l].is_some())
+    }
+
+    /// Scratch for placing bodies one at a time (see `LazyPlacement`).
+    pub fn lazy_placement(&self) -> LazyPlacement {
+        let links: Vec<usize> = self.body_links().collect();
+        // How many of the placement joints (parent-first) must run before a body's
+        // link is placed: up to and including the joint that makes that link.
+        let joints_needed = links
+            .iter()
+            .map(|&l| {
+                self.placement_joints
+                    .iter()
+                    .position(|&j| self.chain.joints()[j].child == l)
+                    .map_or(0, |at| at + 1)
+            })
+            .collect();
+        LazyPlacement {
+            frames: vec![Frame::identity(); self.chain.num_links()],
+            joints_done: 0,
+            bodies: vec![None; links.len()],
+            moving: links.iter().map(|&l| !self.fixed_to_root[l]).collect(),
+            links,
+            joints_needed,
         }
     }
 
