@@ -492,27 +492,27 @@ impl VoxelIndex {
                 capsule.axis_point(t1),
                 capsule.radius,
             );
-            let (lo, hi) = piece.aabb();
-            self.for_each_occupied_in(lo, hi, |centre| body.overlaps_box(&centre, &half))
+            self.for_each_occupied_near(&piece, |centre| body.overlaps_box(&centre, &half))
         })
     }
 
-    /// Exact test against every occupied cell in the body's bounding box.
+    /// Exact test against every occupied cell that can meet the body.
     pub fn body_collides_exact(&self, body: &Body) -> bool {
-        let (lo, hi) = body.aabb();
         let half = self.half();
-        self.for_each_occupied_in(lo, hi, |centre| body.overlaps_box(&centre, &half))
+        self.for_each_occupied_near(body.enclosing_capsule(), |centre| {
+            body.overlaps_box(&centre, &half)
+        })
     }
 
-    /// Calls `hit` with the centre of every occupied cell in the box [lo, hi] until it
-    /// returns true (then true). Centres come from the loop's coordinates: recovering
-    /// them from a linear index costs two integer divisions a cell.
-    fn for_each_occupied_in(
+    /// Calls `hit` with the centre of every occupied cell in `capsule`'s bounds until
+    /// it returns true (then true). Centres come from the loop's coordinates:
+    /// recovering them from a linear index costs two integer divisions a cell.
+    fn for_each_occupied_near(
         &self,
-        lo: [f64; 3],
-        hi: [f64; 3],
+        capsule: &crate::robot::capsule::Capsule,
         mut hit: impl FnMut([f64; 3]) -> bool,
     ) -> bool {
+        let (lo, hi) = capsule.aabb();
         let mut a = [0usize; 3];
         let mut b = [0usize; 3];
         for i in 0..3 {
@@ -769,6 +769,8 @@ mod tests {
         let mut hits = 0;
         for round in 0..20 {
             let index = random_index(&mut rng, 0.05, 5 + round * 10);
+            let occupied = index.occupied_centers();
+            let half = index.half();
             for i in 0..500 {
                 let mut v = || rng.uniform(-0.4, 0.4);
                 let (a, b) = ([v(), v(), v()], [v(), v(), v()]);
@@ -779,7 +781,9 @@ mod tests {
                     Body::cylinder(a, b, r)
                 };
                 let fast = index.body_collides(&body).unwrap();
-                assert_eq!(fast, index.body_collides_exact(&body));
+                let brute = occupied.iter().any(|c| body.overlaps_box(c, &half));
+                assert_eq!(fast, brute);
+                assert_eq!(index.body_collides_exact(&body), brute);
                 hits += usize::from(fast);
             }
         }
