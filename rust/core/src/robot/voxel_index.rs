@@ -482,7 +482,6 @@ impl VoxelIndex {
             return self.body_collides_exact(body);
         }
         let capsule = body.enclosing_capsule();
-        let half = self.half();
         let steps = runs.steps as f64;
         runs.runs[..runs.len].iter().any(|&(j0, j1)| {
             let t0 = ((j0 as f64 - 0.5) / steps).max(0.0);
@@ -492,25 +491,25 @@ impl VoxelIndex {
                 capsule.axis_point(t1),
                 capsule.radius,
             );
-            self.for_each_occupied_near(&piece, |centre| body.overlaps_box(&centre, &half))
+            self.for_each_occupied_near(&piece, |centre, half| body.overlaps_box(&centre, &half))
         })
     }
 
     /// Exact test against every occupied cell that can meet the body.
     pub fn body_collides_exact(&self, body: &Body) -> bool {
-        let half = self.half();
-        self.for_each_occupied_near(body.enclosing_capsule(), |centre| {
+        self.for_each_occupied_near(body.enclosing_capsule(), |centre, half| {
             body.overlaps_box(&centre, &half)
         })
     }
 
-    /// Calls `hit` with the centre of every occupied cell in `capsule`'s bounds until
-    /// it returns true (then true). Centres come from the loop's coordinates:
-    /// recovering them from a linear index costs two integer divisions a cell.
+    /// Calls `hit` with every run of occupied cells along x in `capsule`'s bounds, as
+    /// one box (centre, half sizes), until it returns true (then true). A run's cells
+    /// share faces, so their union is that box and one exact test stands for them all
+    /// (a table top crossing the bounds is a handful of runs, not dozens of cells).
     fn for_each_occupied_near(
         &self,
         capsule: &crate::robot::capsule::Capsule,
-        mut hit: impl FnMut([f64; 3]) -> bool,
+        mut hit: impl FnMut([f64; 3], [f64; 3]) -> bool,
     ) -> bool {
         let (lo, hi) = capsule.aabb();
         let mut a = [0usize; 3];
@@ -525,17 +524,30 @@ impl VoxelIndex {
             a[i] = l as usize;
             b[i] = h as usize;
         }
+        let res = self.resolution;
         let coordinate =
-            |axis: usize, c: usize| ((self.origin[axis] + c as i64) as f64 + 0.5) * self.resolution;
+            |axis: usize, c: usize| ((self.origin[axis] + c as i64) as f64 + 0.5) * res;
         for z in a[2]..=b[2] {
             let cz = coordinate(2, z);
             for y in a[1]..=b[1] {
                 let cy = coordinate(1, y);
-                let row = self.linear([0, y, z]);
-                for x in a[0]..=b[0] {
-                    if self.occupied[row + x] && hit([coordinate(0, x), cy, cz]) {
+                let row = &self.occupied[self.linear([0, y, z])..];
+                let mut x = a[0];
+                while x <= b[0] {
+                    if !row[x] {
+                        x += 1;
+                        continue;
+                    }
+                    let start = x;
+                    while x < b[0] && row[x + 1] {
+                        x += 1;
+                    }
+                    let cells = (x - start + 1) as f64;
+                    let cx = 0.5 * (coordinate(0, start) + coordinate(0, x));
+                    if hit([cx, cy, cz], [0.5 * res * cells, 0.5 * res, 0.5 * res]) {
                         return true;
                     }
+                    x += 1;
                 }
             }
         }
