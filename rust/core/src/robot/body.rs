@@ -427,10 +427,23 @@ fn disc_meets_box(
     center: &[f64; 3],
     half: &[f64; 3],
 ) -> bool {
-    let at = |lambda: f64| -> [f64; 3] {
-        [0, 1, 2].map(|i| (e[i] - lambda * u[i]).clamp(center[i] - half[i], center[i] + half[i]))
+    let lo_corner = [
+        center[0] - half[0],
+        center[1] - half[1],
+        center[2] - half[2],
+    ];
+    let hi_corner = [
+        center[0] + half[0],
+        center[1] + half[1],
+        center[2] + half[2],
+    ];
+    // x(λ) − e per axis, and u·(x(λ) − e).
+    let offset = |lambda: f64, i: usize| -> f64 {
+        (e[i] - lambda * u[i]).clamp(lo_corner[i], hi_corner[i]) - e[i]
     };
-    let gap = |x: &[f64; 3]| -> f64 { (0..3).map(|i| u[i] * (x[i] - e[i])).sum() };
+    let gap = |lambda: f64| -> f64 {
+        u[0] * offset(lambda, 0) + u[1] * offset(lambda, 1) + u[2] * offset(lambda, 2)
+    };
     // (λ, gap) at the breakpoints, bracketing the root from both sides.
     let (mut lo, mut gap_lo) = (f64::NEG_INFINITY, f64::NAN);
     let (mut hi, mut gap_hi) = (f64::INFINITY, f64::NAN);
@@ -438,9 +451,9 @@ fn disc_meets_box(
         if u[i] == 0.0 {
             continue;
         }
-        for bound in [center[i] - half[i], center[i] + half[i]] {
+        for bound in [lo_corner[i], hi_corner[i]] {
             let lambda = (e[i] - bound) / u[i];
-            let g = gap(&at(lambda));
+            let g = gap(lambda);
             if g >= 0.0 && lambda > lo {
                 (lo, gap_lo) = (lambda, g);
             }
@@ -459,8 +472,8 @@ fn disc_meets_box(
     } else {
         lo + gap_lo * (hi - lo) / (gap_lo - gap_hi)
     };
-    let x = at(lambda);
-    (0..3).map(|i| (x[i] - e[i]) * (x[i] - e[i])).sum::<f64>() <= r * r
+    let (dx, dy, dz) = (offset(lambda, 0), offset(lambda, 1), offset(lambda, 2));
+    dx * dx + dy * dy + dz * dz <= r * r
 }
 
 #[cfg(test)]
