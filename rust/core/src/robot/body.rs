@@ -325,6 +325,9 @@ impl Body {
         if capsule.distance <= 0.0 && self.overlaps_box(center, half) {
             return ContactStep::Exact(capsule);
         }
+        if let Some(contact) = self.end_face_contact(t, center, half) {
+            return ContactStep::Exact(contact);
+        }
         // The enclosing capsule's distance is a lower bound; so is the box's gap to
         // the end plane it is reached at.
         ContactStep::Iterative {
@@ -358,6 +361,43 @@ impl Body {
             // Touching (or unsupported): the capsule's answer never overstates the gap.
             _ => capsule,
         }
+    }
+
+    /// A cylinder's contact with a box wholly beyond its end `t` (0: a, 1: b) when the
+    /// box's side facing the end face comes within the cylinder's radius of the axis:
+    /// no box point is nearer the end plane, and one is straight across from the face,
+    /// so the gap to the plane is the distance. None otherwise.
+    fn end_face_contact(
+        &self,
+        t: f64,
+        center: &[f64; 3],
+        half: &[f64; 3],
+    ) -> Option<BodyBoxContact> {
+        let gap = self.end_plane_gap(t, center, half);
+        let c = &self.axis;
+        let d = Vector3::new(c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]);
+        let len = d.norm();
+        if !(gap > 0.0 && len > 0.0) {
+            return None;
+        }
+        let (end, outward) = if t <= 0.0 {
+            (Vector3::from(c.a), -d / len)
+        } else {
+            (Vector3::from(c.b), d / len)
+        };
+        // The box's side facing the end: its section by the plane at the gap.
+        let on_box = plane_section_nearest(&(end + outward * gap), &outward, center, half)?;
+        let w = on_box - end;
+        let across = w - outward * outward.dot(&w);
+        if across.norm_squared() > c.radius * c.radius {
+            return None;
+        }
+        let on_body = end + across;
+        Some(BodyBoxContact {
+            distance: (on_box - on_body).norm(),
+            on_body: [on_body.x, on_body.y, on_body.z],
+            on_box: [on_box.x, on_box.y, on_box.z],
+        })
     }
 
     /// How far the box lies beyond the cylinder's end plane at `t` (0: end a, 1: end b),
@@ -413,20 +453,19 @@ impl Body {
     }
 }
 
-/// Does the disc (centre `e`, unit normal `u`, radius `r`) meet the box? It does when
-/// the point of the box's section by the disc's plane nearest `e` lies within r. That
-/// point solves min |x − e|² over the box with u·(x − e) = 0, whose Lagrange dual is
-/// one-dimensional: for a multiplier λ the minimiser over the box is the clamp of
-/// e − λu, and u·(x(λ) − e) falls with λ, piecewise linearly between the λ where an
-/// axis starts or stops clamping. Those breakpoints bracket its root (as in
-/// `segment_box_closest`), and no root means the plane misses the box.
-fn disc_meets_box(
+/// The point of the box's section by the plane through `e` with unit normal `u`
+/// nearest `e` (None when the plane misses the box). It solves min |x − e|² over the
+/// box with u·(x − e) = 0, whose Lagrange dual is one-dimensional: for a multiplier λ
+/// the minimiser over the box is the clamp of e − λu, and u·(x(λ) − e) falls with λ,
+/// piecewise linearly between the λ where an axis starts or stops clamping. Those
+/// breakpoints bracket its root (as in `segment_box_closest`), and no root means the
+/// plane misses the box.
+fn plane_section_nearest(
     e: &Vector3<f64>,
     u: &Vector3<f64>,
-    r: f64,
     center: &[f64; 3],
     half: &[f64; 3],
-) -> bool {
+) -> Option<Vector3<f64>> {
     let lo_corner = [
         center[0] - half[0],
         center[1] - half[1],
@@ -465,15 +504,30 @@ fn disc_meets_box(
     // Beyond the outermost breakpoints the gap is constant: without a breakpoint on
     // each side of zero the plane misses the box.
     if lo == f64::NEG_INFINITY || hi == f64::INFINITY {
-        return false;
+        return None;
     }
     let lambda = if gap_lo == gap_hi {
         lo
     } else {
         lo + gap_lo * (hi - lo) / (gap_lo - gap_hi)
     };
-    let (dx, dy, dz) = (offset(lambda, 0), offset(lambda, 1), offset(lambda, 2));
-    dx * dx + dy * dy + dz * dz <= r * r
+    Some(Vector3::new(
+        e[0] + offset(lambda, 0),
+        e[1] + offset(lambda, 1),
+        e[2] + offset(lambda, 2),
+    ))
+}
+
+/// Does the disc (centre `e`, unit normal `u`, radius `r`) meet the box? When the
+/// nearest point of the box's section by the disc's plane lies within r of `e`.
+fn disc_meets_box(
+    e: &Vector3<f64>,
+    u: &Vector3<f64>,
+    r: f64,
+    center: &[f64; 3],
+    half: &[f64; 3],
+) -> bool {
+    plane_section_nearest(e, u, center, half).is_some_and(|x| (x - e).norm_squared() <= r * r)
 }
 
 #[cfg(test)]
@@ -565,6 +619,41 @@ mod tests {
             }
         }
         assert!(hits > 500 && disagreements < 20, "{hits} {disagreements}");
+    }
+
+    #[test]
+    fn cylinder_box_distance_equals_gjk() {
+        // Boxes all around cylinders, many beyond a flat end (the closed-form end-face
+        // case) and near the rim (GJK).
+        let mut rng = Rng::new(44);
+        let mut end_face = 0;
+        for _ in 0..5000 {
+            let mut v = || rng.uniform(-0.3, 0.3);
+            let (a, b) = ([v(), v(), v()], [v(), v(), v()]);
+            let body = Body::cylinder(a, b, 0.02 + v().abs() * 0.2);
+            let axis = Vector3::from(b) - Vector3::from(a);
+            let c = Vector3::from(b)
+                + axis.normalize() * (0.3 * v().abs())
+                + Vector3::new(v(), v(), v()) * 0.5;
+            let (center, half) = ([c.x, c.y, c.z], [0.025, 0.025 + v().abs() * 0.05, 0.025]);
+            let contact = body.box_contact(&center, &half);
+            let cuboid = Cuboid::new(Vector3::from(half));
+            let pose = Isometry3::translation(center[0], center[1], center[2]);
+            let gap = query::distance(&body.parry_pose(), &body.cylinder_shape(), &pose, &cuboid)
+                .unwrap();
+            if gap > 1e-6 {
+                assert!(
+                    (contact.distance - gap).abs() < 1e-6,
+                    "{} vs {gap}",
+                    contact.distance
+                );
+                let pair = Vector3::from(contact.on_box) - Vector3::from(contact.on_body);
+                assert!((pair.norm() - contact.distance).abs() < 1e-9);
+                assert!((0..3).all(|i| (contact.on_box[i] - center[i]).abs() <= half[i] + 1e-12));
+                end_face += usize::from(body.end_face_contact(1.0, &center, &half).is_some());
+            }
+        }
+        assert!(end_face > 100, "{end_face}");
     }
 
     #[test]
