@@ -129,8 +129,9 @@ pub fn segment_box_closest(
         let (mut lo, mut hi, mut s_lo, mut s_hi) = (0.0, 1.0, s0, s1);
         for i in 0..3 {
             if d[i] != 0.0 {
+                let per = 1.0 / d[i];
                 for bound in [-half[i], half[i]] {
-                    let t = (bound - p0[i]) / d[i];
+                    let t = (bound - p0[i]) * per;
                     if t > lo && t < hi {
                         let s = slope(t);
                         if s < 0.0 {

@@ -79,6 +79,7 @@ pub struct ClearanceScratch {
 #[derive(Clone, Debug)]
 pub struct VoxelIndex {
     resolution: f64,
+    inverse_resolution: f64,
     /// Grid coordinate (floor(x / resolution)) of cell (0, 0, 0) per axis.
     origin: [i64; 3],
     dims: [usize; 3],
@@ -142,6 +143,7 @@ impl VoxelIndex {
         }
         Ok(VoxelIndex {
             resolution,
+            inverse_resolution: 1.0 / resolution,
             origin,
             dims,
             occupied: vec![false; cells],
@@ -266,13 +268,15 @@ impl VoxelIndex {
         let mut c = [0usize; 3];
         let mut centre = [0.0; 3];
         for a in 0..3 {
-            let g = fast_floor(p[a] / self.resolution);
-            let local = g as i64 - self.origin[a];
-            if !(g.is_finite() && local >= 0 && (local as usize) < self.dims[a]) {
+            // Grid coordinate relative to the index; NaN fails the range test. (A point
+            // within an ulp of a face may land in the neighbour: the bounds read there
+            // still hold to far below the tests' 1e-6 m slack.)
+            let local = p[a] * self.inverse_resolution - self.origin[a] as f64;
+            if !(local >= 0.0 && local < self.dims[a] as f64) {
                 return None;
             }
             c[a] = local as usize;
-            centre[a] = (g + 0.5) * self.resolution;
+            centre[a] = ((self.origin[a] + c[a] as i64) as f64 + 0.5) * self.resolution;
         }
         Some((self.linear(c), centre))
     }
@@ -429,9 +433,11 @@ impl VoxelIndex {
         // The ball of radius r + spacing/2 around a sample covers the enclosing capsule
         // near it.
         let needed = r + 0.5 * spacing + 1e-6;
+        // Reciprocals once: divisions in the loop cost more than the rest of a step.
+        let (per_step, per_spacing) = (1.0 / steps as f64, 1.0 / spacing);
         let mut s = 0;
         while s <= steps {
-            let t = s as f64 / steps as f64;
+            let t = (s as f64 * per_step).min(1.0);
             let p = capsule.axis_point(t);
             let Some((cell, centre)) = self.cell_of(&p) else {
                 return Err(self.outside_error(&p));
@@ -451,7 +457,7 @@ impl VoxelIndex {
             if clear > needed {
                 // Sphere tracing: a sample m spacings further on is ≥ clear − m·spacing
                 // from every box, so it is free too while that exceeds `needed`.
-                s += ((clear - needed) / spacing) as usize + 1;
+                s += ((clear - needed) * per_spacing) as usize + 1;
                 continue;
             }
             // A ball inside the body that reaches the nearest box proves a collision; so
