@@ -116,6 +116,13 @@ fn collision(c: &mut Criterion) {
             check_configurations(&model, &index, &qs, CheckParams::default()).expect("checks")
         })
     });
+    // Against the map only, as the FCL side-by-side (benches/bench_robot_vs_fcl.py) checks.
+    let map_only = CheckParams {
+        self_collision: false,
+    };
+    group.bench_function("check_configurations, map only/1 thread", |b| {
+        b.iter(|| check_configurations(&model, &index, &qs, map_only).expect("checks"))
+    });
     // Clearance is asked of configurations the robot can be in: the free ones.
     let contacts =
         check_configurations(&model, &index, &qs, CheckParams::default()).expect("checks");
