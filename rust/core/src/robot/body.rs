@@ -424,10 +424,18 @@ impl Body {
             return d2 <= r * r;
         }
         // Quick reject with the enclosing capsules.
-        let (d2, _, _) = segment_segment_closest(&p.a, &p.b, &q.a, &q.b);
+        let (d2, s, t) = segment_segment_closest(&p.a, &p.b, &q.a, &q.b);
         let r = p.radius + q.radius;
         if d2 > r * r {
             return false;
+        }
+        // Closest where each cylinder's axis is interior: the connecting segment is then
+        // perpendicular to both axes, and its point r₁ from the first axis lies in both
+        // bodies (a capsule holds the ball around any of its axis points).
+        let inside =
+            |shape: BodyShape, at: f64| shape == BodyShape::Capsule || (at > 0.0 && at < 1.0);
+        if inside(self.shape, s) && inside(other.shape, t) {
+            return true;
         }
         let shape = |b: &Body| -> Box<dyn parry3d_f64::shape::Shape> {
             match b.shape {
@@ -706,6 +714,48 @@ mod tests {
         assert!(!cyl.contains_point(&beyond_end) && cap.contains_point(&beyond_end));
         assert!(cyl.contains_point(&[0.09, 0.0, 0.5]));
         assert!((cyl.inner_radius_at(0.02) - 0.02).abs() < 1e-12);
+    }
+
+    #[test]
+    fn body_pairs_agree_with_gjk() {
+        let mut rng = Rng::new(52);
+        let (mut hits, mut shortcut) = (0, 0);
+        for i in 0..20_000 {
+            let mut v = || rng.uniform(-0.3, 0.3);
+            let mut body = |k: usize| {
+                let (a, b, r) = ([v(), v(), v()], [v(), v(), v()], 0.02 + v().abs() * 0.3);
+                if (i + k) % 3 == 0 {
+                    Body::capsule(a, b, r)
+                } else {
+                    Body::cylinder(a, b, r)
+                }
+            };
+            let (x, y) = (body(0), body(1));
+            let parry = |b: &Body| -> (Isometry3<f64>, Box<dyn parry3d_f64::shape::Shape>) {
+                match b.shape {
+                    BodyShape::Capsule => (
+                        Isometry3::identity(),
+                        Box::new(ParryCapsule::new(
+                            Point3::from(b.axis.a),
+                            Point3::from(b.axis.b),
+                            b.axis.radius,
+                        )),
+                    ),
+                    BodyShape::Cylinder => (b.parry_pose(), Box::new(b.cylinder_shape())),
+                }
+            };
+            let ((px, sx), (py, sy)) = (parry(&x), parry(&y));
+            let gap = query::distance(&px, sx.as_ref(), &py, sy.as_ref()).unwrap();
+            let ours = x.intersects(&y);
+            // GJK's tolerance: only near-touching pairs may differ.
+            if ours != (gap <= 0.0) {
+                assert!(gap.abs() < 1e-6, "gap {gap} but ours says {ours}");
+            }
+            hits += usize::from(ours);
+            let (_, s, t) = segment_segment_closest(&x.axis.a, &x.axis.b, &y.axis.a, &y.axis.b);
+            shortcut += usize::from(ours && s > 0.0 && s < 1.0 && t > 0.0 && t < 1.0);
+        }
+        assert!(hits > 2000 && shortcut > 1000, "{hits} {shortcut}");
     }
 
     #[test]
