@@ -724,7 +724,7 @@ mod tests {
             let mut v = || rng.uniform(-0.3, 0.3);
             let mut body = |k: usize| {
                 let (a, b, r) = ([v(), v(), v()], [v(), v(), v()], 0.02 + v().abs() * 0.3);
-                if (i + k) % 3 == 0 {
+                if (i + k).is_multiple_of(3) {
                     Body::capsule(a, b, r)
                 } else {
                     Body::cylinder(a, b, r)
