@@ -48,12 +48,16 @@ pub enum ContactStep {
     },
 }
 
+/// A pair left for the iterative query: lower bound, tag, body, box centre and half
+/// sizes, the enclosing capsule's contact.
+type Waiting<T> = (f64, T, Body, [f64; 3], [f64; 3], BodyBoxContact);
+
 /// The nearest of many body–box pairs, offered in any order: closed-form contacts
 /// count at once; iterative ones wait, and in the end only those whose lower bound
 /// can still beat the best are computed, most promising first.
 pub struct NearestContact<T: Copy> {
     best: Option<(T, BodyBoxContact)>,
-    waiting: Vec<(f64, T, Body, [f64; 3], BodyBoxContact)>,
+    waiting: Vec<Waiting<T>>,
 }
 
 impl<T: Copy> Default for NearestContact<T> {
@@ -93,20 +97,20 @@ impl<T: Copy> NearestContact<T> {
             } => {
                 if lower_bound < self.limit() {
                     self.waiting
-                        .push((lower_bound, tag, *body, *center, capsule));
+                        .push((lower_bound, tag, *body, *center, *half, capsule));
                 }
             }
         }
     }
 
     /// The nearest pair: its tag and contact (None if nothing was offered).
-    pub fn finish(&mut self, half: &[f64; 3]) -> Option<(T, BodyBoxContact)> {
+    pub fn finish(&mut self) -> Option<(T, BodyBoxContact)> {
         self.waiting.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        for &(bound, tag, body, center, capsule) in &self.waiting {
+        for &(bound, tag, body, center, half, capsule) in &self.waiting {
             if bound >= self.best.map_or(f64::INFINITY, |(_, c)| c.distance) {
                 break;
             }
-            let contact = body.cylinder_end_contact(&center, half, capsule);
+            let contact = body.cylinder_end_contact(&center, &half, capsule);
             if contact.distance < self.best.map_or(f64::INFINITY, |(_, c)| c.distance) {
                 self.best = Some((tag, contact));
             }
@@ -252,7 +256,7 @@ impl Body {
         if centre_inside {
             return true;
         }
-        let (d2, t, _) = segment_box_closest(&c.a, &c.b, center, half);
+        let (d2, t, q) = segment_box_closest(&c.a, &c.b, center, half);
         if d2 > r * r {
             return false;
         }
@@ -272,17 +276,26 @@ impl Body {
         let d = Vector3::new(c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]);
         let len = d.norm();
         if len == 0.0 {
-            return false;
+            // A flat cylinder of no length: only its centre point is certain.
+            return d2 <= 0.0;
         }
-        let u = d / len;
         let end = Vector3::from(if t <= 0.0 { c.a } else { c.b });
+        let inward = if t <= 0.0 { d / len } else { -d / len };
+        // Rounding can put t on an end when f is flat there (a box face on the end
+        // plane): the closest box point then lies inside the slab, within r of the end,
+        // so inside the cylinder.
+        let axial = inward.dot(&(Vector3::from(q) - end));
+        if axial >= 0.0 && axial <= len {
+            return true;
+        }
         // Most often the box lies wholly beyond the end plane, in the enclosing
-        // capsule's cap.
-        let height = u.dot(&(Vector3::from(*center) - end));
-        let spread = u.x.abs() * half[0] + u.y.abs() * half[1] + u.z.abs() * half[2];
+        // capsule's cap (not wholly inside: its closest point is not).
+        let height = inward.dot(&(Vector3::from(*center) - end));
+        let spread = inward.x.abs() * half[0] + inward.y.abs() * half[1] + inward.z.abs() * half[2];
         if height.abs() > spread {
             return false;
         }
+        let u = inward;
         disc_meets_box(&end, &u, r, center, half)
     }
 
@@ -714,6 +727,61 @@ mod tests {
         assert!(!cyl.contains_point(&beyond_end) && cap.contains_point(&beyond_end));
         assert!(cyl.contains_point(&[0.09, 0.0, 0.5]));
         assert!((cyl.inner_radius_at(0.02) - 0.02).abs() < 1e-12);
+    }
+
+    #[test]
+    fn box_faces_on_an_end_plane() {
+        // Regressions from review: a box inside the slab whose face lies on the end plane
+        // (the closest axis point then rounds onto the end) overlaps by millimetres.
+        let body = Body::cylinder([0.42, 0.3, -0.5], [0.42, 0.3, 0.07500000000000001], 0.01);
+        assert!(body.overlaps_box(&[0.4375, 0.3125, 0.0625], &[0.0125; 3]));
+        let mut rng = Rng::new(61);
+        let half = [0.02; 3];
+        let mut overlapping = 0;
+        for _ in 0..20_000 {
+            // Axis along a grid direction, ending on a box face, offset across.
+            let axis = rng.uniform(0.0, 3.0) as usize % 3;
+            let (i, j) = ((axis + 1) % 3, (axis + 2) % 3);
+            let mut a = [0.0; 3];
+            let mut b = [0.0; 3];
+            let face = 0.02 * (rng.uniform(-3.0, 3.0).round()) + 0.02;
+            a[axis] = face - rng.uniform(0.05, 0.5);
+            b[axis] = face;
+            for k in [i, j] {
+                let v = rng.uniform(-0.1, 0.1);
+                a[k] = v;
+                b[k] = v;
+            }
+            let body = Body::cylinder(a, b, rng.uniform(0.005, 0.08));
+            let mut center = [0.0; 3];
+            center[axis] = face - 0.02;
+            for k in [i, j] {
+                center[k] = 0.04 * (rng.uniform(-3.0, 3.0).round());
+            }
+            let cuboid = Cuboid::new(Vector3::from(half));
+            let pose = Isometry3::translation(center[0], center[1], center[2]);
+            let contact = query::contact(
+                &body.parry_pose(),
+                &body.cylinder_shape(),
+                &pose,
+                &cuboid,
+                0.0,
+            )
+            .unwrap();
+            let depth = contact.map_or(0.0, |c| -c.dist);
+            if depth > 1e-9 {
+                overlapping += 1;
+                assert!(
+                    body.overlaps_box(&center, &half),
+                    "{body:?} {center:?} depth {depth}"
+                );
+            }
+        }
+        assert!(overlapping > 2000, "{overlapping}");
+        // A cylinder of no length: its centre point.
+        let flat = Body::cylinder([0.0; 3], [0.0; 3], 0.1);
+        assert!(flat.overlaps_box(&[0.4, 0.0, 0.0], &[0.5; 3]));
+        assert!(!flat.overlaps_box(&[2.0, 0.0, 0.0], &[0.5; 3]));
     }
 
     #[test]

@@ -340,7 +340,7 @@ pub fn clearances_to_boxes(
                         }
                     }
                 }
-                Ok(nearest.finish(&half).map(|(link, contact)| {
+                Ok(nearest.finish().map(|(link, contact)| {
                     (
                         link,
                         Clearance {

@@ -624,7 +624,7 @@ impl VoxelIndex {
             }
             nearest.offer(tag, &bodies[tag], &self.center_of(cell as usize), &half);
         }
-        Ok(nearest.finish(&half).map(|(tag, contact)| {
+        Ok(nearest.finish().map(|(tag, contact)| {
             (
                 tag,
                 Clearance {
@@ -878,6 +878,27 @@ mod tests {
                     && got.distance <= brute + index.clearance_error_bound()
             );
         }
+    }
+
+    #[test]
+    fn box_on_an_end_plane_through_the_index() {
+        // Review regression: a cylinder whose end plane holds a box face, the box inside
+        // its slab and radius (1 cm and 5.6 mm deep).
+        let mut index = VoxelIndex::empty(0.02, [0.0; 3], 1.2).unwrap();
+        index.mark_box([3, -2, 5], [3, -2, 5]);
+        index.compute_distance_field();
+        let body = Body::cylinder([0.07, 0.25, 0.14], [0.07, -0.04, 0.14], 0.03);
+        assert!(index.body_collides_exact(&body));
+        let body = Body::cylinder(
+            [
+                0.12574691552605238,
+                0.25091236621507573,
+                0.07503363052454111,
+            ],
+            [0.12574691552605238, -0.04, 0.07503363052454111],
+            0.05776308886024466,
+        );
+        assert!(index.body_collides(&body).unwrap());
     }
 
     #[test]
