@@ -107,11 +107,11 @@ impl<T: Copy> NearestContact<T> {
     pub fn finish(&mut self) -> Option<(T, BodyBoxContact)> {
         self.waiting.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         for &(bound, tag, body, center, half, capsule) in &self.waiting {
-            if bound >= self.best.map_or(f64::INFINITY, |(_, c)| c.distance) {
+            if bound >= self.limit() {
                 break;
             }
             let contact = body.cylinder_end_contact(&center, &half, capsule);
-            if contact.distance < self.best.map_or(f64::INFINITY, |(_, c)| c.distance) {
+            if contact.distance < self.limit() {
                 self.best = Some((tag, contact));
             }
         }
@@ -273,30 +273,24 @@ impl Body {
         // (the segment from a shared point to the closest box point, which lies within r
         // of the end and not inside the cylinder's slab, crosses the disc), so the disc
         // decides.
-        let d = Vector3::new(c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]);
-        let len = d.norm();
-        if len == 0.0 {
+        let Some((end, outward, len)) = self.flat_end(t) else {
             // A flat cylinder of no length: only its centre point is certain.
             return d2 <= 0.0;
-        }
-        let end = Vector3::from(if t <= 0.0 { c.a } else { c.b });
-        let inward = if t <= 0.0 { d / len } else { -d / len };
+        };
         // Rounding can put t on an end when f is flat there (a box face on the end
         // plane): the closest box point then lies inside the slab, within r of the end,
         // so inside the cylinder.
-        let axial = inward.dot(&(Vector3::from(q) - end));
+        let axial = -outward.dot(&(Vector3::from(q) - end));
         if axial >= 0.0 && axial <= len {
             return true;
         }
         // Most often the box lies wholly beyond the end plane, in the enclosing
         // capsule's cap (not wholly inside: its closest point is not).
-        let height = inward.dot(&(Vector3::from(*center) - end));
-        let spread = inward.x.abs() * half[0] + inward.y.abs() * half[1] + inward.z.abs() * half[2];
-        if height.abs() > spread {
+        let height = outward.dot(&(Vector3::from(*center) - end));
+        if height.abs() > box_spread(&outward, half) {
             return false;
         }
-        let u = inward;
-        disc_meets_box(&end, &u, r, center, half)
+        disc_meets_box(&end, &outward, r, center, half)
     }
 
     /// Distance to the box and the closest points; negative when they overlap (then
@@ -387,22 +381,15 @@ impl Body {
         half: &[f64; 3],
     ) -> Option<BodyBoxContact> {
         let gap = self.end_plane_gap(t, center, half);
-        let c = &self.axis;
-        let d = Vector3::new(c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]);
-        let len = d.norm();
-        if !(gap > 0.0 && len > 0.0) {
+        let (end, outward, _) = self.flat_end(t)?;
+        if gap.is_nan() || gap <= 0.0 {
             return None;
         }
-        let (end, outward) = if t <= 0.0 {
-            (Vector3::from(c.a), -d / len)
-        } else {
-            (Vector3::from(c.b), d / len)
-        };
         // The box's side facing the end: its section by the plane at the gap.
         let on_box = plane_section_nearest(&(end + outward * gap), &outward, center, half)?;
         let w = on_box - end;
         let across = w - outward * outward.dot(&w);
-        if across.norm_squared() > c.radius * c.radius {
+        if across.norm_squared() > self.axis.radius * self.axis.radius {
             return None;
         }
         let on_body = end + across;
@@ -416,16 +403,27 @@ impl Body {
     /// How far the box lies beyond the cylinder's end plane at `t` (0: end a, 1: end b),
     /// 0 when it reaches the slab between the planes.
     fn end_plane_gap(&self, t: f64, center: &[f64; 3], half: &[f64; 3]) -> f64 {
-        let c = &self.axis;
-        let d = [c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]];
-        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        if len == 0.0 {
+        let Some((end, outward, _)) = self.flat_end(t) else {
             return 0.0;
+        };
+        let height = outward.dot(&(Vector3::from(*center) - end));
+        (height - box_spread(&outward, half)).max(0.0)
+    }
+
+    /// The end at `t` (0: a, 1: b) of a cylinder of some length: its centre, the unit
+    /// normal pointing out of the cylinder there, and the length.
+    fn flat_end(&self, t: f64) -> Option<(Vector3<f64>, Vector3<f64>, f64)> {
+        let c = &self.axis;
+        let d = Vector3::new(c.b[0] - c.a[0], c.b[1] - c.a[1], c.b[2] - c.a[2]);
+        let len = d.norm();
+        if len == 0.0 {
+            return None;
         }
-        let (end, outward) = if t <= 0.0 { (&c.a, -1.0) } else { (&c.b, 1.0) };
-        let height: f64 = (0..3).map(|i| (center[i] - end[i]) * d[i]).sum::<f64>() * outward / len;
-        let spread: f64 = (0..3).map(|i| d[i].abs() * half[i]).sum::<f64>() / len;
-        (height - spread).max(0.0)
+        Some(if t <= 0.0 {
+            (Vector3::from(c.a), -d / len, len)
+        } else {
+            (Vector3::from(c.b), d / len, len)
+        })
     }
 
     /// Do two bodies touch?
@@ -472,6 +470,12 @@ impl Body {
         )
         .unwrap_or(true)
     }
+}
+
+/// Half the extent of the box along the unit direction `u`.
+#[inline]
+fn box_spread(u: &Vector3<f64>, half: &[f64; 3]) -> f64 {
+    u.x.abs() * half[0] + u.y.abs() * half[1] + u.z.abs() * half[2]
 }
 
 /// The point of the box's section by the plane through `e` with unit normal `u`

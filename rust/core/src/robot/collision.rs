@@ -340,16 +340,9 @@ pub fn clearances_to_boxes(
                         }
                     }
                 }
-                Ok(nearest.finish().map(|(link, contact)| {
-                    (
-                        link,
-                        Clearance {
-                            distance: contact.distance,
-                            on_body: contact.on_body,
-                            on_obstacle: contact.on_box,
-                        },
-                    )
-                }))
+                Ok(nearest
+                    .finish()
+                    .map(|(link, contact)| (link, contact.into())))
             })
             .collect()
     })

@@ -11,7 +11,7 @@
 use crate::error::{Error, Result};
 use crate::floor::fast_floor;
 use crate::octree::{OcTree, OcTreeKey, TREE_DEPTH};
-use crate::robot::body::{Body, NearestContact};
+use crate::robot::body::{Body, BodyBoxContact, NearestContact};
 use crate::robot::capsule::point_segment_distance_squared;
 
 const NONE: u32 = u32::MAX;
@@ -65,6 +65,16 @@ impl UndecidedRuns {
             self.len += 1;
         } else {
             self.overflow = true;
+        }
+    }
+}
+
+impl From<BodyBoxContact> for Clearance {
+    fn from(contact: BodyBoxContact) -> Self {
+        Clearance {
+            distance: contact.distance,
+            on_body: contact.on_body,
+            on_obstacle: contact.on_box,
         }
     }
 }
@@ -624,16 +634,7 @@ impl VoxelIndex {
             }
             nearest.offer(tag, &bodies[tag], &self.center_of(cell as usize), &half);
         }
-        Ok(nearest.finish().map(|(tag, contact)| {
-            (
-                tag,
-                Clearance {
-                    distance: contact.distance,
-                    on_body: contact.on_body,
-                    on_obstacle: contact.on_box,
-                },
-            )
-        }))
+        Ok(nearest.finish().map(|(tag, contact)| (tag, contact.into())))
     }
 
     /// Clearance of one body (see `bodies_clearance`).
