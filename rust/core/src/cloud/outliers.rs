@@ -366,11 +366,8 @@ impl Searcher {
         if found <= k {
             return None;
         }
-        let nearest = keep_smallest(&mut self.near[..found], k + 1);
-        // Non-negative doubles order as their bit patterns.
-        let kth_d2 = f64::from_bits(nearest.iter().copied().max().unwrap_or(0));
+        let (sum, kth_d2) = smallest_roots(&mut self.near[..found], k + 1);
         self.guess = kth_d2 * 1.1;
-        let sum = nearest.iter().map(|&b| f64::from_bits(b).sqrt()).sum();
         Some((sum, kth_d2))
     }
 
@@ -530,21 +527,79 @@ mod avx2 {
         }
         super::within_from(coords, q, t, out, i, n)
     }
-}
 
-/// The `n` smallest values of `v` (moved to its front). Usually only a few values
-/// are too many: dropping the largest one at a time beats a general selection there.
-fn keep_smallest(v: &mut [u64], n: usize) -> &[u64] {
-    if v.len() > n + 4 {
-        v.select_nth_unstable(n - 1);
-        return &v[..n];
+    /// `super::smallest_roots` after its selection, four values at a time: drop
+    /// the largest value until `n` are left, then sum their square roots.
+    #[target_feature(enable = "avx2")]
+    pub(super) fn smallest_roots(v: &mut [u64], n: usize) -> (f64, f64) {
+        let mut len = v.len();
+        loop {
+            let top = largest(&v[..len]);
+            if len == n {
+                return (root_sum(&v[..n]), f64::from_bits(top));
+            }
+            let at = v[..len].iter().rposition(|&x| x == top).unwrap_or(len - 1);
+            v.swap(at, len - 1);
+            len -= 1;
+        }
     }
-    drop_largest(v, n);
-    &v[..n]
+
+    /// The largest of non-negative doubles' bit patterns (0 for none).
+    #[target_feature(enable = "avx2")]
+    fn largest(v: &[u64]) -> u64 {
+        let mut top = _mm256_setzero_pd();
+        let chunks = v.chunks_exact(4);
+        let tail = chunks.remainder();
+        for c in chunks {
+            // SAFETY: `c` holds four u64s, read as four doubles.
+            top = _mm256_max_pd(top, unsafe { _mm256_loadu_pd(c.as_ptr().cast()) });
+        }
+        let mut lanes = [0.0; 4];
+        // SAFETY: `lanes` holds four doubles.
+        unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), top) };
+        let top = lanes.iter().fold(0.0f64, |m, &x| m.max(x)).to_bits();
+        tail.iter().fold(top, |m, &x| m.max(x))
+    }
+
+    /// The sum of the square roots of non-negative doubles' bit patterns.
+    #[target_feature(enable = "avx2")]
+    fn root_sum(v: &[u64]) -> f64 {
+        let mut sum = _mm256_setzero_pd();
+        let chunks = v.chunks_exact(4);
+        let tail = chunks.remainder();
+        for c in chunks {
+            // SAFETY: `c` holds four u64s, read as four doubles.
+            let x = unsafe { _mm256_loadu_pd(c.as_ptr().cast()) };
+            sum = _mm256_add_pd(sum, _mm256_sqrt_pd(x));
+        }
+        let mut lanes = [0.0; 4];
+        // SAFETY: `lanes` holds four doubles.
+        unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), sum) };
+        lanes.iter().sum::<f64>() + tail.iter().map(|&b| f64::from_bits(b).sqrt()).sum::<f64>()
+    }
 }
 
-/// Moves the `v.len() - n` largest values of `v` behind the others, one at a time.
-fn drop_largest(v: &mut [u64], n: usize) {
+/// Of the `n` smallest values of `v` (squared distances as bit patterns: non-negative
+/// doubles order as their bits), the sum of their square roots and the largest.
+/// Usually only a few values are too many: dropping the largest one at a time beats
+/// a general selection there.
+fn smallest_roots(v: &mut [u64], n: usize) -> (f64, f64) {
+    let v = if v.len() > n + 12 {
+        v.select_nth_unstable(n - 1);
+        &mut v[..n]
+    } else {
+        v
+    };
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has the feature the function is compiled for.
+        return unsafe { avx2::smallest_roots(v, n) };
+    }
+    smallest_roots_scalar(v, n)
+}
+
+/// `smallest_roots` after its selection, one value at a time.
+fn smallest_roots_scalar(v: &mut [u64], n: usize) -> (f64, f64) {
     let mut len = v.len();
     while len > n {
         let (at, _) =
@@ -555,6 +610,9 @@ fn drop_largest(v: &mut [u64], n: usize) {
         v.swap(at, len - 1);
         len -= 1;
     }
+    let kept = &v[..n];
+    let sum = kept.iter().map(|&b| f64::from_bits(b).sqrt()).sum();
+    (sum, f64::from_bits(kept.iter().copied().max().unwrap_or(0)))
 }
 
 #[cfg(test)]
@@ -700,6 +758,26 @@ mod tests {
                 slow.resize(len, 0);
                 let m = within_from(&block.coords, q, t, &mut slow[..len], 0, 0);
                 assert_eq!(fast[..n], slow[..m], "len {len}, t {t}");
+            }
+        }
+    }
+
+    #[test]
+    fn vector_sums_equal_scalar_sums() {
+        let mut rng = Rng::new(14);
+        for n in [1, 3, 4, 21, 22] {
+            for extra in 0..=14 {
+                let values: Vec<u64> = (0..n + extra)
+                    .map(|_| ((rng.uniform(0.0, 8.0)).round() * 0.125).to_bits())
+                    .collect();
+                let mut sorted = values.clone();
+                sorted.sort_unstable();
+                let want: f64 = sorted[..n].iter().map(|&b| f64::from_bits(b).sqrt()).sum();
+                let (sum, kth) = smallest_roots(&mut values.clone(), n);
+                let (slow_sum, slow_kth) = smallest_roots_scalar(&mut values.clone(), n);
+                assert_eq!(kth, f64::from_bits(sorted[n - 1]));
+                assert_eq!(slow_kth, kth);
+                assert!((sum - want).abs() < 1e-12 && (slow_sum - want).abs() < 1e-12);
             }
         }
     }

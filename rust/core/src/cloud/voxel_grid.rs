@@ -7,10 +7,10 @@ use std::hash::Hash;
 use rustc_hash::FxHashMap;
 
 use crate::error::{Error, Result};
-use crate::floor::cell_of;
+use crate::floor::floor_i64;
 
-/// Cells per axis a packed key can tell apart (21 bits each in one u64).
-const PACKED_SPAN: i64 = 1 << 21;
+/// Packed keys hold cells -2^20..2^20 per axis, 21 bits each in one u64.
+const PACKED_OFFSET: i64 = 1 << 20;
 
 /// Returns the centroids (in order of each voxel's first point) and, when `values`
 /// (`stride` numbers per point) are given, their per-voxel means.
@@ -32,82 +32,86 @@ pub fn voxel_downsample(
             )));
         }
     }
-    if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err(Error::InvalidArgument(format!(
-            "point {i} {:?} is not finite",
-            points[i]
-        )));
-    }
+    crate::geometry::check_finite(points, "point")?;
     let inv = 1.0 / voxel_size;
-    let mut lo = [i64::MAX; 3];
-    let mut hi = [i64::MIN; 3];
-    for p in points {
-        let c = cell_of(p, inv);
-        for a in 0..3 {
-            lo[a] = lo[a].min(c[a]);
-            hi[a] = hi[a].max(c[a]);
-        }
-    }
-    // A u64 key hashes and compares faster, and halves the table (it stays in cache).
-    let packs = (0..3).all(|a| hi[a].saturating_sub(lo[a]) < PACKED_SPAN);
-    if packs {
-        accumulate(points, values, |p| {
-            let c = cell_of(p, inv);
-            ((c[0] - lo[0]) as u64) << 42 | ((c[1] - lo[1]) as u64) << 21 | (c[2] - lo[2]) as u64
-        })
-    } else {
-        accumulate(points, values, |p| cell_of(p, inv))
-    }
+    // A u64 key hashes and compares faster, and halves the table (it stays in cache);
+    // cells beyond its span (±2^20 per axis) take the general key.
+    let packed = accumulate(points, values, inv, |c| {
+        let [x, y, z] = c.map(|v| (v + PACKED_OFFSET) as u64);
+        ((x | y | z) < 1 << 21).then_some(x << 42 | y << 21 | z)
+    });
+    Ok(packed.unwrap_or_else(|| {
+        accumulate(points, values, inv, Some).expect("every cell has a general key")
+    }))
 }
 
-/// Sums per key, in order of each key's first point, then means.
+/// Sums per voxel, in order of each voxel's first point, then means; `None` as soon
+/// as a cell has no key.
 fn accumulate<K: Copy + Eq + Hash>(
     points: &[[f64; 3]],
     values: Option<(&[f64], usize)>,
-    key_of: impl Fn(&[f64; 3]) -> K,
-) -> Result<(Vec<[f64; 3]>, Vec<f64>)> {
-    let stride = values.map_or(0, |(_, s)| s);
+    inv: f64,
+    key_of: impl Fn([i64; 3]) -> Option<K>,
+) -> Option<(Vec<[f64; 3]>, Vec<f64>)> {
     let mut slot_of: FxHashMap<K, u32> = FxHashMap::default();
-    let mut sums: Vec<[f64; 3]> = Vec::new();
-    let mut counts: Vec<u32> = Vec::new();
-    let mut value_sums: Vec<f64> = Vec::new();
-    let mut last: Option<(K, usize)> = None;
-    for (i, p) in points.iter().enumerate() {
-        let key = key_of(p);
-        // Points of a depth image come row by row: the previous point's voxel is
-        // often this one's too, and comparing keys is cheaper than hashing them.
-        let slot = if let Some((_, slot)) = last.filter(|(k, _)| *k == key) {
-            slot
-        } else {
-            let next = sums.len() as u32;
-            let slot = *slot_of.entry(key).or_insert(next) as usize;
-            last = Some((key, slot));
-            slot
-        };
-        if slot == sums.len() {
-            sums.push([0.0; 3]);
-            counts.push(0);
-            value_sums.resize(value_sums.len() + stride, 0.0);
-        }
-        for a in 0..3 {
-            sums[slot][a] += p[a];
-        }
-        counts[slot] += 1;
-        if let Some((v, s)) = values {
-            for j in 0..s {
-                value_sums[slot * s + j] += v[i * s + j];
+    // Per voxel the sums of x, y and z and the number of points.
+    let mut voxels: Vec<[f64; 4]> = Vec::new();
+    // Every point's voxel, kept only when values are averaged too.
+    let mut slots: Vec<u32> = Vec::with_capacity(if values.is_some() { points.len() } else { 0 });
+    // The current voxel as [lo, lo + 1) in cell units per axis (NaN: none yet).
+    // Points of a depth image come row by row: the previous point's voxel is often
+    // this one's too, and two comparisons per axis are cheaper than a key and a hash.
+    let mut lo = [f64::NAN; 3];
+    let mut hi = [f64::NAN; 3];
+    let mut slot = 0;
+    for p in points {
+        let v = [p[0] * inv, p[1] * inv, p[2] * inv];
+        let inside = (v[0] >= lo[0])
+            & (v[0] < hi[0])
+            & (v[1] >= lo[1])
+            & (v[1] < hi[1])
+            & (v[2] >= lo[2])
+            & (v[2] < hi[2]);
+        if !inside {
+            let cell = v.map(floor_i64);
+            let next = voxels.len() as u32;
+            slot = *slot_of.entry(key_of(cell)?).or_insert(next) as usize;
+            if slot == voxels.len() {
+                voxels.push([0.0; 4]);
             }
+            lo = cell.map(|c| c as f64);
+            hi = lo.map(|c| c + 1.0);
+        }
+        let sums = &mut voxels[slot];
+        sums[0] += p[0];
+        sums[1] += p[1];
+        sums[2] += p[2];
+        sums[3] += 1.0;
+        if values.is_some() {
+            slots.push(slot as u32);
         }
     }
-    let centroids = sums
+    let centroids = voxels
         .iter()
-        .zip(&counts)
-        .map(|(s, &c)| s.map(|x| x / f64::from(c)))
+        .map(|s| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
         .collect();
-    for (slot, &c) in counts.iter().enumerate() {
-        for j in 0..stride {
-            value_sums[slot * stride + j] /= f64::from(c);
+    let means = match values {
+        None => Vec::new(),
+        Some((v, stride)) => {
+            let mut sums = vec![0.0; voxels.len() * stride];
+            for (row, &slot) in v.chunks_exact(stride.max(1)).zip(&slots) {
+                let at = slot as usize * stride;
+                for (sum, x) in sums[at..at + stride].iter_mut().zip(row) {
+                    *sum += x;
+                }
+            }
+            for (voxel, sums) in voxels.iter().zip(sums.chunks_exact_mut(stride.max(1))) {
+                for x in sums {
+                    *x /= voxel[3];
+                }
+            }
+            sums
         }
-    }
-    Ok((centroids, value_sums))
+    };
+    Some((centroids, means))
 }
