@@ -53,7 +53,9 @@ fn accumulate<K: Copy + Eq + Hash>(
     inv: f64,
     key_of: impl Fn([i64; 3]) -> Option<K>,
 ) -> Option<(Vec<[f64; 3]>, Vec<f64>)> {
-    let mut slot_of: FxHashMap<K, u32> = FxHashMap::default();
+    // Room for a voxel per 8 points from the start: growing the table rehashes it.
+    let mut slot_of: FxHashMap<K, u32> =
+        FxHashMap::with_capacity_and_hasher(points.len() / 8, Default::default());
     // Per voxel the sums of x, y and z and the number of points.
     let mut voxels: Vec<[f64; 4]> = Vec::new();
     // Every point's voxel, kept only when values are averaged too.
