@@ -26,7 +26,7 @@ __all__ = [
     "benchmark_frame",
     "render_lidar_scan",
     "depth_to_points_raw",
-    "crop_indices",
+    "crop_raw",
     "statistical_outlier_indices",
     "voxel_downsample_raw",
     "estimate_normals",
@@ -261,13 +261,13 @@ def depth_to_points_raw(
     max_depth: float | None = None,
     base_from_camera: _ArrayLike | None = None,
 ) -> tuple[_F64, npt.NDArray[np.uint32]]: ...
-def crop_indices(
+def crop_raw(
     points: _ArrayLike,
     center: _ArrayLike | None = None,
     radius: float | None = None,
     box_min: _ArrayLike | None = None,
     box_max: _ArrayLike | None = None,
-) -> npt.NDArray[np.uint32]: ...
+) -> tuple[_F64, npt.NDArray[np.uint32]]: ...
 def statistical_outlier_indices(
     points: _ArrayLike, k: int = 20, std_ratio: float = 2.0
 ) -> tuple[npt.NDArray[np.uint32], _F64]: ...

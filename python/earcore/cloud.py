@@ -71,8 +71,7 @@ def crop(
 ):
     """Keep the points within `radius` of `center` (Paper II: 1.5 m around the robot
     base), or inside the box [`box_min`, `box_max`] when both are given."""
-    idx = _earcore.crop_indices(points, center, radius, box_min, box_max)
-    kept = _rows(points, idx)
+    kept, idx = _earcore.crop_raw(points, center, radius, box_min, box_max)
     return (kept, idx) if return_index else kept
 
 

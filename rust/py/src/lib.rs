@@ -49,7 +49,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(synthetic::robot_cell_voxels, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_lidar_scan, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::depth_to_points_raw, m)?)?;
-    m.add_function(wrap_pyfunction!(cloud::crop_indices, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::crop_raw, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::statistical_outlier_indices, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::voxel_downsample_raw, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::estimate_normals, m)?)?;

@@ -575,7 +575,8 @@ mod avx2 {
         for c in chunks {
             // SAFETY: as above.
             let x = unsafe { _mm256_loadu_pd(c.as_ptr().cast()) };
-            count += _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(x, wanted)).count_ones() as usize;
+            count +=
+                _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(x, wanted)).count_ones() as usize;
         }
         count += tail.iter().filter(|&&b| f64::from_bits(b) == top).count();
         (top, count)
@@ -619,7 +620,8 @@ fn smallest_roots(v: &mut [u64], n: usize) -> (f64, f64) {
         v
     };
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("popcnt") {
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("popcnt")
+    {
         // SAFETY: the CPU has the features the function is compiled for.
         return unsafe { avx2::smallest_roots(v, n) };
     }
