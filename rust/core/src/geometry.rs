@@ -65,11 +65,14 @@ pub fn transform_points(m: &Matrix4<f64>, points: &mut [[f64; 3]]) {
 }
 
 /// Eigenvalues (ascending) of a symmetric 3×3 matrix, and a unit eigenvector of the
-/// smallest, in closed form (trigonometric solution of the characteristic cubic;
-/// eigenvector from the largest cross product of two rows of A − λI). About ten
-/// times faster than an iterative solver; used for normals, where the smallest
-/// eigenvalue is well separated whenever its eigenvector matters. Eigenvalues are
-/// accurate to ~1e-8 relative (repeated eigenvalues lose about half the digits).
+/// smallest, in closed form: the smallest root of the characteristic cubic by Newton's
+/// method from below, the other two from the remaining quadratic; where that root is
+/// (nearly) repeated, so Newton crawls, the trigonometric solution instead. The
+/// eigenvector is the largest cross product of two rows of A − λI. About ten times
+/// faster than an iterative solver (covariances of surface points, the callers, have a
+/// well separated smallest eigenvalue and settle in two or three steps); used for
+/// normals and for the surface map's plane test. Eigenvalues are accurate to ~1e-8
+/// relative (repeated eigenvalues lose about half the digits).
 pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Vector3<f64>) {
     use crate::na::Vector3;
     let off = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
@@ -86,16 +89,9 @@ pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Ve
         v[min] = 1.0;
         return (values, v);
     }
-    let p = (spread / 6.0).sqrt();
-    let b = (a - crate::na::Matrix3::identity() * q) / p;
-    let r = (b.determinant() / 2.0).clamp(-1.0, 1.0);
-    let phi = r.acos() / 3.0;
-    // cos(φ + 2π/3) = −(cos φ + √3 sin φ) / 2: one sin_cos instead of two cosines.
-    let (sin, cos) = phi.sin_cos();
-    let largest = q + 2.0 * p * cos;
-    let smallest = q - p * (cos + 3f64.sqrt() * sin);
-    let middle = 3.0 * q - largest - smallest;
-    let m = a - crate::na::Matrix3::identity() * smallest;
+    let values =
+        cubic_roots_by_newton(a, q, spread).unwrap_or_else(|| cubic_roots_by_angle(a, q, spread));
+    let m = a - crate::na::Matrix3::identity() * values[0];
     let rows = [
         m.row(0).transpose(),
         m.row(1).transpose(),
@@ -116,7 +112,81 @@ pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Ve
     } else {
         Vector3::x()
     };
-    ([smallest, middle, largest], v)
+    (values, v)
+}
+
+/// The eigenvalues of `symmetric_eigen3` from λ³ − tλ² + sλ − d (t the trace, s the
+/// sum of the principal 2×2 minors, d the determinant). Left of its smallest root a
+/// real-rooted cubic rises and bends down, so Newton's steps from there climb to the
+/// root without passing it. `None` when they have not arrived within a few steps (a
+/// root repeated or nearly so).
+fn cubic_roots_by_newton(a: &crate::na::Matrix3<f64>, q: f64, spread: f64) -> Option<[f64; 3]> {
+    let t = a.trace();
+    let s = a[(0, 0)] * a[(1, 1)] + a[(0, 0)] * a[(2, 2)] + a[(1, 1)] * a[(2, 2)]
+        - a[(0, 1)].powi(2)
+        - a[(0, 2)].powi(2)
+        - a[(1, 2)].powi(2);
+    let d = a.determinant();
+    // All roots lie within sqrt(spread) of their mean q; with t, s, d >= 0 none is
+    // negative (Descartes' rule for a real-rooted cubic), so 0 is a start below them.
+    let radius = spread.sqrt();
+    let mut x = if t >= 0.0 && s >= 0.0 && d >= 0.0 {
+        (q - radius).max(0.0)
+    } else {
+        q - radius
+    };
+    let tolerance = 4.0 * f64::EPSILON * (q.abs() + radius);
+    for _ in 0..8 {
+        let p = ((x - t) * x + s) * x - d;
+        let slope = (3.0 * x - 2.0 * t) * x + s;
+        if p >= 0.0 || slope <= 0.0 {
+            break; // at the root, to rounding
+        }
+        let step = -p / slope;
+        x += step;
+        if step <= tolerance {
+            break;
+        }
+    }
+    // Converged: the polynomial is no longer clearly negative here.
+    let p = ((x - t) * x + s) * x - d;
+    let slope = (3.0 * x - 2.0 * t) * x + s;
+    if p < 0.0 && -p > slope * tolerance {
+        return None;
+    }
+    // The other two: sum t − x, product s − x(t − x); the stable quadratic formula.
+    let sum = t - x;
+    let product = s - x * sum;
+    let root = (sum * sum - 4.0 * product).max(0.0).sqrt();
+    let (middle, largest) = if sum >= 0.0 {
+        let largest = (sum + root) / 2.0;
+        (
+            if largest != 0.0 {
+                product / largest
+            } else {
+                0.0
+            },
+            largest,
+        )
+    } else {
+        let middle = (sum - root) / 2.0;
+        (middle, if middle != 0.0 { product / middle } else { 0.0 })
+    };
+    Some([x, middle.max(x), largest.max(middle)])
+}
+
+/// The eigenvalues of `symmetric_eigen3` by the trigonometric solution of the cubic.
+fn cubic_roots_by_angle(a: &crate::na::Matrix3<f64>, q: f64, spread: f64) -> [f64; 3] {
+    let p = (spread / 6.0).sqrt();
+    let b = (a - crate::na::Matrix3::identity() * q) / p;
+    let r = (b.determinant() / 2.0).clamp(-1.0, 1.0);
+    let phi = r.acos() / 3.0;
+    // cos(φ + 2π/3) = −(cos φ + √3 sin φ) / 2: one sin_cos instead of two cosines.
+    let (sin, cos) = phi.sin_cos();
+    let largest = q + 2.0 * p * cos;
+    let smallest = q - p * (cos + 3f64.sqrt() * sin);
+    let middle = 3.0 * q - largest - smallest;
+    [smallest, middle, largest]
 }
 
 /// Indices of `points` in Morton order of their position within their bounding box.
@@ -152,38 +222,45 @@ pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
 
 /// Sort `(key, index)` pairs made in input order (indices increasing) by key, equal
 /// keys in input order: the order `sort_unstable` gives, by a least-significant-digit
-/// radix sort on the key's bytes that skips the bytes all keys share (spatial codes of
-/// one scan share their high bytes). 3-5× faster than a comparison sort at 15k pairs.
+/// radix sort on 12-bit digits of the key that skips the digits all keys share (spatial
+/// codes of one scan share their high bits). 3-5× faster than a comparison sort at 15k pairs.
 pub fn sort_keyed(items: &mut [(u64, u32)]) {
+    const BITS: u32 = 12;
+    const BUCKETS: usize = 1 << BITS;
     let n = items.len();
     if n < 512 {
         items.sort_unstable();
         return;
     }
-    // The bytes in which some key differs from the first: only those need a pass.
+    // The digits in which some key differs from the first: only those need a pass.
     let first = items[0].0;
     let differs = items.iter().fold(0u64, |acc, &(k, _)| acc | (k ^ first));
-    let bytes: Vec<usize> = (0..8).filter(|b| (differs >> (8 * b)) & 255 != 0).collect();
-    let mut counts = vec![[0u32; 256]; bytes.len()];
+    let shifts: Vec<u32> = (0..64u32.div_ceil(BITS))
+        .map(|d| d * BITS)
+        .filter(|&shift| (differs >> shift) & (BUCKETS as u64 - 1) != 0)
+        .collect();
+    let digit = |key: u64, shift: u32| ((key >> shift) & (BUCKETS as u64 - 1)) as usize;
+    let mut counts = vec![[0u32; BUCKETS]; shifts.len()];
     for &(k, _) in items.iter() {
-        for (&byte, count) in bytes.iter().zip(counts.iter_mut()) {
-            count[((k >> (8 * byte)) & 255) as usize] += 1;
+        for (&shift, count) in shifts.iter().zip(counts.iter_mut()) {
+            count[digit(k, shift)] += 1;
         }
     }
     let mut scratch = vec![(0u64, 0u32); n];
     let (mut src, mut dst) = (&mut items[..], &mut scratch[..]);
     let mut in_scratch = false;
-    for (&byte, count) in bytes.iter().zip(counts.iter()) {
-        let mut offsets = [0u32; 256];
+    for (&shift, count) in shifts.iter().zip(counts.iter_mut()) {
+        // The counts become each bucket's next slot.
         let mut sum = 0;
-        for (o, &c) in offsets.iter_mut().zip(count.iter()) {
-            *o = sum;
-            sum += c;
+        for c in count.iter_mut() {
+            let here = *c;
+            *c = sum;
+            sum += here;
         }
         for &item in src.iter() {
-            let digit = ((item.0 >> (8 * byte)) & 255) as usize;
-            dst[offsets[digit] as usize] = item;
-            offsets[digit] += 1;
+            let d = digit(item.0, shift);
+            dst[count[d] as usize] = item;
+            count[d] += 1;
         }
         std::mem::swap(&mut src, &mut dst);
         in_scratch = !in_scratch;
@@ -217,6 +294,60 @@ mod tests {
             sort_keyed(&mut got);
             assert_eq!(got, expected, "n = {n}");
         }
+    }
+
+    #[test]
+    fn eigen_of_random_matrices_matches_nalgebra() {
+        // Both solutions of the cubic: Newton's (separated smallest root) and the
+        // angle's (repeated or nearly repeated smallest root, Newton stops early).
+        let mut rng = crate::synthetic::Rng::new(21);
+        let (mut by_newton, mut by_angle) = (0, 0);
+        for i in 0..4000 {
+            let base = rng.uniform(-2.0, 2.0);
+            let mut d = [
+                rng.uniform(0.0, 1.0),
+                rng.uniform(0.0, 1.0),
+                rng.uniform(0.0, 1.0),
+            ];
+            match i % 4 {
+                0 => d[1] = d[0] * (1.0 + 1e-9 * rng.unit()), // nearly repeated
+                1 => d = [0.0, d[1], d[2]],                   // singular, PSD
+                2 => d = d.map(|x| x + base),                 // any signs
+                _ => {}
+            }
+            let r = Rotation3::from_euler_angles(
+                rng.uniform(-3.0, 3.0),
+                rng.uniform(-1.5, 1.5),
+                rng.uniform(-3.0, 3.0),
+            );
+            let a = r.matrix() * Matrix3::from_diagonal(&Vector3::from(d)) * r.matrix().transpose();
+            let a = (a + a.transpose()) / 2.0;
+            let t = a.trace() / 3.0;
+            let spread = (0..3).map(|k| (a[(k, k)] - t).powi(2)).sum::<f64>()
+                + 2.0 * (a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2));
+            match cubic_roots_by_newton(&a, t, spread) {
+                Some(_) => by_newton += 1,
+                None => by_angle += 1,
+            }
+            let (values, v) = symmetric_eigen3(&a);
+            let mut reference: Vec<f64> =
+                SymmetricEigen::new(a).eigenvalues.iter().copied().collect();
+            reference.sort_by(f64::total_cmp);
+            let scale = reference[0].abs().max(reference[2].abs()).max(1e-3);
+            for k in 0..3 {
+                assert!(
+                    (values[k] - reference[k]).abs() < 1e-6 * scale,
+                    "{i}: {values:?} vs {reference:?}"
+                );
+            }
+            if reference[1] - reference[0] > 1e-3 * scale {
+                assert!((a * v - v * values[0]).norm() < 1e-7 * scale, "{i}: {d:?}");
+            }
+        }
+        assert!(
+            by_newton > 2500 && by_angle > 100,
+            "{by_newton} by Newton, {by_angle} by angle"
+        );
     }
 
     #[test]

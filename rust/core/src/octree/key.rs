@@ -4,7 +4,7 @@
 //! `double`; the conversions below keep those precisions so that a point lands in
 //! the same cell here as in OctoMap, bit for bit.
 
-use crate::floor::fast_floor;
+use crate::floor::floor_i64;
 
 /// Tree depth; OctoMap's `OcTree` is fixed at 16 levels.
 pub const TREE_DEPTH: u32 = 16;
@@ -70,16 +70,27 @@ pub(crate) fn child_runs<T>(
     })
 }
 
-/// Spread the 16 bits of `v` so that bit i lands on bit 3i.
+/// Spread the 16 bits of `v` so that bit i lands on bit 3i: two table lookups (a
+/// third of the instructions of the shift-and-mask cascade).
 #[inline]
 fn spread(v: u16) -> u64 {
-    let mut x = v as u64;
-    x = (x | (x << 16)) & 0x0000_ff00_00ff;
-    x = (x | (x << 8)) & 0x00f0_0f00_f00f;
-    x = (x | (x << 4)) & 0x0c30_c30c_30c3;
-    x = (x | (x << 2)) & 0x2492_4924_9249;
-    x
+    SPREAD_BYTE[usize::from(v & 255)] | (SPREAD_BYTE[usize::from(v >> 8)] << 24)
 }
+
+/// Every byte spread so that bit i lands on bit 3i.
+static SPREAD_BYTE: [u64; 256] = {
+    let mut table = [0u64; 256];
+    let mut v = 0;
+    while v < 256 {
+        let mut bit = 0;
+        while bit < 8 {
+            table[v] |= ((v as u64 >> bit) & 1) << (3 * bit);
+            bit += 1;
+        }
+        v += 1;
+    }
+    table
+};
 
 #[inline]
 fn compact(code: u64) -> u16 {
@@ -127,10 +138,11 @@ impl KeyConverter {
     /// OctoMap's `coordToKeyChecked` for one axis.
     #[inline]
     pub fn coord_to_key_axis_checked(&self, coordinate: f64) -> Option<u16> {
-        let scaled = fast_floor(self.resolution_factor * coordinate);
-        // `floor` of NaN stays NaN and fails both comparisons.
+        let scaled = self.resolution_factor * coordinate;
+        // The bounds are whole numbers, so testing before the floor is the same test;
+        // NaN fails both comparisons.
         if scaled >= -(TREE_MAX_VAL as f64) && scaled < TREE_MAX_VAL as f64 {
-            Some((scaled as i32 + TREE_MAX_VAL) as u16)
+            Some((floor_i64(scaled) + i64::from(TREE_MAX_VAL)) as u16)
         } else {
             None
         }
@@ -204,6 +216,15 @@ impl KeyConverter {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spread_puts_bit_i_on_bit_3i() {
+        for v in 0..=u16::MAX {
+            let want = (0..16).fold(0u64, |acc, i| acc | (u64::from((v >> i) & 1) << (3 * i)));
+            assert_eq!(spread(v), want);
+            assert_eq!(compact(want), v);
+        }
+    }
 
     #[test]
     fn morton_round_trips_and_orders_children() {

@@ -162,24 +162,25 @@ impl SurfaceMap {
             )));
         }
         let res = self.resolution();
-        let coarsest = (max_leaf_size / res).log2().floor().clamp(0.0, 15.0) as u32;
+        let coarsest = (max_leaf_size / res).log2().floor().clamp(0.0, 15.0) as usize;
+        // A point needs `levels` above the finest when its gap r·b exceeds 2^(levels−1)
+        // cells: count the squared ranges 2^L·res/b it exceeds, no root or log per point.
+        let mut limits = [f64::INFINITY; 16];
+        for (level, limit) in limits.iter_mut().enumerate().take(coarsest) {
+            *limit = ((1u32 << level) as f64 * res / beam_spacing).powi(2);
+        }
         Ok(points
             .iter()
             .map(|p| {
-                let range = ((p[0] - origin[0]).powi(2)
+                let range2 = (p[0] - origin[0]).powi(2)
                     + (p[1] - origin[1]).powi(2)
-                    + (p[2] - origin[2]).powi(2))
-                .sqrt();
-                let gap = range * beam_spacing / res;
-                // ⌈log2 gap⌉ without logarithms: for gap > 1 it is the bit length of ⌈gap⌉ − 1.
-                let levels = if gap > 1.0 {
-                    let whole = gap.min(65536.0) as u64;
-                    let cells = whole + u64::from((whole as f64) < gap);
-                    (64 - (cells - 1).leading_zeros()).min(coarsest)
-                } else {
-                    0
-                };
-                (TREE_DEPTH - levels) as u8
+                    + (p[2] - origin[2]).powi(2);
+                // How many (ascending) limits lie below: a branch-free binary search.
+                let mut levels = 0;
+                for step in [8, 4, 2, 1] {
+                    levels += step * usize::from(range2 > limits[levels + step - 1]);
+                }
+                (TREE_DEPTH as usize - levels) as u8
             })
             .collect())
     }
@@ -204,22 +205,17 @@ impl SurfaceMap {
                 )));
             }
         }
-        let mut items = Vec::with_capacity(points.len());
-        for (i, &p) in points.iter().enumerate() {
-            if !p.iter().all(|c| c.is_finite()) {
-                return Err(Error::InvalidArgument(format!(
-                    "point {i} {p:?} is not finite"
-                )));
-            }
-            let key = self
-                .conv
-                .coord_to_key_checked_f64(p)
-                .ok_or(Error::OutOfBounds {
+        crate::geometry::check_finite(points, "point")?;
+        let mut items = vec![(0, 0); points.len()];
+        for (i, (&p, item)) in points.iter().zip(&mut items).enumerate() {
+            let Some(key) = self.conv.coord_to_key_checked_f64(p) else {
+                return Err(Error::OutOfBounds {
                     what: "a point",
                     point: p,
                     limit: self.conv.metric_limits().1,
-                })?;
-            items.push((key.morton(), i as u32));
+                });
+            };
+            *item = (key.morton(), i as u32);
         }
         if items.is_empty() {
             return Ok(0);
