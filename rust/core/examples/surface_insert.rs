@@ -39,13 +39,6 @@ fn main() {
             let t = std::time::Instant::now();
             let d = depths(&map, &probe);
             map.insert_at_depths(&probe, Some(&d)).unwrap();
-                eprintln!(
-                    "touched {touched}, depths {:?}",
-                    (0..=16)
-                        .map(|k| d.iter().filter(|&&x| x == k).count())
-                        .collect::<Vec<_>>()
-                );
-            }
             t.elapsed().as_secs_f64() * 1e3
         })
         .collect();
