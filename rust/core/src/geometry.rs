@@ -144,7 +144,9 @@ fn cubic_roots_by_newton(a: &crate::na::Matrix3<f64>, q: f64, spread: f64) -> Op
         }
         let step = -p / slope;
         x += step;
-        if step <= tolerance {
+        // Newton's error after this step is about (p''/2p')·step²: stop once that is
+        // below the tolerance (one step fewer than waiting for a step that small).
+        if (t - 3.0 * x) * step * step <= tolerance * slope {
             break;
         }
     }
