@@ -63,7 +63,15 @@ pub(crate) fn child_runs<T>(
     std::iter::from_fn(move || {
         let &(first, _) = rest.first()?;
         let pos = ((first >> shift) & 7) as usize;
-        let end = rest.partition_point(|&(m, _)| ((m >> shift) & 7) as usize == pos);
+        let same = |&(m, _): &(u64, T)| ((m >> shift) & 7) as usize == pos;
+        // Gallop, then bisect what is left: runs are short deep in the tree, where
+        // most nodes are, and a search from both ends mispredicts a branch per step.
+        let mut reach = 1;
+        while reach < rest.len() && same(&rest[reach]) {
+            reach *= 2;
+        }
+        let known = reach / 2 + 1; // rest[..known] is in the run
+        let end = known + rest[known.min(rest.len())..reach.min(rest.len())].partition_point(same);
         let (run, tail) = rest.split_at(end);
         rest = tail;
         Some((pos, run))
@@ -216,6 +224,32 @@ impl KeyConverter {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn child_runs_are_the_groups_of_equal_child_index() {
+        let mut rng = crate::synthetic::Rng::new(4);
+        for n in [1, 2, 3, 5, 17, 100, 1000] {
+            for spread in [2u64, 8, 64, 1 << 20] {
+                // Codes under one node at depth 14 (the top bits shared), sorted.
+                let mut items: Vec<(u64, u32)> = (0..n)
+                    .map(|i| ((rng.unit() * spread as f64) as u64 % 64, i))
+                    .collect();
+                items.sort_unstable();
+                let runs: Vec<(usize, Vec<(u64, u32)>)> = child_runs(&items, 14)
+                    .map(|(pos, run)| (pos, run.to_vec()))
+                    .collect();
+                let mut want: Vec<(usize, Vec<(u64, u32)>)> = Vec::new();
+                for &item in &items {
+                    let pos = ((item.0 >> 3) & 7) as usize;
+                    match want.last_mut() {
+                        Some((p, run)) if *p == pos => run.push(item),
+                        _ => want.push((pos, vec![item])),
+                    }
+                }
+                assert_eq!(runs, want, "{n} items spread over {spread}");
+            }
+        }
+    }
 
     #[test]
     fn spread_puts_bit_i_on_bit_3i() {

@@ -199,7 +199,10 @@ impl SurfaceMap {
                     d.len()
                 )));
             }
-            if let Some(bad) = d.iter().find(|&&x| x == 0 || u32::from(x) > TREE_DEPTH) {
+            // One pass without an early exit vectorises; the search runs only on failure.
+            let outside = |x: u8| x == 0 || u32::from(x) > TREE_DEPTH;
+            if d.iter().fold(false, |any, &x| any | outside(x)) {
+                let bad = d.iter().find(|&&x| outside(x)).copied().unwrap_or(0);
                 return Err(Error::InvalidArgument(format!(
                     "leaf depths must lie in 1..=16, got {bad}"
                 )));
@@ -271,11 +274,14 @@ impl SurfaceMap {
             *touched += 1;
             let mut n = self.arena.value(node);
             let m = self.params.prob_hit;
+            // Blended in double precision and stored once: the weights do not depend on
+            // the position, so only the blend itself is a chain from point to point.
+            let mut position = n.position.map(f64::from);
             for &(_, i) in items {
                 let d = points[i as usize];
                 // Hits only raise the log-odds: zero means this leaf has no position yet.
                 if n.log_odds == 0.0 {
-                    n.position = d.map(|c| c as f32);
+                    position = d;
                 } else {
                     // Weights of the stored position and of the new point.
                     let (w_old, w_new) = match self.params.position_memory {
@@ -284,14 +290,14 @@ impl SurfaceMap {
                     };
                     // (stored·w_old + new·w_new) / (w_old + w_new), one division per point.
                     let share = w_new / (w_old + w_new);
-                    for (stored, new) in n.position.iter_mut().zip(d) {
-                        let old = f64::from(*stored);
-                        *stored = (old + (new - old) * share) as f32;
+                    for (stored, new) in position.iter_mut().zip(d) {
+                        *stored += (new - *stored) * share;
                     }
                 }
                 n.hits = n.hits.saturating_add(1);
                 n.log_odds = (n.log_odds + self.hit).min(self.clamp_max);
             }
+            n.position = position.map(|c| c as f32);
             self.arena.set_value(node, n);
             return;
         }
