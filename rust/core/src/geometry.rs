@@ -65,33 +65,52 @@ pub fn transform_points(m: &Matrix4<f64>, points: &mut [[f64; 3]]) {
 }
 
 /// Eigenvalues (ascending) of a symmetric 3×3 matrix, and a unit eigenvector of the
-/// smallest, in closed form: the smallest root of the characteristic cubic by Newton's
-/// method from below, the other two from the remaining quadratic; where that root is
-/// (nearly) repeated, so Newton crawls, the trigonometric solution instead. The
-/// eigenvector is the largest cross product of two rows of A − λI. About ten times
-/// faster than an iterative solver (covariances of surface points, the callers, have a
-/// well separated smallest eigenvalue and settle in two or three steps); used for
-/// normals and for the surface map's plane test. Eigenvalues are accurate to ~1e-8
-/// relative (repeated eigenvalues lose about half the digits).
+/// smallest, in closed form (`symmetric_eigenvalues3`, then
+/// `smallest_eigenvector3`). About ten times faster than an iterative solver; used for
+/// normals and for the surface map's plane test (which asks for the vector only when
+/// the values make a plane).
 pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Vector3<f64>) {
-    use crate::na::Vector3;
+    let values = symmetric_eigenvalues3(a);
+    (values, smallest_eigenvector3(a, values[0]))
+}
+
+/// Eigenvalues (ascending) of a symmetric 3×3 matrix: the smallest root of the
+/// characteristic cubic by Newton's method from below, the other two from the
+/// remaining quadratic; where that root is (nearly) repeated, so Newton crawls, the
+/// trigonometric solution instead. Covariances of surface points have a well
+/// separated smallest eigenvalue and settle in two or three steps. Accurate to ~1e-8
+/// relative (repeated eigenvalues lose about half the digits).
+pub fn symmetric_eigenvalues3(a: &crate::na::Matrix3<f64>) -> [f64; 3] {
     let off = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
     let q = a.trace() / 3.0;
     let spread =
         (a[(0, 0)] - q).powi(2) + (a[(1, 1)] - q).powi(2) + (a[(2, 2)] - q).powi(2) + 2.0 * off;
     if off <= f64::MIN_POSITIVE || spread <= f64::MIN_POSITIVE {
-        // Diagonal (or a multiple of the identity): the axes are eigenvectors.
+        // Diagonal (or a multiple of the identity).
+        let mut values = [a[(0, 0)], a[(1, 1)], a[(2, 2)]];
+        values.sort_by(f64::total_cmp);
+        return values;
+    }
+    cubic_roots_by_newton(a, q, spread).unwrap_or_else(|| cubic_roots_by_angle(a, q, spread))
+}
+
+/// A unit eigenvector of the symmetric `a` for its smallest eigenvalue `smallest`: the
+/// largest cross product of two rows of A − λI (a diagonal matrix: the axis of its
+/// smallest entry).
+pub fn smallest_eigenvector3(
+    a: &crate::na::Matrix3<f64>,
+    smallest: f64,
+) -> crate::na::Vector3<f64> {
+    use crate::na::Vector3;
+    let off = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
+    if off <= f64::MIN_POSITIVE {
         let d = [a[(0, 0)], a[(1, 1)], a[(2, 2)]];
         let min = (0..3).min_by(|&i, &j| d[i].total_cmp(&d[j])).unwrap_or(0);
-        let mut values = d;
-        values.sort_by(f64::total_cmp);
         let mut v = Vector3::zeros();
         v[min] = 1.0;
-        return (values, v);
+        return v;
     }
-    let values =
-        cubic_roots_by_newton(a, q, spread).unwrap_or_else(|| cubic_roots_by_angle(a, q, spread));
-    let m = a - crate::na::Matrix3::identity() * values[0];
+    let m = a - crate::na::Matrix3::identity() * smallest;
     let rows = [
         m.row(0).transpose(),
         m.row(1).transpose(),
@@ -107,12 +126,11 @@ pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Ve
         .max_by(|x, y| x.norm_squared().total_cmp(&y.norm_squared()))
         .copied()
         .unwrap_or_default();
-    let v = if best.norm_squared() > 0.0 {
+    if best.norm_squared() > 0.0 {
         best.normalize()
     } else {
         Vector3::x()
-    };
-    (values, v)
+    }
 }
 
 /// The eigenvalues of `symmetric_eigen3` from λ³ − tλ² + sλ − d (t the trace, s the

@@ -366,10 +366,11 @@ impl SurfaceMap {
             let d = pos(c) - mean;
             acc + d * d.transpose()
         }) / children.len() as f64;
-        let ([l0, l1, l2], v) = crate::geometry::symmetric_eigen3(&cov);
-        let (l0, l1, l2) = (l0.max(0.0), l1.max(0.0), l2.max(0.0));
+        let values = crate::geometry::symmetric_eigenvalues3(&cov);
+        let [l0, l1, l2] = values.map(|l| l.max(0.0));
         let similar = |a: f64, b: f64| a >= self.params.similar * b;
         if l2 > 0.0 && similar(l1, l2) && !similar(l0, l1) {
+            let v = crate::geometry::smallest_eigenvector3(&cov, values[0]);
             Some([v.x as f32, v.y as f32, v.z as f32])
         } else {
             None
