@@ -208,10 +208,15 @@ impl SurfaceMap {
                 )));
             }
         }
-        crate::geometry::check_finite(points, "point")?;
         let mut items = vec![(0, 0); points.len()];
         for (i, (&p, item)) in points.iter().zip(&mut items).enumerate() {
             let Some(key) = self.conv.coord_to_key_checked_f64(p) else {
+                // NaN has no key either: say which it is.
+                if !p.iter().all(|c| c.is_finite()) {
+                    return Err(Error::InvalidArgument(format!(
+                        "point {i} {p:?} is not finite"
+                    )));
+                }
                 return Err(Error::OutOfBounds {
                     what: "a point",
                     point: p,
