@@ -23,7 +23,7 @@ pub fn fast_floor(x: f64) -> f64 {
 #[inline(always)]
 pub fn floor_i64(x: f64) -> i64 {
     let t = x as i64; // toward zero
-    t - i64::from((t as f64) > x)
+    t.saturating_sub(i64::from((t as f64) > x))
 }
 
 /// The integer cell `floor(p · inv)` of a finite point, for a grid of `inv = 1 / cell`.

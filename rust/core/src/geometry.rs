@@ -74,24 +74,116 @@ pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Ve
     (values, smallest_eigenvector3(a, values[0]))
 }
 
-/// Eigenvalues (ascending) of a symmetric 3×3 matrix: the smallest root of the
-/// characteristic cubic by Newton's method from below, the other two from the
-/// remaining quadratic; where that root is (nearly) repeated, so Newton crawls, the
-/// trigonometric solution instead. Covariances of surface points have a well
-/// separated smallest eigenvalue and settle in two or three steps. Accurate to ~1e-8
-/// relative (repeated eigenvalues lose about half the digits).
+/// A power of two (so scaling is exact) that brings the largest entry of `a` near 1,
+/// where no square or cube of an entry over- or underflows; `None` for a zero or
+/// non-finite matrix.
+fn unit_scale(a: &crate::na::Matrix3<f64>) -> Option<f64> {
+    let largest = a.iter().fold(0.0f64, |m: f64, &x: &f64| m.max(x.abs()));
+    if !(largest > 0.0 && largest.is_finite()) {
+        return None;
+    }
+    // 2^(1023 − e) for the biased exponent e of `largest`, built from its bits (a
+    // subnormal `largest` gets 2^1000, which is enough).
+    let exponent = ((largest.to_bits() >> 52) as i64).max(23);
+    Some(f64::from_bits(((2046 - exponent) as u64) << 52))
+}
+
+/// Eigenvalues (ascending) of a symmetric 3×3 matrix. With B = (A − qI)/p (q the mean
+/// eigenvalue, p their spread) the eigenvalues are q + p·x for the roots x of
+/// x³ − 3x − det B, all in [−2, 2]: the smallest by Newton's method from −2, the other
+/// two from the remaining quadratic; where that root is (nearly) repeated, so Newton
+/// crawls, the trigonometric solution instead. The normalised cubic does not lose
+/// digits to a shift (eigenvalues close together far from zero) or to the matrix's
+/// scale, which is taken out by a power of two first. Covariances of surface points
+/// have a well separated smallest eigenvalue and settle in two or three steps.
+/// Accurate to ~1e-12 of the largest magnitude (repeated eigenvalues lose about half
+/// the digits).
 pub fn symmetric_eigenvalues3(a: &crate::na::Matrix3<f64>) -> [f64; 3] {
+    let Some(scale) = unit_scale(a) else {
+        return [a[(0, 0)], a[(1, 1)], a[(2, 2)]].map(|x| x * 0.0); // zeros, or NaN
+    };
+    let a = a * scale;
     let off = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
     let q = a.trace() / 3.0;
     let spread =
         (a[(0, 0)] - q).powi(2) + (a[(1, 1)] - q).powi(2) + (a[(2, 2)] - q).powi(2) + 2.0 * off;
-    if off <= f64::MIN_POSITIVE || spread <= f64::MIN_POSITIVE {
+    let values = if off <= f64::MIN_POSITIVE || spread <= f64::MIN_POSITIVE {
         // Diagonal (or a multiple of the identity).
         let mut values = [a[(0, 0)], a[(1, 1)], a[(2, 2)]];
         values.sort_by(f64::total_cmp);
-        return values;
+        values
+    } else {
+        let p = (spread / 6.0).sqrt();
+        let inv_p = 1.0 / p;
+        // det B = det(A − qI) / p³, clamped to the cubic's range against rounding.
+        let c = ((a - crate::na::Matrix3::identity() * q).determinant() * (inv_p * inv_p * inv_p))
+            .clamp(-2.0, 2.0);
+        // A positive semi-definite matrix (a covariance) has no eigenvalue below 0,
+        // i.e. no root below −q/p: for a plane's covariance that is nearly the root.
+        let minors = a[(0, 0)] * a[(1, 1)] + a[(0, 0)] * a[(2, 2)] + a[(1, 1)] * a[(2, 2)] - off;
+        let floor = if q >= 0.0 && minors >= 0.0 && a.determinant() >= 0.0 {
+            -q * inv_p
+        } else {
+            -2.0
+        };
+        let [x0, x1, x2] =
+            normalised_roots_by_newton(c, floor).unwrap_or_else(|| normalised_roots_by_angle(c));
+        [q + p * x0, q + p * x1, q + p * x2]
+    };
+    // Powers of two: the reciprocal is exact.
+    values.map(|v| v * (1.0 / scale))
+}
+
+/// The roots (ascending) of x³ − 3x − c, |c| ≤ 2, the smallest by Newton's method from
+/// below (`below`, a known lower bound of it, or better): left of its smallest root the
+/// cubic rises and bends down, so the steps climb to the root without passing it. `None` when they have not arrived within a few steps
+/// (a root repeated or nearly so).
+fn normalised_roots_by_newton(c: f64, below: f64) -> Option<[f64; 3]> {
+    let tolerance = 4.0 * f64::EPSILON;
+    // The smallest root as a function of c is increasing and convex (the inverse of
+    // the concave x³ − 3x on [−2, −1]), so its tangents lie below it: start from the
+    // highest of three, at x = −2, −√3 and −1.5.
+    const SQRT_3: f64 = 1.732_050_807_568_877_2;
+    let mut x = (-2.0 + (c + 2.0) * (1.0 / 9.0))
+        .max(-SQRT_3 + c * (1.0 / 6.0))
+        .max(-1.5 + (c - 1.125) * (1.0 / 3.75))
+        .max(below);
+    for _ in 0..8 {
+        let f = (x * x - 3.0) * x - c;
+        let slope = 3.0 * (x * x - 1.0);
+        if f >= 0.0 || slope <= 0.0 {
+            break; // at the root, to rounding
+        }
+        let step = -f / slope;
+        x += step;
+        // Newton's error after this step is about (f''/2f')·step² = 3|x|·step²/f':
+        // stop once that is below the tolerance.
+        if 3.0 * x.abs() * step * step <= tolerance * slope {
+            break;
+        }
     }
-    cubic_roots_by_newton(a, q, spread).unwrap_or_else(|| cubic_roots_by_angle(a, q, spread))
+    let f = (x * x - 3.0) * x - c;
+    let slope = 3.0 * (x * x - 1.0);
+    // Converged: the cubic is no longer clearly negative here (NaN fails too).
+    if !(f >= -tolerance * slope) {
+        return None;
+    }
+    // The other two: x² + x0·x + x0² − 3 = 0.
+    let root = (12.0 - 3.0 * x * x).max(0.0).sqrt();
+    let middle = (-x - root) / 2.0;
+    let largest = (-x + root) / 2.0;
+    Some([x, middle.max(x), largest.max(middle)])
+}
+
+/// The roots (ascending) of x³ − 3x − c, |c| ≤ 2, by the trigonometric solution.
+fn normalised_roots_by_angle(c: f64) -> [f64; 3] {
+    let phi = (c / 2.0).clamp(-1.0, 1.0).acos() / 3.0;
+    // cos(φ + 2π/3) = −(cos φ + √3 sin φ) / 2: one sin_cos instead of two cosines.
+    let (sin, cos) = phi.sin_cos();
+    let largest = 2.0 * cos;
+    let smallest = -(cos + 3f64.sqrt() * sin);
+    let middle = -largest - smallest;
+    [smallest, middle, largest]
 }
 
 /// A unit eigenvector of the symmetric `a` for its smallest eigenvalue `smallest`: the
@@ -102,6 +194,10 @@ pub fn smallest_eigenvector3(
     smallest: f64,
 ) -> crate::na::Vector3<f64> {
     use crate::na::Vector3;
+    let Some(scale) = unit_scale(a) else {
+        return Vector3::x();
+    };
+    let (a, smallest) = (a * scale, smallest * scale);
     let off = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
     if off <= f64::MIN_POSITIVE {
         let d = [a[(0, 0)], a[(1, 1)], a[(2, 2)]];
@@ -131,82 +227,6 @@ pub fn smallest_eigenvector3(
     } else {
         Vector3::x()
     }
-}
-
-/// The eigenvalues of `symmetric_eigen3` from λ³ − tλ² + sλ − d (t the trace, s the
-/// sum of the principal 2×2 minors, d the determinant). Left of its smallest root a
-/// real-rooted cubic rises and bends down, so Newton's steps from there climb to the
-/// root without passing it. `None` when they have not arrived within a few steps (a
-/// root repeated or nearly so).
-fn cubic_roots_by_newton(a: &crate::na::Matrix3<f64>, q: f64, spread: f64) -> Option<[f64; 3]> {
-    let t = a.trace();
-    let s = a[(0, 0)] * a[(1, 1)] + a[(0, 0)] * a[(2, 2)] + a[(1, 1)] * a[(2, 2)]
-        - a[(0, 1)].powi(2)
-        - a[(0, 2)].powi(2)
-        - a[(1, 2)].powi(2);
-    let d = a.determinant();
-    // All roots lie within sqrt(spread) of their mean q; with t, s, d >= 0 none is
-    // negative (Descartes' rule for a real-rooted cubic), so 0 is a start below them.
-    let radius = spread.sqrt();
-    let mut x = if t >= 0.0 && s >= 0.0 && d >= 0.0 {
-        (q - radius).max(0.0)
-    } else {
-        q - radius
-    };
-    let tolerance = 4.0 * f64::EPSILON * (q.abs() + radius);
-    for _ in 0..8 {
-        let p = ((x - t) * x + s) * x - d;
-        let slope = (3.0 * x - 2.0 * t) * x + s;
-        if p >= 0.0 || slope <= 0.0 {
-            break; // at the root, to rounding
-        }
-        let step = -p / slope;
-        x += step;
-        // Newton's error after this step is about (p''/2p')·step²: stop once that is
-        // below the tolerance (one step fewer than waiting for a step that small).
-        if (t - 3.0 * x) * step * step <= tolerance * slope {
-            break;
-        }
-    }
-    // Converged: the polynomial is no longer clearly negative here.
-    let p = ((x - t) * x + s) * x - d;
-    let slope = (3.0 * x - 2.0 * t) * x + s;
-    if p < 0.0 && -p > slope * tolerance {
-        return None;
-    }
-    // The other two: sum t − x, product s − x(t − x); the stable quadratic formula.
-    let sum = t - x;
-    let product = s - x * sum;
-    let root = (sum * sum - 4.0 * product).max(0.0).sqrt();
-    let (middle, largest) = if sum >= 0.0 {
-        let largest = (sum + root) / 2.0;
-        (
-            if largest != 0.0 {
-                product / largest
-            } else {
-                0.0
-            },
-            largest,
-        )
-    } else {
-        let middle = (sum - root) / 2.0;
-        (middle, if middle != 0.0 { product / middle } else { 0.0 })
-    };
-    Some([x, middle.max(x), largest.max(middle)])
-}
-
-/// The eigenvalues of `symmetric_eigen3` by the trigonometric solution of the cubic.
-fn cubic_roots_by_angle(a: &crate::na::Matrix3<f64>, q: f64, spread: f64) -> [f64; 3] {
-    let p = (spread / 6.0).sqrt();
-    let b = (a - crate::na::Matrix3::identity() * q) / p;
-    let r = (b.determinant() / 2.0).clamp(-1.0, 1.0);
-    let phi = r.acos() / 3.0;
-    // cos(φ + 2π/3) = −(cos φ + √3 sin φ) / 2: one sin_cos instead of two cosines.
-    let (sin, cos) = phi.sin_cos();
-    let largest = q + 2.0 * p * cos;
-    let smallest = q - p * (cos + 3f64.sqrt() * sin);
-    let middle = 3.0 * q - largest - smallest;
-    [smallest, middle, largest]
 }
 
 /// Indices of `points` in Morton order of their position within their bounding box.
@@ -319,20 +339,25 @@ mod tests {
     #[test]
     fn eigen_of_random_matrices_matches_nalgebra() {
         // Both solutions of the cubic: Newton's (separated smallest root) and the
-        // angle's (repeated or nearly repeated smallest root, Newton stops early).
+        // angle's (repeated or nearly repeated smallest root, Newton stops early);
+        // eigenvalues close together far from zero (a shift), and extreme scales.
         let mut rng = crate::synthetic::Rng::new(21);
         let (mut by_newton, mut by_angle) = (0, 0);
-        for i in 0..4000 {
+        for i in 0..8000 {
             let base = rng.uniform(-2.0, 2.0);
             let mut d = [
                 rng.uniform(0.0, 1.0),
                 rng.uniform(0.0, 1.0),
                 rng.uniform(0.0, 1.0),
             ];
-            match i % 4 {
+            match i % 8 {
                 0 => d[1] = d[0] * (1.0 + 1e-9 * rng.unit()), // nearly repeated
                 1 => d = [0.0, d[1], d[2]],                   // singular, PSD
                 2 => d = d.map(|x| x + base),                 // any signs
+                3 => d = d.map(|x| 1.0 + 1e-5 * x),           // nearly isotropic
+                4 => d = d.map(|x| 1e8 + 3.0 * x),            // far from zero
+                5 => d = d.map(|x| 1e110 * x),                // huge
+                6 => d = d.map(|x| 1e-120 * x),               // tiny
                 _ => {}
             }
             let r = Rotation3::from_euler_angles(
@@ -342,21 +367,30 @@ mod tests {
             );
             let a = r.matrix() * Matrix3::from_diagonal(&Vector3::from(d)) * r.matrix().transpose();
             let a = (a + a.transpose()) / 2.0;
-            let t = a.trace() / 3.0;
-            let spread = (0..3).map(|k| (a[(k, k)] - t).powi(2)).sum::<f64>()
-                + 2.0 * (a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2));
-            match cubic_roots_by_newton(&a, t, spread) {
+            let scale = d.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            let (q, off) = (
+                a.trace() / 3.0,
+                a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2),
+            );
+            let spread = (0..3).map(|k| (a[(k, k)] - q).powi(2)).sum::<f64>() + 2.0 * off;
+            let p = (spread / 6.0).sqrt();
+            let c = ((a - Matrix3::identity() * q) / p).determinant();
+            match normalised_roots_by_newton(c, -2.0) {
                 Some(_) => by_newton += 1,
                 None => by_angle += 1,
             }
             let (values, v) = symmetric_eigen3(&a);
-            let mut reference: Vec<f64> =
-                SymmetricEigen::new(a).eigenvalues.iter().copied().collect();
+            let mut reference: Vec<f64> = d.to_vec();
             reference.sort_by(f64::total_cmp);
-            let scale = reference[0].abs().max(reference[2].abs()).max(1e-3);
+            assert!(
+                values[0] <= values[1] && values[1] <= values[2],
+                "{i}: {values:?}"
+            );
+            // Repeated eigenvalues cost about sqrt(eps); the rest ~1e-12 of the largest.
+            let tolerance = if i % 8 == 0 { 1e-7 } else { 1e-11 };
             for k in 0..3 {
                 assert!(
-                    (values[k] - reference[k]).abs() < 1e-6 * scale,
+                    (values[k] - reference[k]).abs() < tolerance * scale,
                     "{i}: {values:?} vs {reference:?}"
                 );
             }
@@ -365,9 +399,25 @@ mod tests {
             }
         }
         assert!(
-            by_newton > 2500 && by_angle > 100,
+            by_newton > 5000 && by_angle > 200,
             "{by_newton} by Newton, {by_angle} by angle"
         );
+    }
+
+    #[test]
+    fn eigenvalues_close_together_keep_their_digits() {
+        // The review's case: A = [[1, e, 0], [e, 1, e], [0, e, 1]] has 1 − √2·e, 1, 1 + √2·e.
+        for e in [1e-5, 3e-6, 1e-8] {
+            let a = Matrix3::new(1.0, e, 0.0, e, 1.0, e, 0.0, e, 1.0);
+            let values = symmetric_eigenvalues3(&a);
+            let want = [1.0 - 2f64.sqrt() * e, 1.0, 1.0 + 2f64.sqrt() * e];
+            for k in 0..3 {
+                assert!(
+                    (values[k] - want[k]).abs() < 1e-14,
+                    "e {e}: {values:?} vs {want:?}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -42,7 +42,23 @@ pub fn statistical_outliers(
         )));
     }
     crate::geometry::check_finite(points, "point")?;
-    let mean_distance = mean_knn_distances(points, params.k);
+    // Squared distances must neither overflow nor underflow: a cloud far from unit
+    // size is scaled by a power of two first (exact, and distances scale with it).
+    let largest = points
+        .iter()
+        .flat_map(|p| p.iter())
+        .fold(0.0f64, |m, c| m.max(c.abs()));
+    let scale = if largest > 1e100 || (largest > 0.0 && largest < 1e-100) {
+        f64::from_bits(((2046 - ((largest.to_bits() >> 52) as i64).max(23)) as u64) << 52)
+    } else {
+        1.0
+    };
+    let mut mean_distance = if scale == 1.0 {
+        mean_knn_distances(points, params.k)
+    } else {
+        let scaled: Vec<[f64; 3]> = points.iter().map(|p| p.map(|c| c * scale)).collect();
+        mean_knn_distances(&scaled, params.k)
+    };
     let n = mean_distance.len() as f64;
     let mean = mean_distance.iter().sum::<f64>() / n;
     let variance = mean_distance
@@ -54,6 +70,9 @@ pub fn statistical_outliers(
     let inliers = (0..points.len() as u32)
         .filter(|&i| mean_distance[i as usize] <= threshold)
         .collect();
+    for d in &mut mean_distance {
+        *d /= scale;
+    }
     Ok((inliers, mean_distance))
 }
 
@@ -215,6 +234,9 @@ impl CellGrid {
     /// that holds them all; `None` when that box would need more than 16 cells per
     /// point.
     fn new(points: &[[f64; 3]], cell: f64, lo: [f64; 3], hi: [f64; 3]) -> Option<Self> {
+        if !(cell.is_finite() && cell > 0.0) {
+            return None;
+        }
         if cell_count(lo, hi, cell)? > 16 * points.len() + 64 {
             return None;
         }
@@ -396,7 +418,7 @@ impl Searcher {
                 let all = self.block.within(q, f64::INFINITY, &mut self.near);
                 let (_, bound, _) = self.near[..all].select_nth_unstable(k);
                 let bound = f64::from_bits(*bound).sqrt();
-                (bound * grid.inv).ceil() as i64 + 1
+                ((bound * grid.inv).ceil() as i64).saturating_add(1)
             } else {
                 2 * r
             }
@@ -765,6 +787,24 @@ mod tests {
             mean_knn_distances(&[[0.5, 0.5, 0.5]; 30], 20),
             vec![0.0; 30]
         );
+        // Squared distances beyond f64's range (the review's case) or below it.
+        for spacing in [1e153, 1e-160] {
+            let line: Vec<[f64; 3]> = (0..200).map(|i| [i as f64 * spacing, 0.0, 0.0]).collect();
+            let unit: Vec<[f64; 3]> = (0..200).map(|i| [i as f64, 0.0, 0.0]).collect();
+            let params = OutlierParams {
+                k: 150,
+                std_ratio: 2.0,
+            };
+            let (kept, means) = statistical_outliers(&line, params).unwrap();
+            let (want_kept, want) = statistical_outliers(&unit, params).unwrap();
+            assert_eq!(kept, want_kept, "spacing {spacing}");
+            for (m, w) in means.iter().zip(&want) {
+                assert!(
+                    (m / spacing - w).abs() < 1e-9 * w,
+                    "spacing {spacing}: {m} vs {w}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -9,7 +9,7 @@ use rustc_hash::FxHashMap;
 use crate::error::{Error, Result};
 use crate::floor::floor_i64;
 
-/// Packed keys hold cells -2^20..2^20 per axis, 21 bits each in one u64.
+/// Packed keys hold cells −2^20 ≤ c < 2^20 per axis, 21 bits each in one u64.
 const PACKED_OFFSET: i64 = 1 << 20;
 
 /// Returns the centroids (in order of each voxel's first point) and, when `values`
@@ -38,11 +38,13 @@ pub fn voxel_downsample(
     // bricks of cells: two array reads find a voxel where a hash table took ~3× as
     // long. Wider clouds hash their cells: a u64 key (±2^20 cells per axis) hashes
     // and compares faster than the general one.
-    if let Some(bricks) = Bricks::covering(points, inv) {
-        return Ok(accumulate(points, values, inv, bricks).expect("the bricks hold every cell"));
+    if let Some(done) =
+        Bricks::covering(points, inv).and_then(|b| accumulate(points, values, inv, b))
+    {
+        return Ok(done);
     }
     let packed = Hashed::new(points.len(), |c: [i64; 3]| {
-        let [x, y, z] = c.map(|v| (v + PACKED_OFFSET) as u64);
+        let [x, y, z] = c.map(|v| v.wrapping_add(PACKED_OFFSET) as u64);
         ((x | y | z) < 1 << 21).then_some(x << 42 | y << 21 | z)
     });
     Ok(accumulate(points, values, inv, packed).unwrap_or_else(|| {
@@ -96,13 +98,16 @@ struct Bricks {
     /// Per brick: its block in `slots`, or `NONE`.
     blocks: Vec<u32>,
     slots: Vec<u32>,
+    /// Slots allowed before the bricks give up (sparse clouds: a brick per point).
+    budget: usize,
 }
 
 const NONE: u32 = u32::MAX;
 
 impl Bricks {
     /// `None` when the box needs more than 4 bricks per point (or 4096), or its cells
-    /// are too many to count exactly.
+    /// are too many to count exactly. Points that turn out to be sparse within the box
+    /// (more than 16 slots per point) make `slot` give up too.
     fn covering(points: &[[f64; 3]], inv: f64) -> Option<Self> {
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
@@ -129,6 +134,7 @@ impl Bricks {
             dims,
             blocks: vec![NONE; count as usize],
             slots: Vec::new(),
+            budget: 16 * points.len() + 4096,
         })
     }
 }
@@ -142,6 +148,9 @@ impl Slots for Bricks {
         let brick = ((rel[0] >> 3) * self.dims[1] + (rel[1] >> 3)) * self.dims[2] + (rel[2] >> 3);
         let block = self.blocks.get_mut(usize::try_from(brick).ok()?)?;
         if *block == NONE {
+            if self.slots.len() >= self.budget {
+                return None; // a sparse cloud: hashing it takes less memory
+            }
             *block = (self.slots.len() / 512) as u32;
             self.slots.resize(self.slots.len() + 512, NONE);
         }
@@ -277,18 +286,39 @@ mod tests {
                 .collect();
             let (centroids, means) = voxel_downsample(&points, size, Some((&values, 2))).unwrap();
             let (want, want_means) = reference(&points, size, &values);
-            assert_eq!(centroids.len(), want.len(), "extent {extent}");
-            for (c, w) in centroids.iter().zip(&want) {
-                for a in 0..3 {
-                    assert!(
-                        (c[a] - w[a]).abs() <= 1e-9 * (1.0 + w[a].abs()),
-                        "extent {extent}: {c:?} vs {w:?}"
-                    );
-                }
+            check(&centroids, &means, &want, &want_means, extent);
+        }
+        // Sparse in a small box: the bricks would take 2 KB a point and give way to hashing.
+        let points: Vec<[f64; 3]> = (0..20_000)
+            .map(|_| [rng.unit(), rng.unit(), rng.unit()])
+            .collect();
+        let values: Vec<f64> = (0..2 * points.len()).map(|_| rng.unit()).collect();
+        let (centroids, means) = voxel_downsample(&points, 0.004, Some((&values, 2))).unwrap();
+        let (want, want_means) = reference(&points, 0.004, &values);
+        check(&centroids, &means, &want, &want_means, 1.0);
+        // Cells beyond the i64 range saturate into one (as before) without overflowing.
+        let huge = [[1e19, 0.0, 0.0], [2e19, 0.0, 0.0], [-3e19, 1.0, 0.0]];
+        assert!(voxel_downsample(&huge, 1.0, None).is_ok());
+    }
+
+    fn check(
+        centroids: &[[f64; 3]],
+        means: &[f64],
+        want: &[[f64; 3]],
+        want_means: &[f64],
+        extent: f64,
+    ) {
+        assert_eq!(centroids.len(), want.len(), "extent {extent}");
+        for (c, w) in centroids.iter().zip(want) {
+            for a in 0..3 {
+                assert!(
+                    (c[a] - w[a]).abs() <= 1e-9 * (1.0 + w[a].abs()),
+                    "extent {extent}: {c:?} vs {w:?}"
+                );
             }
-            for (m, w) in means.iter().zip(&want_means) {
-                assert!((m - w).abs() < 1e-9, "extent {extent}");
-            }
+        }
+        for (m, w) in means.iter().zip(want_means) {
+            assert!((m - w).abs() < 1e-9, "extent {extent}");
         }
     }
 }
