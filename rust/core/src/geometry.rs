@@ -165,7 +165,7 @@ fn normalised_roots_by_newton(c: f64, below: f64) -> Option<[f64; 3]> {
     let f = (x * x - 3.0) * x - c;
     let slope = 3.0 * (x * x - 1.0);
     // Converged: the cubic is no longer clearly negative here (NaN fails too).
-    if !(f >= -tolerance * slope) {
+    if f < -tolerance * slope || f.is_nan() {
         return None;
     }
     // The other two: x² + x0·x + x0² − 3 = 0.
