@@ -79,13 +79,7 @@ pub fn symmetric_eigen3(a: &crate::na::Matrix3<f64>) -> ([f64; 3], crate::na::Ve
 /// non-finite matrix.
 fn unit_scale(a: &crate::na::Matrix3<f64>) -> Option<f64> {
     let largest = a.iter().fold(0.0f64, |m: f64, &x: &f64| m.max(x.abs()));
-    if !(largest > 0.0 && largest.is_finite()) {
-        return None;
-    }
-    // 2^(1023 − e) for the biased exponent e of `largest`, built from its bits (a
-    // subnormal `largest` gets 2^1000, which is enough).
-    let exponent = ((largest.to_bits() >> 52) as i64).max(23);
-    Some(f64::from_bits(((2046 - exponent) as u64) << 52))
+    (largest > 0.0 && largest.is_finite()).then(|| unit_power_of_two(largest))
 }
 
 /// Eigenvalues (ascending) of a symmetric 3×3 matrix. With B = (A − qI)/p (q the mean
@@ -229,10 +223,8 @@ pub fn smallest_eigenvector3(
     }
 }
 
-/// Indices of `points` in Morton order of their position within their bounding box.
-/// Queries made in this order walk the same part of a spatial index one after the
-/// other (cache hits instead of a memory miss per tree level).
-pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
+/// The componentwise minimum and maximum of the points (infinite for none).
+pub fn bounds(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for p in points {
@@ -241,6 +233,21 @@ pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
             hi[a] = hi[a].max(p[a]);
         }
     }
+    (lo, hi)
+}
+
+/// The power of two 2^(−e) that brings a positive finite `magnitude` near 1 (2^1000 for
+/// subnormals): scaling by it is exact, and keeps squares and cubes in range.
+pub fn unit_power_of_two(magnitude: f64) -> f64 {
+    let exponent = ((magnitude.to_bits() >> 52) as i64).clamp(23, 2045);
+    f64::from_bits(((2046 - exponent) as u64) << 52)
+}
+
+/// Indices of `points` in Morton order of their position within their bounding box.
+/// Queries made in this order walk the same part of a spatial index one after the
+/// other (cache hits instead of a memory miss per tree level).
+pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
+    let (lo, hi) = bounds(points);
     let scale = [0, 1, 2].map(|a| {
         if hi[a] > lo[a] {
             65535.0 / (hi[a] - lo[a])

@@ -49,7 +49,7 @@ pub fn statistical_outliers(
         .flat_map(|p| p.iter())
         .fold(0.0f64, |m, c| m.max(c.abs()));
     let scale = if largest > 1e100 || (largest > 0.0 && largest < 1e-100) {
-        f64::from_bits(((2046 - ((largest.to_bits() >> 52) as i64).max(23)) as u64) << 52)
+        crate::geometry::unit_power_of_two(largest)
     } else {
         1.0
     };
@@ -90,7 +90,7 @@ pub fn statistical_outliers(
 /// apart clusters, heaps of duplicates) go to a k-d tree instead.
 fn mean_knn_distances(points: &[[f64; 3]], k: usize) -> Vec<f64> {
     let n = points.len();
-    let (lo, hi) = bounds(points);
+    let (lo, hi) = crate::geometry::bounds(points);
     let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
     if extent == 0.0 {
         return vec![0.0; n]; // every point is the same point
@@ -172,19 +172,6 @@ fn kd_tree_means(points: &[[f64; 3]], k: usize) -> Vec<f64> {
             .collect::<Vec<f64>>()
     })
     .concat()
-}
-
-/// The componentwise minimum and maximum of the points.
-fn bounds(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
-    (lo, hi)
 }
 
 /// The smallest cell edge (the box's longest side halved again and again) for which

@@ -109,14 +109,7 @@ impl Bricks {
     /// are too many to count exactly. Points that turn out to be sparse within the box
     /// (more than 16 slots per point) make `slot` give up too.
     fn covering(points: &[[f64; 3]], inv: f64) -> Option<Self> {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = crate::geometry::bounds(points);
         if !(0..3).all(|a| (lo[a] * inv).abs() < 1e15 && (hi[a] * inv).abs() < 1e15) {
             return None; // also an empty cloud (infinite bounds)
         }
