@@ -84,12 +84,12 @@ fn unit_scale(a: &crate::na::Matrix3<f64>) -> Option<f64> {
 
 /// Eigenvalues (ascending) of a symmetric 3×3 matrix. With B = (A − qI)/p (q the mean
 /// eigenvalue, p their spread) the eigenvalues are q + p·x for the roots x of
-/// x³ − 3x − det B, all in [−2, 2]: the smallest by Newton's method from −2, the other
-/// two from the remaining quadratic; where that root is (nearly) repeated, so Newton
-/// crawls, the trigonometric solution instead. The normalised cubic does not lose
-/// digits to a shift (eigenvalues close together far from zero) or to the matrix's
-/// scale, which is taken out by a power of two first. Covariances of surface points
-/// have a well separated smallest eigenvalue and settle in two or three steps.
+/// x³ − 3x − det B, all in [−2, 2]: the smallest by Newton's method from below, the
+/// other two from the remaining quadratic; where that root is (nearly) repeated, so
+/// Newton crawls, the trigonometric solution instead. The normalised cubic does not
+/// lose digits to a shift (eigenvalues close together far from zero) or to the
+/// matrix's scale, which is taken out by a power of two first. Covariances of a
+/// surface map's nodes settle in about five steps.
 /// Accurate to ~1e-12 of the largest magnitude (repeated eigenvalues lose about half
 /// the digits).
 pub fn symmetric_eigenvalues3(a: &crate::na::Matrix3<f64>) -> [f64; 3] {
@@ -112,16 +112,8 @@ pub fn symmetric_eigenvalues3(a: &crate::na::Matrix3<f64>) -> [f64; 3] {
         // det B = det(A − qI) / p³, clamped to the cubic's range against rounding.
         let c = ((a - crate::na::Matrix3::identity() * q).determinant() * (inv_p * inv_p * inv_p))
             .clamp(-2.0, 2.0);
-        // A positive semi-definite matrix (a covariance) has no eigenvalue below 0,
-        // i.e. no root below −q/p: for a plane's covariance that is nearly the root.
-        let minors = a[(0, 0)] * a[(1, 1)] + a[(0, 0)] * a[(2, 2)] + a[(1, 1)] * a[(2, 2)] - off;
-        let floor = if q >= 0.0 && minors >= 0.0 && a.determinant() >= 0.0 {
-            -q * inv_p
-        } else {
-            -2.0
-        };
         let [x0, x1, x2] =
-            normalised_roots_by_newton(c, floor).unwrap_or_else(|| normalised_roots_by_angle(c));
+            normalised_roots_by_newton(c).unwrap_or_else(|| normalised_roots_by_angle(c));
         [q + p * x0, q + p * x1, q + p * x2]
     };
     // Powers of two: the reciprocal is exact.
@@ -129,10 +121,10 @@ pub fn symmetric_eigenvalues3(a: &crate::na::Matrix3<f64>) -> [f64; 3] {
 }
 
 /// The roots (ascending) of x³ − 3x − c, |c| ≤ 2, the smallest by Newton's method from
-/// below (`below`, a known lower bound of it, or better): left of its smallest root the
-/// cubic rises and bends down, so the steps climb to the root without passing it. `None` when they have not arrived within a few steps
-/// (a root repeated or nearly so).
-fn normalised_roots_by_newton(c: f64, below: f64) -> Option<[f64; 3]> {
+/// below: left of its smallest root the cubic rises and bends down, so the steps climb
+/// to the root without passing it. `None` when they have not arrived within a few
+/// steps (a root repeated or nearly so).
+fn normalised_roots_by_newton(c: f64) -> Option<[f64; 3]> {
     let tolerance = 4.0 * f64::EPSILON;
     // The smallest root as a function of c is increasing and convex (the inverse of
     // the concave x³ − 3x on [−2, −1]), so its tangents lie below it: start from the
@@ -140,8 +132,7 @@ fn normalised_roots_by_newton(c: f64, below: f64) -> Option<[f64; 3]> {
     const SQRT_3: f64 = 1.732_050_807_568_877_2;
     let mut x = (-2.0 + (c + 2.0) * (1.0 / 9.0))
         .max(-SQRT_3 + c * (1.0 / 6.0))
-        .max(-1.5 + (c - 1.125) * (1.0 / 3.75))
-        .max(below);
+        .max(-1.5 + (c - 1.125) * (1.0 / 3.75));
     for _ in 0..8 {
         let f = (x * x - 3.0) * x - c;
         let slope = 3.0 * (x * x - 1.0);
@@ -382,7 +373,7 @@ mod tests {
             let spread = (0..3).map(|k| (a[(k, k)] - q).powi(2)).sum::<f64>() + 2.0 * off;
             let p = (spread / 6.0).sqrt();
             let c = ((a - Matrix3::identity() * q) / p).determinant();
-            match normalised_roots_by_newton(c, -2.0) {
+            match normalised_roots_by_newton(c) {
                 Some(_) => by_newton += 1,
                 None => by_angle += 1,
             }

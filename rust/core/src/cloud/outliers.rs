@@ -70,8 +70,10 @@ pub fn statistical_outliers(
     let inliers = (0..points.len() as u32)
         .filter(|&i| mean_distance[i as usize] <= threshold)
         .collect();
-    for d in &mut mean_distance {
-        *d /= scale;
+    if scale != 1.0 {
+        for d in &mut mean_distance {
+            *d /= scale;
+        }
     }
     Ok((inliers, mean_distance))
 }

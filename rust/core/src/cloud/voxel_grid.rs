@@ -35,8 +35,8 @@ pub fn voxel_downsample(
     crate::geometry::check_finite(points, "point")?;
     let inv = 1.0 / voxel_size;
     // Most clouds (a cropped camera frame) span a box small enough for a table of
-    // bricks of cells: two array reads find a voxel where a hash table took ~3× as
-    // long. Wider clouds hash their cells: a u64 key (±2^20 cells per axis) hashes
+    // bricks of cells: two array reads find a voxel, with no hash and no shortcut
+    // branch to mispredict (1.55 ms instead of 2.05 on a frame). Wider clouds hash their cells: a u64 key (±2^20 cells per axis) hashes
     // and compares faster than the general one.
     if let Some(done) =
         Bricks::covering(points, inv).and_then(|b| accumulate(points, values, inv, b))
