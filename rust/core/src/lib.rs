@@ -4,6 +4,7 @@
 //! nalgebra comes through parry (`earcore_core::na`) so the two never disagree.
 
 pub mod cloud;
+pub mod eigen3;
 pub mod error;
 pub mod floor;
 pub mod geometry;

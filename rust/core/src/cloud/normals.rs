@@ -74,7 +74,7 @@ fn normal_of(
         let d = Vector3::from(p) - mean;
         acc + d * d.transpose()
     }) / n as f64;
-    let (values, mut normal) = crate::geometry::symmetric_eigen3(&cov);
+    let (values, mut normal) = crate::eigen3::symmetric_eigen3(&cov);
     if normal.dot(&(Vector3::from(viewpoint) - Vector3::from(at))) < 0.0 {
         normal = -normal;
     }

@@ -208,23 +208,19 @@ impl SurfaceMap {
                 )));
             }
         }
-        let mut items = vec![(0, 0); points.len()];
-        for (i, (&p, item)) in points.iter().zip(&mut items).enumerate() {
-            let Some(key) = self.conv.coord_to_key_checked_f64(p) else {
-                // NaN has no key either: say which it is.
-                if !p.iter().all(|c| c.is_finite()) {
-                    return Err(Error::InvalidArgument(format!(
-                        "point {i} {p:?} is not finite"
-                    )));
-                }
-                return Err(Error::OutOfBounds {
+        let mut items = self.conv.morton_keyed(points).map_err(|i| {
+            let p = points[i];
+            // NaN has no key either: say which it is.
+            if !p.iter().all(|c| c.is_finite()) {
+                Error::InvalidArgument(format!("point {i} {p:?} is not finite"))
+            } else {
+                Error::OutOfBounds {
                     what: "a point",
                     point: p,
                     limit: self.conv.metric_limits().1,
-                });
-            };
-            *item = (key.morton(), i as u32);
-        }
+                }
+            }
+        })?;
         if items.is_empty() {
             return Ok(0);
         }
@@ -371,11 +367,14 @@ impl SurfaceMap {
             let d = pos(c) - mean;
             acc + d * d.transpose()
         }) / children.len() as f64;
-        let values = crate::geometry::symmetric_eigenvalues3(&cov);
+        // The test compares eigenvalues by ratio: the scaled matrix's serve, and its
+        // eigenvector is the original's.
+        let unit = crate::eigen3::UnitSymmetric3::new(&cov)?;
+        let values = unit.eigenvalues();
         let [l0, l1, l2] = values.map(|l| l.max(0.0));
         let similar = |a: f64, b: f64| a >= self.params.similar * b;
         if l2 > 0.0 && similar(l1, l2) && !similar(l0, l1) {
-            let v = crate::geometry::smallest_eigenvector3(&cov, values[0]);
+            let v = unit.smallest_eigenvector(values[0]);
             Some([v.x as f32, v.y as f32, v.z as f32])
         } else {
             None
