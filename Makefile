@@ -59,7 +59,7 @@ bench: develop ## criterion benches, then the side-by-side comparisons with Octo
 bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python-fcl, open3d-cpu + pyoctomap, small_gicp)
 	@ldconfig -p | grep -q libusb-1.0 || { echo "installing libusb-1.0-0 (open3d needs it)"; \
 	  (apt-get update -qq && apt-get install -y -qq libusb-1.0-0) >/dev/null; }
-	$(PY) -m pip install $(PIP_FLAGS) "python-fcl>=0.7" "open3d-cpu>=0.19" "small_gicp>=1.0"
+	$(PY) -m pip install $(PIP_FLAGS) "python-fcl>=0.7" "open3d-cpu>=0.19" "small_gicp>=1.0" "kiss-icp>=1.2"
 	$(PY) benches/bench_vs_octomap.py
 	$(PY) benches/bench_robot_vs_fcl.py
 	$(PY) benches/bench_perception.py
