@@ -4,8 +4,9 @@
 //!
 //! With B = (A − qI)/p (q the mean eigenvalue, p their spread) the eigenvalues are
 //! q + p·x for the roots x of x³ − 3x − det B, all in [−2, 2]: the smallest by Newton's
-//! method from below, the other two from the remaining quadratic; where that root is
-//! (nearly) repeated, so Newton crawls, the trigonometric solution instead. The
+//! method from below (one step from a fitted start), the other two from the remaining
+//! quadratic; where that root is repeated, or Newton has not arrived within a few
+//! steps, the trigonometric solution instead. The
 //! normalised cubic does not lose digits to a shift (eigenvalues close together far
 //! from zero) or to the matrix's scale, which is taken out by a power of two first.
 //! Accurate to ~1e-12 of the largest magnitude (repeated eigenvalues lose about half
@@ -24,10 +25,11 @@ pub struct UnitSymmetric3 {
 }
 
 impl UnitSymmetric3 {
-    /// `None` for a zero or non-finite matrix.
+    /// `None` for a zero matrix or one with a NaN or infinite entry.
     pub fn new(a: &Matrix3<f64>) -> Option<Self> {
+        // `max` skips NaN: finiteness is checked on every entry.
         let largest = a.iter().fold(0.0f64, |m: f64, &x: &f64| m.max(x.abs()));
-        (largest > 0.0 && largest.is_finite()).then(|| {
+        (largest > 0.0 && a.iter().all(|x| x.is_finite())).then(|| {
             let scale = crate::geometry::unit_power_of_two(largest);
             UnitSymmetric3 {
                 a: a * scale,
@@ -56,8 +58,10 @@ impl UnitSymmetric3 {
         }
         let p = (spread / 6.0).sqrt();
         let inv_p = 1.0 / p;
-        // det B = det(A − qI) / p³, clamped to the cubic's range against rounding.
-        let c = ((a - Matrix3::identity() * q).determinant() * (inv_p * inv_p * inv_p))
+        // det B = det((A − qI) / p), clamped to the cubic's range against rounding
+        // (dividing first: for a nearly isotropic matrix 1/p³ overflows).
+        let c = ((a - Matrix3::identity() * q) * inv_p)
+            .determinant()
             .clamp(-2.0, 2.0);
         let [x0, x1, x2] =
             normalised_roots_by_newton(c).unwrap_or_else(|| normalised_roots_by_angle(c));
@@ -125,16 +129,25 @@ pub fn symmetric_eigenvalues3(a: &Matrix3<f64>) -> [f64; 3] {
 
 /// The eigenvalues `UnitSymmetric3::new` has no scale for: zeros, or NaN.
 fn zero_or_nan_eigenvalues(a: &Matrix3<f64>) -> [f64; 3] {
-    [a[(0, 0)], a[(1, 1)], a[(2, 2)]].map(|x| x * 0.0)
+    let value = if a.iter().all(|x| x.is_finite()) {
+        0.0
+    } else {
+        f64::NAN
+    };
+    [value; 3]
 }
 
 /// The roots (ascending) of x³ − 3x − c, |c| ≤ 2, the smallest by Newton's method from
 /// below: left of its smallest root the cubic rises and bends down, so the steps climb
-/// to the root without passing it. `None` when they have not arrived within a few
-/// steps (a root repeated or nearly so).
+/// to the root without passing it. `None` where the root is (all but) repeated: the
+/// cubic at the start, which lies at least 5e-10 below the root, already rounds to
+/// zero or above (c = 2: a double root), or the steps have not arrived within a few.
 fn normalised_roots_by_newton(c: f64) -> Option<[f64; 3]> {
     let tolerance = 4.0 * f64::EPSILON;
     let mut x = smallest_root_from_below(c);
+    if (x * x - 3.0) * x - c >= 0.0 {
+        return None;
+    }
     for _ in 0..8 {
         let f = (x * x - 3.0) * x - c;
         let slope = 3.0 * (x * x - 1.0);
@@ -281,11 +294,44 @@ mod tests {
                 assert!((a * v - v * values[0]).norm() < 1e-7 * scale, "{i}: {d:?}");
             }
         }
-        // Both paths taken (a nearly repeated smallest root: ~1 in 40 goes to the angle).
+        // Both paths taken (a repeated or nearly repeated smallest root goes to the angle).
         assert!(
             by_newton > 5000 && by_angle > 100,
             "{by_newton} by Newton, {by_angle} by angle"
         );
+    }
+
+    #[test]
+    fn repeated_and_nearly_isotropic_eigenvalues_are_exact() {
+        // A rank-1 covariance (collinear points) and a rotated diag(1, 1, 2): c = 2 exactly,
+        // a double smallest root, where a Newton start would come back unrefined.
+        let u = Vector3::new(0.48, -0.6, 0.64);
+        let r = Rotation3::from_euler_angles(0.3, -0.7, 1.1);
+        let rotated = r.matrix()
+            * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 2.0))
+            * r.matrix().transpose();
+        for (a, want) in [
+            (u * u.transpose(), [0.0, 0.0, 1.0]),
+            (rotated, [1.0, 1.0, 2.0]),
+        ] {
+            let values = symmetric_eigenvalues3(&a);
+            for k in 0..3 {
+                assert!(
+                    (values[k] - want[k]).abs() < 1e-14,
+                    "{values:?} vs {want:?}"
+                );
+            }
+        }
+        // Anisotropy of 1e-110: 1/p³ alone would overflow.
+        let e = 1e-110;
+        let a = Matrix3::new(1.0, e, 0.0, e, 1.0, 0.0, 0.0, 0.0, 1.0);
+        let values = symmetric_eigenvalues3(&a);
+        assert!(values.iter().all(|v| (v - 1.0).abs() < 1e-15), "{values:?}");
+        // A NaN entry has no eigenvalues, whatever the largest finite entry.
+        let mut nan = Matrix3::identity();
+        nan[(1, 2)] = f64::NAN;
+        assert!(UnitSymmetric3::new(&nan).is_none());
+        assert!(symmetric_eigenvalues3(&nan).iter().all(|v| v.is_nan()));
     }
 
     #[test]

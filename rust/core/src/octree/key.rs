@@ -326,8 +326,17 @@ mod tests {
             values.extend([border, border.next_up(), border.next_down()]);
         }
         values.extend((0..300).map(|_| rng.uniform(-1638.4, 1638.4)));
-        let points: Vec<[f64; 3]> = (0..values.len())
-            .map(|i| [0, 1, 2].map(|a| values[(i * (a + 1) * 7 + a) % values.len()]))
+        // Every value on every axis, beside others and beside zeros.
+        let n = values.len();
+        let points: Vec<[f64; 3]> = (0..n)
+            .map(|i| [values[i], values[(i + 1) % n], values[(i + 2) % n]])
+            .chain((0..n).flat_map(|i| {
+                [0, 1, 2].map(|a| {
+                    let mut p = [0.0; 3];
+                    p[a] = values[i];
+                    p
+                })
+            }))
             .collect();
         let keyed = c.morton_keyed(&points).unwrap();
         for (i, (p, (code, index))) in points.iter().zip(keyed).enumerate() {
