@@ -162,25 +162,24 @@ impl SurfaceMap {
             )));
         }
         let res = self.resolution();
-        let coarsest = (max_leaf_size / res).log2().floor().clamp(0.0, 15.0) as usize;
-        // A point needs `levels` above the finest when its gap r·b exceeds 2^(levels−1)
-        // cells: count the squared ranges 2^L·res/b it exceeds, no root or log per point.
-        let mut limits = [f64::INFINITY; 16];
-        for (level, limit) in limits.iter_mut().enumerate().take(coarsest) {
-            *limit = ((1u32 << level) as f64 * res / beam_spacing).powi(2);
-        }
+        let coarsest = (max_leaf_size / res).log2().floor().clamp(0.0, 15.0) as i32;
+        // A point needs L levels above the finest when its gap r·b exceeds 2^(L−1) cells:
+        // L = #{l ≥ 0 : 4^l < x} for the squared gap in cells x = r²·(b/res)², read off
+        // x's binary exponent e (2l < e, or 2l = e with a mantissa above 1): no root, log
+        // or search per point, and the loop vectorises.
+        let scale = (beam_spacing / res).powi(2);
         Ok(points
             .iter()
             .map(|p| {
                 let range2 = (p[0] - origin[0]).powi(2)
                     + (p[1] - origin[1]).powi(2)
                     + (p[2] - origin[2]).powi(2);
-                // How many (ascending) limits lie below: a branch-free binary search.
-                let mut levels = 0;
-                for step in [8, 4, 2, 1] {
-                    levels += step * usize::from(range2 > limits[levels + step - 1]);
-                }
-                (TREE_DEPTH as usize - levels) as u8
+                let bits = (range2 * scale).to_bits();
+                let e = ((bits >> 52) & 0x7ff) as i32 - 1023;
+                let above = bits & ((1 << 52) - 1) != 0;
+                let even_above = i32::from((e >= 0) & (e % 2 == 0) & above);
+                let levels = ((e.max(-1) + 1) / 2 + even_above).min(coarsest);
+                (TREE_DEPTH as i32 - levels) as u8
             })
             .collect())
     }
@@ -537,6 +536,52 @@ fn pos(c: &SurfaceNode) -> Vector3<f64> {
 mod tests {
     use super::*;
     use crate::synthetic::Rng;
+
+    /// Leaf depths equal the definition, the smallest node of at least r·b (clamped to
+    /// the coarsest), wherever r·b is not within rounding of a node size.
+    #[test]
+    fn leaf_depths_are_the_smallest_node_spanning_the_gap() {
+        let mut rng = Rng::new(17);
+        for (res, spacing, max_leaf) in [(0.01, 0.035, 0.16), (0.05, 0.004, 10.0), (0.2, 0.5, 0.2)]
+        {
+            let map = SurfaceMap::new(res, SurfaceParams::default()).unwrap();
+            let origin = [0.3, -1.2, 0.7];
+            let coarsest = (max_leaf / res).log2().floor().clamp(0.0, 15.0) as u32;
+            // Ranges spread over many octaves, and exactly at node sizes (gap = 2^l cells).
+            let mut ranges: Vec<f64> = (0..20_000)
+                .map(|_| 10f64.powf(rng.uniform(-4.0, 3.5)))
+                .collect();
+            ranges.extend((0..16).map(|l| f64::from(1u32 << l) * res / spacing));
+            let points: Vec<[f64; 3]> = ranges
+                .iter()
+                .map(|&r| {
+                    let d = [
+                        rng.uniform(-1.0, 1.0),
+                        rng.uniform(-1.0, 1.0),
+                        rng.uniform(-1.0, 1.0),
+                    ];
+                    let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                    [0, 1, 2].map(|a| origin[a] + r * d[a] / n)
+                })
+                .collect();
+            let depths = map.leaf_depths(&points, origin, spacing, max_leaf).unwrap();
+            for (p, &depth) in points.iter().zip(&depths) {
+                let r = crate::geometry::distance_squared(p, &origin).sqrt();
+                let gap_cells = r * spacing / res;
+                let levels = if gap_cells <= 1.0 {
+                    0
+                } else {
+                    gap_cells.log2().ceil() as u32
+                };
+                let want = TREE_DEPTH - levels.min(coarsest);
+                let near_size = (gap_cells.log2() - gap_cells.log2().round()).abs() < 1e-9;
+                assert!(
+                    u32::from(depth) == want || near_size,
+                    "r {r}: {depth} vs {want}"
+                );
+            }
+        }
+    }
 
     /// A resumed descent gives exactly what a fresh one does, whatever the order of
     /// the points (Morton order shares long prefixes, random order short ones).
