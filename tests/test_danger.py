@@ -133,6 +133,17 @@ def test_frame_cost_follows_the_active_set_not_the_map():
     tree.insert_point_cloud(VOXEL + [0, 0, 1.0], ORIGIN)
     second = tree.end_frame(0.1)
     assert second.hit == 1 and second.decayed <= second.active
+    # Counted exactly: one voxel hit, then a frame whose ray sees it free (from the
+    # other side, ending two voxels beyond it) and hits a new one.
+    small = earcore.OcTree(0.05)
+    small.insert_point_cloud(VOXEL, ORIGIN)
+    report = small.end_frame(0.1)
+    assert (report.hit, report.decayed, report.active) == (1, 0, 1)
+    small.insert_point_cloud(VOXEL - [0.1, 0, 0], VOXEL[0] + [0.3, 0, 0])
+    report = small.end_frame(0.1)
+    assert (report.hit, report.decayed, report.active) == (1, 1, 2)
+    _, _, values = small.danger_voxels()
+    assert sorted(values.tolist())[1] == pytest.approx(0.999) and 0.99 < min(values) < 0.999
 
 
 def test_free_rays_clear_space_without_hits():

@@ -45,6 +45,14 @@ def test_cast_ray_stops_at_unknown_and_max_range():
     assert not hit, "unknown space stops the ray unless ignore_unknown"
     hit, _ = tree.cast_ray([0.05, 0.05, 0.05], [0, 1, 0], max_range=2.0, ignore_unknown=True)
     assert not hit
+    # From beyond the wall, through cells no ray has seen: unknown space stops the ray
+    # unless it is ignored, and then the wall is hit (pyoctomap's castRay agrees).
+    hit, end = tree.cast_ray([3.05, 0.05, 0.05], [-1, 0, 0])
+    assert not hit and np.allclose(end, [3.05, 0.05, 0.05])
+    hit, end = tree.cast_ray([3.05, 0.05, 0.05], [-1, 0, 0], ignore_unknown=True)
+    assert hit and np.allclose(end, [2.05, 0.05, 0.05])
+    hit, _ = tree.cast_ray([3.05, 0.05, 0.05], [-1, 0, 0], max_range=0.5, ignore_unknown=True)
+    assert not hit
 
 
 def test_leaves_in_a_box_and_occupied_voxels():

@@ -10,8 +10,8 @@ import earcore
 import earcore.robots as robots
 from earcore.synthetic import robot_cell_voxels
 
-pin = pytest.importorskip("pinocchio")
-fcl = pytest.importorskip("fcl")
+# The peer references are test dependencies (`.[test]`); only the tests that compare
+# with them skip where they are missing, not the whole module.
 
 ARMS = ["ur3", "ur5", "ur10", "iiwa", "panda"]
 
@@ -41,6 +41,7 @@ def above_table(model, count, seed):
 @pytest.mark.parametrize("name", ARMS)
 def test_fk_equals_pinocchio(name):
     """Double-precision reference: Pinocchio's frame placements from the same URDF."""
+    pin = pytest.importorskip("pinocchio")
     model = robots.load(name)
     ref = pin.buildModelFromUrdf(str(robots.urdf_path(name)))
     data = ref.createData()
@@ -159,11 +160,28 @@ def test_fit_body_shapes():
     rng = np.random.default_rng(0)
     can = np.column_stack([rng.normal(size=(2000, 2)), rng.uniform(-0.06, 0.06, 2000)])
     can[:, :2] *= 0.06 / np.linalg.norm(can[:, :2], axis=1, keepdims=True).max()
-    a, b, r, shape = earcore.fit_body(can, 0.0)
+    def body(a, b, r, shape):
+        # A hair of slack (radius and ends) for the points the fit puts exactly on the surface.
+        e = 1e-9 * (b - a) / np.linalg.norm(b - a)
+        return {"a": (a - e)[None], "b": (b + e)[None], "radius": np.array([r + 1e-9]), "shape": np.array([shape])}
+
+    def fit(*args):
+        a, b, r, shape = earcore.fit_body(can, *args)
+        return np.asarray(a), np.asarray(b), r, shape
+
+    a, b, r, shape = fit(0.0)
     assert shape == "cylinder"
-    assert r <= 0.0601
-    a, b, r, shape = earcore.fit_body(can, 0.01, "capsule")
+    # The can's axis and length, every point inside, and a radius between the half
+    # width of its widest pair of points (any enclosing circle's least) and 6 cm (the
+    # circle about the origin encloses them all).
+    xy = can[:, :2]
+    half_width = np.sqrt(((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2).max()) / 2
+    assert half_width - 1e-9 <= r <= 0.0601
+    assert abs((b - a)[2]) == pytest.approx(0.12, abs=2e-3) and np.abs((b - a)[:2]).max() < 2e-3
+    assert inside_bodies(can, body(a, b, r, shape)).all()
+    a, b, r, shape = fit(0.01, "capsule")
     assert shape == "capsule"
+    assert r >= half_width + 0.01 - 1e-9 and inside_bodies(can, body(a, b, r, shape)).all()
     with pytest.raises(ValueError, match="shape"):
         earcore.fit_body(can, 0.0, "sphere")
     with pytest.raises(ValueError):
@@ -285,6 +303,7 @@ def test_self_filter_on_rendered_frames(name):
 
 
 def fcl_body(a, b, r, shape):
+    fcl = pytest.importorskip("fcl")
     d = b - a
     length = np.linalg.norm(d)
     z = d / length
@@ -297,6 +316,7 @@ def fcl_body(a, b, r, shape):
 
 
 def fcl_boxes(tree):
+    fcl = pytest.importorskip("fcl")
     centres, sizes = tree.occupied_voxels()
     objects = [fcl.CollisionObject(fcl.Box(s, s, s), fcl.Transform(np.eye(3), c)) for c, s in zip(centres, sizes)]
     manager = fcl.DynamicAABBTreeCollisionManager()
@@ -307,6 +327,7 @@ def fcl_boxes(tree):
 
 def fcl_reference(model, manager, q):
     """(any moving body collides, min distance of the moving bodies) per FCL."""
+    fcl = pytest.importorskip("fcl")
     placed = model.bodies(q)
     moving = [not model.fixed_to_root[link] for link in placed["link"]]
     hit, dist = False, np.inf

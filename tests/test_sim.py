@@ -127,6 +127,9 @@ def test_sigma_follows_the_published_models():
     assert v2.sigma(1.0) == pytest.approx(1.3e-3)  # 1.5 - 0.5 + 0.3 mm
     assert v1.sigma(2.0) == pytest.approx((1.2 + 1.9 * 1.6**2) * 1e-3)
     assert v2.sigma(2.0, np.radians(70)) > 3 * v2.sigma(2.0)
+    # F200 (coded light): 0.5 + 2.5·z² mm.
+    assert SENSORS["f200"].sigma(1.0) == pytest.approx(3.0e-3)
+    assert SENSORS["f200"].sigma(0.4) == pytest.approx((0.5 + 2.5 * 0.16) * 1e-3)
 
 
 def test_controller_respects_limits_and_arrives():

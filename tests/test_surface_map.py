@@ -185,9 +185,14 @@ def test_position_memory_averages_the_first_points_then_moves_slowly():
         expected = (expected * w + p) / (w + 1)
     positions, _, _ = m.nodes(16)
     np.testing.assert_allclose(positions[0], expected, atol=1e-6)
-    np.testing.assert_allclose(
-        earcore.SurfaceMap(0.1, position_memory=100).insert(pts) and 0, 0
-    )  # inserting a whole batch works too
+    # A whole batch blends in input order, as one point at a time does.
+    batch = earcore.SurfaceMap(0.1, position_memory=4)
+    assert batch.insert(pts) == 1
+    np.testing.assert_allclose(batch.nodes(16)[0][0], expected, atol=1e-6)
+    # With memory for all of them the leaf is their mean.
+    mean = earcore.SurfaceMap(0.1, position_memory=100)
+    mean.insert(pts)
+    np.testing.assert_allclose(mean.nodes(16)[0][0], pts.mean(axis=0), atol=1e-6)
 
 
 def test_dynamic_leaf_depth_rejects_bad_input():

@@ -168,9 +168,26 @@ fn files_round_trip_in_rust() {
         .collect();
     tree.insert_point_cloud(&pts, [0.0, 0.0, 1.5], None, false)
         .unwrap();
+    let leaves = |t: &OcTree| {
+        let mut all = Vec::new();
+        t.for_each_leaf(|l| all.push((l.key.0, l.depth, l.log_odds)));
+        all.sort_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+        all
+    };
+    // .ot keeps every leaf with its log-odds; reading it back gives the same tree.
     let full = OcTree::read_full_bytes(&tree.write_full_bytes(), Default::default()).unwrap();
+    assert_eq!(leaves(&full), leaves(&tree));
     assert_eq!(full.write_full_bytes(), tree.write_full_bytes());
+    // .bt keeps only free / occupied: each leaf comes back at the clamping bound of
+    // its side of the threshold.
     let bt = tree.write_binary_bytes();
     let back = OcTree::read_binary_bytes(&bt, Default::default()).unwrap();
+    let (lo, hi) = tree.clamping_log_odds();
+    let want: Vec<_> = leaves(&tree)
+        .into_iter()
+        .map(|(k, d, l)| (k, d, if tree.is_occupied_log_odds(l) { hi } else { lo }))
+        .collect();
+    assert!(want.iter().any(|l| l.2 == hi) && want.iter().any(|l| l.2 == lo));
+    assert_eq!(leaves(&back), want);
     assert_eq!(back.write_binary_bytes(), bt);
 }

@@ -539,5 +539,44 @@ mod tests {
         let f = Frame::from_xyz_rpy([0.0; 3], [0.0, 0.0, std::f64::consts::FRAC_PI_2]);
         let v = f.apply(&[1.0, 0.0, 0.0]);
         assert!((v[1] - 1.0).abs() < 1e-15);
+        // All three angles at once, against the product of the three rotations written
+        // out by hand (any other order of the factors differs).
+        let (r, p, y) = (0.3f64, -0.5f64, 0.8f64);
+        let rx = [
+            [1.0, 0.0, 0.0],
+            [0.0, r.cos(), -r.sin()],
+            [0.0, r.sin(), r.cos()],
+        ];
+        let ry = [
+            [p.cos(), 0.0, p.sin()],
+            [0.0, 1.0, 0.0],
+            [-p.sin(), 0.0, p.cos()],
+        ];
+        let rz = [
+            [y.cos(), -y.sin(), 0.0],
+            [y.sin(), y.cos(), 0.0],
+            [0.0, 0.0, 1.0],
+        ];
+        let mul = |a: [[f64; 3]; 3], b: [[f64; 3]; 3]| {
+            let mut m = [[0.0; 3]; 3];
+            for i in 0..3 {
+                for j in 0..3 {
+                    m[i][j] = (0..3).map(|k| a[i][k] * b[k][j]).sum();
+                }
+            }
+            m
+        };
+        let want = mul(rz, mul(ry, rx));
+        let f = Frame::from_xyz_rpy([0.1, -0.2, 0.3], [r, p, y]);
+        for (column, axis) in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+            .iter()
+            .enumerate()
+        {
+            let v = f.apply(axis);
+            for row in 0..3 {
+                let expected = want[row][column] + [0.1, -0.2, 0.3][row];
+                assert!((v[row] - expected).abs() < 1e-14, "{v:?} column {column}");
+            }
+        }
     }
 }
