@@ -171,7 +171,7 @@ fn files_round_trip_in_rust() {
     let leaves = |t: &OcTree| {
         let mut all = Vec::new();
         t.for_each_leaf(|l| all.push((l.key.0, l.depth, l.log_odds)));
-        all.sort_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+        all.sort_by_key(|a| (a.0, a.1));
         all
     };
     // .ot keeps every leaf with its log-odds; reading it back gives the same tree.
