@@ -60,3 +60,21 @@ def nearest_face_normals(points, boxes):
                 best[closer] = d[closer]
                 axis[closer] = a
     return np.eye(3)[axis]
+
+
+def motion_danger_reference(model, tree, q0, q1, resolution):
+    """Eq. 4 as documented: per body, the mean over its axis points of Σ d (1 + C)."""
+    steps = max(int(np.ceil(np.abs(q1 - q0).max() / resolution)), 1)
+    path = q0 + np.linspace(0, 1, steps + 1)[:, None] * (q1 - q0)
+    placed = [model.bodies(q) for q in path]
+    total = 0.0
+    for slot in range(len(placed[0]["link"])):
+        length = np.linalg.norm(placed[0]["b"][slot] - placed[0]["a"][slot])
+        n = max(int(np.ceil(length / tree.resolution)), 1)
+        t = np.linspace(0, 1, n + 1)[:, None]
+        points = np.stack([p["a"][slot] + t * (p["b"][slot] - p["a"][slot]) for p in placed])
+        moves = np.linalg.norm(np.diff(points, axis=0), axis=-1)
+        mid = 0.5 * (points[1:] + points[:-1])
+        danger = tree.danger(mid.reshape(-1, 3)).reshape(moves.shape).astype(np.float64)
+        total += (moves * (1 + danger)).sum() / (n + 1)
+    return total

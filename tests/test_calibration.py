@@ -538,8 +538,15 @@ def test_table_rows_select_the_frames_they_describe():
     assert len(select(frames, ROWS[0])) == len(frames) == 45
     no_overlap = select(frames, Row("x", overlap=False))
     assert all(o.slot is None or o.slot % 2 == 0 for o in no_overlap) and len(no_overlap) == 7 + 2 * (1 + 3 + 6)
-    assert not any(o.tilted for o in select(frames, Row("x", tilting=False)) if o.phase == "stage")
-    assert all(o.radius is None or o.radius <= 0.5 for o in select(frames, Row("x", field="centre")))
+    # Counted by hand: 7 start and tilt frames always; stage slots j at two factors each,
+    # odd j tilted (radius 0: j = 0; 0.3 m: 3 of 6; 0.8 m: 6 of 12).
+    untilted = select(frames, Row("x", tilting=False))
+    assert len(untilted) == 7 + 2 * (1 + 3 + 6)
+    assert not any(o.tilted for o in untilted if o.phase == "stage")
+    centre = select(frames, Row("x", field="centre"))
+    assert len(centre) == 7 + 2 * (1 + 6)
+    assert all(o.radius is None or o.radius <= 0.5 for o in centre)
+    assert len(select(frames, Row("x", tilting=False, field="centre"))) == 7 + 2 * (1 + 3)
     twenty = select(frames, Row("x", frames=20))
     assert len(twenty) == 20 and sum(o.phase != "stage" for o in twenty) == 7
     radii = {o.radius for o in twenty if o.phase == "stage"}

@@ -204,6 +204,11 @@ def test_path_danger_is_the_sum_of_its_segments(ur5):
     path = np.stack([A, (A + B) / 2 + 0.2, B])
     segments = ur5.motion_danger(tree, path[0], path[1], 0.05) + ur5.motion_danger(tree, path[1], path[2], 0.05)
     assert ur5.path_danger(tree, path, 0.05) == pytest.approx(segments, rel=1e-12)
+    # Each segment is Eq. 4 as documented (the reference written in the tests).
+    from conftest import motion_danger_reference
+
+    reference = sum(motion_danger_reference(ur5, tree, path[i], path[i + 1], 0.05) for i in range(2))
+    assert segments == pytest.approx(reference, rel=1e-9)
     assert segments > ur5.path_danger(earcore.OcTree(0.05), path, 0.05)  # danger adds cost
 
 
