@@ -565,7 +565,7 @@ mod tests {
     #[test]
     fn cylinder_box_overlap_agrees_with_sampling() {
         let mut rng = Rng::new(12);
-        let mut agree = 0;
+        let mut overlapping = 0;
         for _ in 0..400 {
             let mut v = || rng.uniform(-0.5, 0.5);
             let body = Body::cylinder([v(), v(), v()], [v(), v(), v()], v().abs() * 0.3 + 0.01);
@@ -614,9 +614,10 @@ mod tests {
                 );
                 assert!((contact.distance - min_gap).abs() < 0.03);
             }
-            agree += 1;
+            overlapping += usize::from(exact);
         }
-        assert_eq!(agree, 400);
+        // Both answers are exercised.
+        assert!((40..=360).contains(&overlapping), "{overlapping} of 400 overlap");
     }
 
     #[test]
