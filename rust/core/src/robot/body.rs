@@ -617,7 +617,10 @@ mod tests {
             overlapping += usize::from(exact);
         }
         // Both answers are exercised.
-        assert!((40..=360).contains(&overlapping), "{overlapping} of 400 overlap");
+        assert!(
+            (40..=360).contains(&overlapping),
+            "{overlapping} of 400 overlap"
+        );
     }
 
     #[test]
