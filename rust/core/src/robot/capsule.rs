@@ -272,13 +272,20 @@ mod tests {
                 [v(), v(), v()],
             );
             let (d2, _, _) = segment_segment_closest(&p1, &q1, &p2, &q2);
-            let mut best = f64::INFINITY;
-            for i in 0..=200 {
-                let s = i as f64 / 200.0;
-                let x = lerp(&p1, &q1, s);
-                best = best.min(point_segment_distance_squared(&p2, &q2, &x));
+            // The distance from a point moving along the first segment to the second
+            // is convex in its parameter: a ternary search finds its minimum.
+            let at = |s: f64| point_segment_distance_squared(&p2, &q2, &lerp(&p1, &q1, s)).sqrt();
+            let (mut lo, mut hi) = (0.0f64, 1.0f64);
+            for _ in 0..200 {
+                let (a, b) = (lo + (hi - lo) / 3.0, hi - (hi - lo) / 3.0);
+                if at(a) <= at(b) {
+                    hi = b;
+                } else {
+                    lo = a;
+                }
             }
-            assert!(d2 <= best + 1e-12 && best.sqrt() - d2.sqrt() < 0.02);
+            let best = at(0.0).min(at(1.0)).min(at((lo + hi) / 2.0));
+            assert!((d2.sqrt() - best).abs() < 1e-9, "{} vs {best}", d2.sqrt());
         }
     }
 
