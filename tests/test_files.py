@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import earcore
@@ -134,6 +134,7 @@ def test_header_damage_raises(sample_files, tmp_path, kind):
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(kind=st.sampled_from(["ot", "bt"]), flips=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), min_size=1, max_size=8))
+@example(kind="bt", flips=[(0.42578125, 170)])  # loads with eight equal children
 def test_corrupted_bytes_load_or_raise_never_crash(sample_files, tmp_path, kind, flips):
     data = bytearray(sample_files[kind])
     for where, value in flips:
@@ -143,9 +144,11 @@ def test_corrupted_bytes_load_or_raise_never_crash(sample_files, tmp_path, kind,
     except earcore.MapFormatError:
         return  # refused, with the library's error
     # Loaded: damage that still parses must give a whole tree, one that writes and reads back
-    # to the same leaves.
+    # to the same map. (Not always the same leaves: damage can leave eight equal children,
+    # which writing prunes into their parent, as OctoMap does.)
     path = tmp_path / f"again.{kind}"
     (tree.write if kind == "ot" else tree.write_binary)(path)
     again = (earcore.OcTree.read if kind == "ot" else earcore.OcTree.read_binary)(path)
-    for a, b in zip(tree.leaves(), again.leaves()):
-        np.testing.assert_array_equal(a, b)
+    centres, _, _ = tree.leaves()
+    np.testing.assert_array_equal(again.log_odds(centres), tree.log_odds(centres))
+    assert again.num_leaf_nodes() <= tree.num_leaf_nodes()
