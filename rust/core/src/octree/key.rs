@@ -4,8 +4,6 @@
 //! `double`; the conversions below keep those precisions so that a point lands in
 //! the same cell here as in OctoMap, bit for bit.
 
-use crate::floor::floor_i64;
-
 /// Tree depth; OctoMap's `OcTree` is fixed at 16 levels.
 pub const TREE_DEPTH: u32 = 16;
 /// Key of the cell whose lower corner is the origin (OctoMap's `tree_max_val`).
@@ -110,6 +108,23 @@ fn compact(code: u64) -> u16 {
     x as u16
 }
 
+/// Whether a coordinate in cells (`coordinate / resolution`) has a key. The bounds are
+/// whole numbers, so testing before the floor is the same test; NaN fails both
+/// comparisons. Written without short-circuit so batches of it vectorise.
+#[inline(always)]
+fn in_key_range(scaled: f64) -> bool {
+    (scaled >= -(TREE_MAX_VAL as f64)) & (scaled < TREE_MAX_VAL as f64)
+}
+
+/// The key of a coordinate in cells that `in_key_range` accepts: a floor in 32 bits
+/// (|scaled| ≤ 2^15 there), which vectorises.
+#[inline(always)]
+fn key_in_range(scaled: f64) -> u16 {
+    let toward_zero = scaled as i32;
+    let floor = toward_zero - i32::from(toward_zero as f64 > scaled);
+    (floor + TREE_MAX_VAL) as u16
+}
+
 /// Conversions between metric coordinates and keys for one resolution.
 #[derive(Clone, Copy, Debug)]
 pub struct KeyConverter {
@@ -147,13 +162,7 @@ impl KeyConverter {
     #[inline]
     pub fn coord_to_key_axis_checked(&self, coordinate: f64) -> Option<u16> {
         let scaled = self.resolution_factor * coordinate;
-        // The bounds are whole numbers, so testing before the floor is the same test;
-        // NaN fails both comparisons.
-        if scaled >= -(TREE_MAX_VAL as f64) && scaled < TREE_MAX_VAL as f64 {
-            Some((floor_i64(scaled) + i64::from(TREE_MAX_VAL)) as u16)
-        } else {
-            None
-        }
+        in_key_range(scaled).then(|| key_in_range(scaled))
     }
 
     /// The key of the cell holding a point given as OctoMap's `point3d` (float).
@@ -181,10 +190,8 @@ impl KeyConverter {
     /// `coord_to_key_checked_f64`, in two branch-free passes that vectorise: the bounds
     /// of all points first, then keys by a 32-bit floor (in bounds, |scaled| ≤ 2^15).
     pub fn morton_keyed(&self, points: &[[f64; 3]]) -> std::result::Result<Vec<(u64, u32)>, usize> {
-        let limit = TREE_MAX_VAL as f64;
         let factor = self.resolution_factor;
-        // NaN fails both comparisons.
-        let inside = |c: f64| (factor * c >= -limit) & (factor * c < limit);
+        let inside = |c: f64| in_key_range(factor * c);
         let all_inside = points.iter().fold(true, |all, p| {
             all & inside(p[0]) & inside(p[1]) & inside(p[2])
         });
@@ -196,13 +203,10 @@ impl KeyConverter {
             .iter()
             .enumerate()
             .map(|(i, p)| {
-                let key = p.map(|c| {
-                    let scaled = factor * c;
-                    let toward_zero = scaled as i32;
-                    let floor = toward_zero - i32::from(toward_zero as f64 > scaled);
-                    (floor + TREE_MAX_VAL) as u16
-                });
-                (OcTreeKey(key).morton(), i as u32)
+                (
+                    OcTreeKey(p.map(|c| key_in_range(factor * c))).morton(),
+                    i as u32,
+                )
             })
             .collect())
     }
@@ -341,9 +345,12 @@ mod tests {
         let keyed = c.morton_keyed(&points).unwrap();
         for (i, (p, (code, index))) in points.iter().zip(keyed).enumerate() {
             assert_eq!(index as usize, i);
+            // The reference: the standard library's floor.
+            let key = p.map(|x| ((c.resolution_factor * x).floor() + 32768.0) as u16);
+            assert_eq!(code, OcTreeKey(key).morton(), "{p:?}");
             assert_eq!(
-                code,
-                c.coord_to_key_checked_f64(*p).unwrap().morton(),
+                Some(OcTreeKey(key)),
+                c.coord_to_key_checked_f64(*p),
                 "{p:?}"
             );
         }
