@@ -17,7 +17,7 @@ import numpy as np
 
 from earcore._earcore import EarcoreError
 
-__all__ = ["UrdfError", "UrdfJoint", "UrdfRobot", "parse_urdf", "read_mesh_vertices"]
+__all__ = ["UrdfError", "UrdfJoint", "UrdfRobot", "collision_as_visual", "parse_urdf", "read_mesh_vertices"]
 
 
 class UrdfError(EarcoreError, ValueError):
@@ -101,6 +101,57 @@ def resolve_mesh_path(filename: str, urdf_path: Path) -> Path:
         if (folder / rel).is_file():
             return folder / rel
     raise UrdfError(f"{urdf_path.name}: mesh {filename!r} not found in {base} or its parent folders")
+
+
+#: Colour of links whose visual elements name no material (a UR arm's light grey).
+DEFAULT_LINK_RGBA = "0.75 0.75 0.75 1"
+
+
+def collision_as_visual(path: str | Path, out: str | Path) -> Path:
+    """Write a copy of the URDF at `path` into the folder `out` whose links *look* like
+    their collision geometry: each link with collision elements gets them as its visual
+    elements (same origins and meshes; every mesh path made absolute), keeping the first
+    visual's material (or a light grey). Links without collision geometry keep their
+    visuals. Returns the new file's path.
+
+    For rendering speed: pybullet's tiny renderer spends most of a small image on
+    triangles, and a UR5's visual meshes have ~20x the collision meshes' (its depth
+    images agree to ~1 mm; `tests/test_sim.py` measures it)."""
+    path = Path(path)
+    try:
+        tree = ET.parse(path)
+    except (OSError, ET.ParseError) as exc:
+        raise UrdfError(f"{path}: cannot read the URDF: {exc}") from exc
+    root = tree.getroot()
+    for link in root.findall("link"):
+        collisions = link.findall("collision")
+        if not collisions:
+            continue
+        visuals = link.findall("visual")
+        material = next((v.find("material") for v in visuals if v.find("material") is not None), None)
+        for v in visuals:
+            link.remove(v)
+        for c in collisions:
+            visual = ET.SubElement(link, "visual")
+            for child in c:
+                if child.tag in ("origin", "geometry"):
+                    visual.append(_copy_element(child))
+            if material is not None:
+                visual.append(_copy_element(material))
+            else:
+                ET.SubElement(ET.SubElement(visual, "material", name="earcore_link"), "color", rgba=DEFAULT_LINK_RGBA)
+    # The copy lives elsewhere: every mesh it names (collision ones too) by absolute path.
+    for mesh in root.iter("mesh"):
+        mesh.set("filename", str(resolve_mesh_path(mesh.get("filename", ""), path).resolve()))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    target = out / f"{path.stem}_collision_visuals.urdf"
+    tree.write(target, encoding="unicode")
+    return target
+
+
+def _copy_element(element: ET.Element) -> ET.Element:
+    return ET.fromstring(ET.tostring(element))
 
 
 def read_mesh_vertices(path: Path) -> np.ndarray:

@@ -79,6 +79,8 @@ def _pybullet():
 
 class SimulatedCell:
     def __init__(self, config: CellConfig = CellConfig()) -> None:
+        if config.robot_meshes not in ("visual", "collision"):
+            raise ValueError(f"robot_meshes must be 'visual' or 'collision', got {config.robot_meshes!r}")
         pybullet, BulletClient = _pybullet()
         self.config = config
         self.rng = np.random.default_rng(config.seed)
@@ -88,7 +90,7 @@ class SimulatedCell:
         self._static_bodies = self._build_static(config)
         # The robot, in pybullet and as earcore's model (same URDF, same root frame).
         path = urdf_path(config.robot)
-        self.robot_id = p.loadURDF(str(path), useFixedBase=True)
+        self.robot_id = self._load_robot(path, config.robot_meshes)
         self.model: RobotModel = load(config.robot, padding=config.padding)
         self.model.base = self._root_frame()
         joints = [p.getJointInfo(self.robot_id, j) for j in range(p.getNumJoints(self.robot_id))]
@@ -135,6 +137,17 @@ class SimulatedCell:
         for b in config.boxes:
             box(b[:3], b[3:], (0.2, 0.45, 0.7, 1))
         return bodies
+
+    def _load_robot(self, path, meshes: str) -> int:
+        if meshes == "visual":
+            return self.p.loadURDF(str(path), useFixedBase=True)
+        import tempfile
+
+        from earcore.urdf import collision_as_visual
+
+        # pybullet reads the meshes while loading: the rewritten URDF can go after.
+        with tempfile.TemporaryDirectory(prefix="earcore-robot-") as folder:
+            return self.p.loadURDF(str(collision_as_visual(path, folder)), useFixedBase=True)
 
     def table_box(self) -> tuple[list[float], list[float]]:
         """The table top's box (min, max corners) in the base frame; its top is z = 0."""
