@@ -123,6 +123,28 @@ def test_structured_light_quantisation_grows_with_distance():
     assert steps.min() == pytest.approx(0.8**2 / (8 * 580 * 0.075), abs=1.5e-3)
 
 
+def test_incidence_angles_of_a_tilted_plane_are_exact():
+    """Differences between back-projected neighbours of a plane lie in the plane, so
+    the estimated normal is the plane's and the angle to each pixel's ray is analytic
+    (border pixels included); a hole makes its neighbours NaN."""
+    from earcore.sim.sensors import incidence_angles
+
+    w, h, f = 64, 48, 50.0
+    normal = np.array([0.3, -0.5, -1.0])
+    normal /= np.linalg.norm(normal)
+    d = -1.2  # plane: normal · X = d, 1.2 m in front of the camera
+    u = (np.arange(w) - (w - 1) / 2) / f
+    v = (np.arange(h) - (h - 1) / 2) / f
+    rays = np.stack(np.broadcast_arrays(u[None, :], v[:, None], 1.0), axis=-1)
+    depth = d / (rays @ normal)  # z of each pixel's ray hitting the plane
+    expected = np.arccos(np.abs(rays @ normal) / np.linalg.norm(rays, axis=-1))
+    assert np.allclose(incidence_angles(depth, f, f), expected, atol=1e-9)
+    depth[20, 30] = 0.0
+    holed = incidence_angles(depth, f, f)
+    assert np.isnan(holed[20, 29:32]).all() and np.isnan(holed[19:22, 30]).all()
+    assert np.isfinite(holed[20, 33]) and np.isfinite(holed[23, 30])
+
+
 def test_sigma_follows_the_published_models():
     v2, v1 = SENSORS["kinect_v2"], SENSORS["kinect_v1"]
     assert v2.sigma(1.0) == pytest.approx(1.3e-3)  # 1.5 - 0.5 + 0.3 mm

@@ -97,27 +97,38 @@ class _Lens:
         self.render_K = np.array([[fx / spread, 0, cx], [0, fy / spread, cy], [0, 0, 1.0]])
         self.map = ((fx / spread * x + cx).reshape(height, width), (fy / spread * y + cy).reshape(height, width))
 
-    def nearest(self, image: np.ndarray) -> np.ndarray:
-        if self.map is None:
-            return image
+    def _prepare(self) -> None:
+        """The map's sample indices and weights, once (every frame reuses them)."""
         u = np.clip(np.rint(self.map[0]).astype(np.intp), 0, self.width - 1)
         v = np.clip(np.rint(self.map[1]).astype(np.intp), 0, self.height - 1)
-        return image[v, u]
-
-    def _corners(self):
+        self._nearest = (v * self.width + u).ravel()
         u = np.clip(self.map[0], 0, self.width - 1.001)
         v = np.clip(self.map[1], 0, self.height - 1.001)
         u0, v0 = np.floor(u).astype(np.intp), np.floor(v).astype(np.intp)
-        return u0, v0, u - u0, v - v0
+        corner = (v0 * self.width + u0).ravel()
+        #: Flat indices of each pixel's four neighbours (top-left, top-right, bottom-left,
+        #: bottom-right) and the fractions across them.
+        self._quad = np.stack([corner, corner + 1, corner + self.width, corner + self.width + 1])
+        self._fu, self._fv = (u - u0).ravel(), (v - v0).ravel()
+
+    def nearest(self, image: np.ndarray) -> np.ndarray:
+        if self.map is None:
+            return image
+        if not hasattr(self, "_nearest"):
+            self._prepare()
+        flat = image.reshape(self.height * self.width, *image.shape[2:])
+        return flat[self._nearest].reshape(image.shape)
 
     def bilinear(self, image: np.ndarray) -> np.ndarray:
         if self.map is None:
             return image
-        u0, v0, fu, fv = self._corners()
-        fu, fv = fu[..., None], fv[..., None]
-        img = image.astype(np.float64).reshape(self.height, self.width, -1)
-        top = img[v0, u0] * (1 - fu) + img[v0, u0 + 1] * fu
-        bottom = img[v0 + 1, u0] * (1 - fu) + img[v0 + 1, u0 + 1] * fu
+        if not hasattr(self, "_quad"):
+            self._prepare()
+        img = image.reshape(self.height * self.width, -1).astype(np.float64)
+        a, b, c, d = (img[i] for i in self._quad)
+        fu, fv = self._fu[:, None], self._fv[:, None]
+        top = a * (1 - fu) + b * fu
+        bottom = c * (1 - fu) + d * fu
         out = top * (1 - fv) + bottom * fv
         return np.clip(np.rint(out), 0, 255).astype(image.dtype).reshape(image.shape)
 
@@ -127,13 +138,16 @@ class _Lens:
         neighbours are one surface; the nearest pixel's depth at edges and holes."""
         if self.map is None:
             return z
-        u0, v0, fu, fv = self._corners()
-        quad = np.stack([z[v0, u0], z[v0, u0 + 1], z[v0 + 1, u0], z[v0 + 1, u0 + 1]])
-        smooth = (quad.min(0) > 0) & (quad.max(0) - quad.min(0) < edge)
+        if not hasattr(self, "_quad"):
+            self._prepare()
+        quad = z.ravel()[self._quad]
+        lo, hi = quad.min(0), quad.max(0)
+        smooth = (lo > 0) & (hi - lo < edge)
         inv = 1.0 / np.where(quad > 0, quad, 1.0)
+        fu, fv = self._fu, self._fv
         w = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv])
         interpolated = 1.0 / (w * inv).sum(0)
-        return np.where(smooth, interpolated, self.nearest(z))
+        return np.where(smooth, interpolated, z.ravel()[self._nearest]).reshape(z.shape)
 
 
 def _downsample(rgba: np.ndarray, z: np.ndarray, body: np.ndarray, s: int, edge: float = 0.02):
