@@ -16,7 +16,7 @@ import numpy as np
 
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
-from earcore.planning.reflex import ObstacleTracker, RiskReport, plan_reflex
+from earcore.planning.reflex import ObstacleTracker, RiskReport, plan_recovery, plan_reflex
 from earcore.planning.trajectory import Trajectory, path_length, time_parameterize
 
 __all__ = ["Executive", "TripReport"]
@@ -172,27 +172,12 @@ class Executive:
         return choice
 
     def _recover(self, q: np.ndarray) -> None:
-        """The robot touches an occupied voxel: move away from it. With the reflex layer
-        on, from the frame's moving obstacles (any move that steadily increases the
-        clearance to them and stays free of the static scene); else from the nearest
-        occupied voxel of the map."""
-        dynamic = self.tracker.last_dynamic if (self.reflexes_on and self.static_tree is not None) else None
-        if dynamic is not None and len(dynamic):
-            c = self.robot.clearance_to_voxels(dynamic, self.tree.resolution, q)
-            tree, escape = self.static_tree, True
-        else:
-            c = self.robot.clearance(self.tree, q)
-            tree, escape, dynamic = self.tree, False, None
-        if not np.isfinite(c["distance"]):
-            return
-        report = RiskReport(
-            self.cell.time, 0, 0.0, 0.0, float(c["distance"]), c["on_robot"], c["on_obstacle"], 0.0, False, 0.0,
-            link=int(c["link"]),
-        )
-        move = plan_reflex(
-            self.robot, tree, q, np.zeros((0, len(q))), report,
+        """The robot touches an occupied voxel (no plan can start there): move away from
+        it, steadily increasing the clearance to the occupied cells around the contact
+        (`plan_recovery`), free of the static scene."""
+        move = plan_recovery(
+            self.robot, self.tree, q, static_tree=self.static_tree,
             move_away_distance=self.config.move_away_distance, resolution=self.config.motion_resolution,
-            dynamic=dynamic, voxel_size=self.tree.resolution, escape=escape,
         )
         if move is not None:
             self._start_motion(move.path, "reflex")

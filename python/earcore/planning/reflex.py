@@ -31,7 +31,7 @@ import earcore
 from earcore.cloud import voxel_codes
 from earcore.planning.trajectory import densify
 
-__all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_reflex", "protective_separation"]
+__all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_recovery", "plan_reflex", "protective_separation"]
 
 
 @dataclass
@@ -432,3 +432,57 @@ def plan_reflex(
     if not _path_free(robot, tree, path, resolution, dynamic, voxel_size, escape):
         return None
     return ReflexMove("move_away", path)
+
+
+def occupied_cells_near(tree, point: np.ndarray, radius: float) -> np.ndarray:
+    """Centres of the occupied finest-resolution cells of `tree` within `radius` of
+    `point` (pruned nodes split into their cells)."""
+    point = np.asarray(point, dtype=np.float64)
+    centres, sizes, _ = tree.leaves(point - radius, point + radius)
+    res = tree.resolution
+    if len(centres):
+        occupied = tree.is_occupied(centres) == 1
+        centres, sizes = centres[occupied], sizes[occupied]
+    cells = [centres[sizes <= res * 1.5]]
+    for centre, size in zip(centres[sizes > res * 1.5], sizes[sizes > res * 1.5]):
+        n = int(round(size / res))
+        offsets = (np.arange(n) - (n - 1) / 2) * res
+        grid = np.stack(np.meshgrid(offsets, offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 3)
+        cells.append(centre + grid)
+    cells_all = np.vstack(cells) if cells else np.zeros((0, 3))
+    return cells_all[np.linalg.norm(cells_all - point, axis=1) <= radius]
+
+
+def plan_recovery(
+    robot,
+    tree,
+    q: np.ndarray,
+    *,
+    static_tree=None,
+    radius: float = 0.3,
+    move_away_distance: float = 0.15,
+    resolution: float = 0.02,
+) -> ReflexMove | None:
+    """The robot at `q` touches occupied voxels of `tree` (a start in collision, which no
+    planner can leave): a move away from where it touches along which the clearance to
+    every occupied cell within `radius` of that point never shrinks and grows by the end
+    (`plan_reflex`'s escape), checked against `static_tree` too where the robot is free in
+    it (a move must not run into the static scene; a touched voxel of the static scene
+    itself, e.g. a phantom caught in the warm-up, must not forbid every move). None when
+    nothing is touched or no such move exists."""
+    q = np.asarray(q, dtype=np.float64)
+    c = robot.clearance(tree, q)
+    if not np.isfinite(c["distance"]):
+        return None
+    near = occupied_cells_near(tree, c["on_robot"], radius)
+    if not len(near):
+        return None
+    free_in_static = static_tree is not None and not bool(np.asarray(robot.check_configurations(static_tree, q)).any())
+    check = static_tree if free_in_static else earcore.OcTree(tree.resolution)
+    report = RiskReport(
+        0.0, 0, 0.0, 0.0, float(c["distance"]), c["on_robot"], c["on_obstacle"], 0.0, False, 0.0, link=int(c["link"])
+    )
+    return plan_reflex(
+        robot, check, q, np.zeros((0, len(q))), report, move_away_distance=move_away_distance,
+        resolution=resolution, dynamic=near, voxel_size=tree.resolution, escape=True,
+    )
