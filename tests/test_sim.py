@@ -516,6 +516,9 @@ def test_collision_meshes_render_the_same_robot(robot, tmp_path):
         if a.vertices[link] is not None:
             assert np.array_equal(a.vertices[link], b.vertices[link])
     assert all(Path(m.get("filename")).is_absolute() for m in ET.parse(copy).getroot().iter("mesh"))
+    # Collision-only volumes (the UR's ee_link box) stay invisible.
+    invisible = lambda p: {l.get("name") for l in ET.parse(p).getroot().iter("link") if l.find("visual") is None}  # noqa: E731
+    assert invisible(copy) == invisible(original)
 
     views = {}
     for meshes in ("visual", "collision"):

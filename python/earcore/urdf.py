@@ -110,9 +110,10 @@ DEFAULT_LINK_RGBA = "0.75 0.75 0.75 1"
 def collision_as_visual(path: str | Path, out: str | Path) -> Path:
     """Write a copy of the URDF at `path` into the folder `out` whose links *look* like
     their collision geometry: each link with collision elements gets them as its visual
-    elements (same origins and meshes; every mesh path made absolute), keeping the first
-    visual's material (or a light grey). Links without collision geometry keep their
-    visuals. Returns the new file's path.
+    elements (same origins and meshes; mesh and texture paths made absolute), keeping the
+    first visual's material (or a light grey). Links without collision geometry keep their
+    visuals; links without visuals (collision-only volumes) stay invisible. Returns the new
+    file's path.
 
     For rendering speed: pybullet's tiny renderer spends most of a small image on
     triangles, and a UR5's visual meshes have ~20x the collision meshes' (its depth
@@ -124,10 +125,9 @@ def collision_as_visual(path: str | Path, out: str | Path) -> Path:
         raise UrdfError(f"{path}: cannot read the URDF: {exc}") from exc
     root = tree.getroot()
     for link in root.findall("link"):
-        collisions = link.findall("collision")
-        if not collisions:
+        collisions, visuals = link.findall("collision"), link.findall("visual")
+        if not collisions or not visuals:  # collision-only volumes stay invisible
             continue
-        visuals = link.findall("visual")
         material = next((v.find("material") for v in visuals if v.find("material") is not None), None)
         for v in visuals:
             link.remove(v)
@@ -140,9 +140,10 @@ def collision_as_visual(path: str | Path, out: str | Path) -> Path:
                 visual.append(_copy_element(material))
             else:
                 ET.SubElement(ET.SubElement(visual, "material", name="earcore_link"), "color", rgba=DEFAULT_LINK_RGBA)
-    # The copy lives elsewhere: every mesh it names (collision ones too) by absolute path.
-    for mesh in root.iter("mesh"):
-        mesh.set("filename", str(resolve_mesh_path(mesh.get("filename", ""), path).resolve()))
+    # The copy lives elsewhere: every mesh and texture it names by absolute path.
+    for element in (*root.iter("mesh"), *root.iter("texture")):
+        if element.get("filename"):
+            element.set("filename", str(resolve_mesh_path(element.get("filename", ""), path).resolve()))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     target = out / f"{path.stem}_collision_visuals.urdf"

@@ -16,23 +16,10 @@ import numpy as np
 
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
-from earcore.planning.reflex import ObstacleTracker, RiskReport, plan_recovery, plan_reflex
+from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, plan_recovery, plan_reflex
 from earcore.planning.trajectory import Trajectory, path_length, time_parameterize
 
 __all__ = ["Executive", "TripReport"]
-
-
-def _snapshot(tree):
-    """A copy of a map (through its .ot serialisation)."""
-    import tempfile
-    from pathlib import Path
-
-    import earcore
-
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "static.ot"
-        tree.write(path)
-        return earcore.OcTree.read(path)
 
 
 @dataclass
@@ -173,10 +160,10 @@ class Executive:
 
     def _recover(self, q: np.ndarray) -> None:
         """The robot touches an occupied voxel (no plan can start there): move away from
-        it, steadily increasing the clearance to the occupied cells around the contact
-        (`plan_recovery`), free of the static scene."""
+        it, steadily increasing the clearance to the occupied cells around the contact,
+        into nothing else of the map (`plan_recovery`)."""
         move = plan_recovery(
-            self.robot, self.tree, q, static_tree=self.static_tree,
+            self.robot, self.tree, q,
             move_away_distance=self.config.move_away_distance, resolution=self.config.motion_resolution,
         )
         if move is not None:
@@ -253,7 +240,7 @@ class Executive:
                 self.tracker.learn_static(self.tree.current_obstacles()[0])
             return None
         if self.static_tree is None:
-            self.static_tree = _snapshot(self.tree)
+            self.static_tree = copy_map(self.tree)
             self.robot.check_configurations(self.static_tree, q)  # builds its index now, not in a reflex
         distance = cell.robot_person_distance()
         self.trip.min_clearance = min(self.trip.min_clearance, distance)

@@ -434,23 +434,38 @@ def plan_reflex(
     return ReflexMove("move_away", path)
 
 
+def copy_map(tree):
+    """A copy of a map (through its .ot serialisation: every node and value)."""
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "map.ot"
+        tree.write(path)
+        return earcore.OcTree.read(path)
+
+
 def occupied_cells_near(tree, point: np.ndarray, radius: float) -> np.ndarray:
     """Centres of the occupied finest-resolution cells of `tree` within `radius` of
-    `point` (pruned nodes split into their cells)."""
+    `point` (pruned nodes split into their cells, only where they overlap the ball's box)."""
     point = np.asarray(point, dtype=np.float64)
-    centres, sizes, _ = tree.leaves(point - radius, point + radius)
+    lo, hi = point - radius, point + radius
+    centres, sizes, _ = tree.leaves(lo, hi)
     res = tree.resolution
     if len(centres):
         occupied = tree.is_occupied(centres) == 1
         centres, sizes = centres[occupied], sizes[occupied]
     cells = [centres[sizes <= res * 1.5]]
     for centre, size in zip(centres[sizes > res * 1.5], sizes[sizes > res * 1.5]):
+        corner = centre - size / 2
         n = int(round(size / res))
-        offsets = (np.arange(n) - (n - 1) / 2) * res
-        grid = np.stack(np.meshgrid(offsets, offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 3)
-        cells.append(centre + grid)
-    cells_all = np.vstack(cells) if cells else np.zeros((0, 3))
-    return cells_all[np.linalg.norm(cells_all - point, axis=1) <= radius]
+        # The node's cells (corner + (i + ½)·res) whose centres fall inside the box.
+        first = np.clip(np.floor((lo - corner) / res - 0.5), 0, n - 1).astype(int)
+        last = np.clip(np.ceil((hi - corner) / res - 0.5), 0, n - 1).astype(int)
+        axes = [corner[a] + (np.arange(first[a], last[a] + 1) + 0.5) * res for a in range(3)]
+        cells.append(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3))
+    found = np.vstack(cells)
+    return found[np.linalg.norm(found - point, axis=1) <= radius]
 
 
 def plan_recovery(
@@ -458,7 +473,6 @@ def plan_recovery(
     tree,
     q: np.ndarray,
     *,
-    static_tree=None,
     radius: float = 0.3,
     move_away_distance: float = 0.15,
     resolution: float = 0.02,
@@ -466,10 +480,8 @@ def plan_recovery(
     """The robot at `q` touches occupied voxels of `tree` (a start in collision, which no
     planner can leave): a move away from where it touches along which the clearance to
     every occupied cell within `radius` of that point never shrinks and grows by the end
-    (`plan_reflex`'s escape), checked against `static_tree` too where the robot is free in
-    it (a move must not run into the static scene; a touched voxel of the static scene
-    itself, e.g. a phantom caught in the warm-up, must not forbid every move). None when
-    nothing is touched or no such move exists."""
+    (`plan_reflex`'s escape), and which runs into nothing else of the map (checked against
+    a copy without those cells). None when nothing is touched or no such move exists."""
     q = np.asarray(q, dtype=np.float64)
     c = robot.clearance(tree, q)
     if not np.isfinite(c["distance"]):
@@ -477,12 +489,16 @@ def plan_recovery(
     near = occupied_cells_near(tree, c["on_robot"], radius)
     if not len(near):
         return None
-    free_in_static = static_tree is not None and not bool(np.asarray(robot.check_configurations(static_tree, q)).any())
-    check = static_tree if free_in_static else earcore.OcTree(tree.resolution)
+    rest = copy_map(tree)
+    for _ in range(32):  # a clamped occupied cell needs ~9 misses to turn free
+        still = rest.is_occupied(near) == 1
+        if not still.any():
+            break
+        rest.update_nodes(near[still], occupied=False)
     report = RiskReport(
         0.0, 0, 0.0, 0.0, float(c["distance"]), c["on_robot"], c["on_obstacle"], 0.0, False, 0.0, link=int(c["link"])
     )
     return plan_reflex(
-        robot, check, q, np.zeros((0, len(q))), report, move_away_distance=move_away_distance,
+        robot, rest, q, np.zeros((0, len(q))), report, move_away_distance=move_away_distance,
         resolution=resolution, dynamic=near, voxel_size=tree.resolution, escape=True,
     )
