@@ -8,8 +8,10 @@ velocities) and `on_frame(time)` after every map frame (reflexes, re-planning).
 
 from __future__ import annotations
 
+import gc
 import time
 import warnings
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -20,6 +22,20 @@ from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, plan_
 from earcore.planning.trajectory import Trajectory, path_length, time_parameterize
 
 __all__ = ["Executive", "TripReport"]
+
+
+@contextmanager
+def _collector_paused():
+    """Python's cyclic garbage collector paused for a latency-critical step: a full
+    collection walks the whole heap (milliseconds in a long run), and the reflex should
+    not wait for it; it runs after the command instead."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 @dataclass
@@ -250,38 +266,9 @@ class Executive:
         self._in_contact = contact
         report = None
         if self.reflexes_on:
-            t0 = time.perf_counter()
-            tcp_speed = self._tool_speed()
-            qd = self.command if self.config.relative_velocity else None
-            report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed, qd)
-            self.log.risk.append(report)
-            self.planner.rrt.set_keep_out(self.grown_robot, self.tracker.last_dynamic, self.tree.resolution)
-            in_reflex = self.motion is not None and self.motion.kind in ("reflex", "backtrack")
-            close = report.approaching and report.clearance < self.config.min_separation
-            # A running reflex is not restarted, except a backtrack the obstacle still
-            # closes in on: then it becomes a move away.
-            backtracking = self.motion is not None and self.motion.kind == "backtrack"
-            if report.fires(self.config.risk_threshold, self.config.min_separation) and (not in_reflex or (close and backtracking)):
-                # The static scene (index cached) plus this frame's moving voxels
-                # (exact): no rebuild of the live map's index before the reflex.
-                move = plan_reflex(
-                    self.robot, self.static_tree, q, np.asarray(self.progress), report,
-                    backtrack_fraction=self.config.backtrack_fraction,
-                    move_away_distance=self.config.move_away_distance,
-                    resolution=self.config.motion_resolution,
-                    dynamic=self.tracker.last_dynamic, voxel_size=self.tree.resolution,
-                    prefer_move_away=close, escape=report.clearance <= 0,
-                )
-                self.trip.reflexes += 1
-                if move is not None:
-                    self._start_motion(move.path, "backtrack" if move.kind == "backtrack" else "reflex")
-                    if move.kind == "backtrack":
-                        # Take the undone stretch off the progress stack.
-                        del self.progress[max(1, len(self.progress) - (len(move.path) - 1)):]
-                else:
-                    self.motion = None  # nothing free: stop where we are
-                self.reflex_latencies.append(time.perf_counter() - t0)
-                self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk})
+            with _collector_paused():
+                report, fired = self._reflex_layer(cell, q)
+            if fired:
                 return report
         if self.motion is not None and self.motion.kind in ("reflex", "backtrack"):
             return report
@@ -315,6 +302,44 @@ class Executive:
                 if choice.cost < (1 - self.config.replan_gain) * current:
                     self._start_motion(choice.path, "plan")
         return report
+
+    def _reflex_layer(self, cell, q: np.ndarray) -> tuple[RiskReport, bool]:
+        """Track the obstacles, rate the risk (Eq. 2) and fire a reflex if it is due;
+        returns the frame's report and whether a reflex fired."""
+        t0 = time.perf_counter()
+        tcp_speed = self._tool_speed()
+        qd = self.command if self.config.relative_velocity else None
+        report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed, qd)
+        self.log.risk.append(report)
+        self.planner.rrt.set_keep_out(self.grown_robot, self.tracker.last_dynamic, self.tree.resolution)
+        in_reflex = self.motion is not None and self.motion.kind in ("reflex", "backtrack")
+        close = report.approaching and report.clearance < self.config.min_separation
+        # A running reflex is not restarted, except a backtrack the obstacle still
+        # closes in on: then it becomes a move away.
+        backtracking = self.motion is not None and self.motion.kind == "backtrack"
+        if report.fires(self.config.risk_threshold, self.config.min_separation) and (not in_reflex or (close and backtracking)):
+            # The static scene (index cached) plus this frame's moving voxels
+            # (exact): no rebuild of the live map's index before the reflex.
+            move = plan_reflex(
+                self.robot, self.static_tree, q, np.asarray(self.progress), report,
+                backtrack_fraction=self.config.backtrack_fraction,
+                move_away_distance=self.config.move_away_distance,
+                resolution=self.config.motion_resolution,
+                dynamic=self.tracker.last_dynamic, voxel_size=self.tree.resolution,
+                prefer_move_away=close, escape=report.clearance <= 0,
+            )
+            self.trip.reflexes += 1
+            if move is not None:
+                self._start_motion(move.path, "backtrack" if move.kind == "backtrack" else "reflex")
+                if move.kind == "backtrack":
+                    # Take the undone stretch off the progress stack.
+                    del self.progress[max(1, len(self.progress) - (len(move.path) - 1)):]
+            else:
+                self.motion = None  # nothing free: stop where we are
+            self.reflex_latencies.append(time.perf_counter() - t0)
+            self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk})
+            return report, True
+        return report, False
 
     def _tool_speed(self) -> float:
         """End-effector speed (m/s) from the commanded joint velocities."""
