@@ -7,6 +7,7 @@ Everything numeric downstream (fitting capsules, kinematics) happens in Rust.
 
 from __future__ import annotations
 
+import copy
 import math
 import struct
 import xml.etree.ElementTree as ET
@@ -135,9 +136,9 @@ def collision_as_visual(path: str | Path, out: str | Path) -> Path:
             visual = ET.SubElement(link, "visual")
             for child in c:
                 if child.tag in ("origin", "geometry"):
-                    visual.append(_copy_element(child))
+                    visual.append(copy.deepcopy(child))
             if material is not None:
-                visual.append(_copy_element(material))
+                visual.append(copy.deepcopy(material))
             else:
                 ET.SubElement(ET.SubElement(visual, "material", name="earcore_link"), "color", rgba=DEFAULT_LINK_RGBA)
     # The copy lives elsewhere: every mesh and texture it names by absolute path.
@@ -149,10 +150,6 @@ def collision_as_visual(path: str | Path, out: str | Path) -> Path:
     target = out / f"{path.stem}_collision_visuals.urdf"
     tree.write(target, encoding="unicode")
     return target
-
-
-def _copy_element(element: ET.Element) -> ET.Element:
-    return ET.fromstring(ET.tostring(element))
 
 
 def read_mesh_vertices(path: Path) -> np.ndarray:

@@ -96,9 +96,10 @@ class _Lens:
         spread = max(np.abs(x).max() * fx / cx, np.abs(y).max() * fy / cy, 1.0) * 1.02
         self.render_K = np.array([[fx / spread, 0, cx], [0, fy / spread, cy], [0, 0, 1.0]])
         self.map = ((fx / spread * x + cx).reshape(height, width), (fy / spread * y + cy).reshape(height, width))
+        self._prepare()
 
     def _prepare(self) -> None:
-        """The map's sample indices and weights, once (every frame reuses them)."""
+        """The map's sample indices and weights, computed once (every frame reuses them)."""
         u = np.clip(np.rint(self.map[0]).astype(np.intp), 0, self.width - 1)
         v = np.clip(np.rint(self.map[1]).astype(np.intp), 0, self.height - 1)
         self._nearest = (v * self.width + u).ravel()
@@ -114,16 +115,12 @@ class _Lens:
     def nearest(self, image: np.ndarray) -> np.ndarray:
         if self.map is None:
             return image
-        if not hasattr(self, "_nearest"):
-            self._prepare()
         flat = image.reshape(self.height * self.width, *image.shape[2:])
         return flat[self._nearest].reshape(image.shape)
 
     def bilinear(self, image: np.ndarray) -> np.ndarray:
         if self.map is None:
             return image
-        if not hasattr(self, "_quad"):
-            self._prepare()
         img = image.reshape(self.height * self.width, -1).astype(np.float64)
         a, b, c, d = (img[i] for i in self._quad)
         fu, fv = self._fu[:, None], self._fv[:, None]
@@ -138,8 +135,6 @@ class _Lens:
         neighbours are one surface; the nearest pixel's depth at edges and holes."""
         if self.map is None:
             return z
-        if not hasattr(self, "_quad"):
-            self._prepare()
         quad = z.ravel()[self._quad]
         lo, hi = quad.min(0), quad.max(0)
         smooth = (lo > 0) & (hi - lo < edge)
