@@ -111,6 +111,30 @@ def test_trajectory_bad_input():
     assert single.duration == 0.0 and np.allclose(single.sample(3.0), [0.5, 0.5])
 
 
+@pytest.mark.parametrize("per_joint", [False, True])
+def test_densify_matches_segment_by_segment_subdivision(per_joint):
+    """Reference: each segment split on its own into the fewest equal parts no longer
+    than the step (largest joint change, or Euclidean length), waypoints kept."""
+    from earcore.planning.trajectory import densify
+
+    rng = np.random.default_rng(11)
+    for m in (1, 2, 3, 7):
+        path = rng.normal(scale=0.3, size=(m, 6))
+        if m > 2:
+            path[2] = path[1]  # a zero-length segment
+        expected = [path[0]]
+        for a, b in zip(path[:-1], path[1:]):
+            span = np.abs(b - a).max() if per_joint else np.linalg.norm(b - a)
+            n = max(1, int(np.ceil(span / 0.05)))
+            expected.extend(a + (b - a) * k / n for k in range(1, n + 1))
+        out = densify(path, 0.05, per_joint=per_joint)
+        assert out.shape == (len(expected), 6)
+        assert np.allclose(out, np.array(expected), rtol=0, atol=1e-15)
+        steps = np.diff(out, axis=0)
+        size = np.abs(steps).max(axis=1) if per_joint else np.linalg.norm(steps, axis=1)
+        assert (size <= 0.05 + 1e-12).all()
+
+
 # --- RRT-Connect with the collision core ------------------------------------------------
 
 

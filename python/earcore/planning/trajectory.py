@@ -73,12 +73,16 @@ def densify(path: np.ndarray, step: float, *, per_joint: bool = False) -> np.nda
     Euclidean joint-space length, or with `per_joint` in the largest joint change (the
     collision checks' resolution)."""
     path = np.asarray(path, dtype=np.float64)
-    out = [path[:1]]
-    for a, b in zip(path[:-1], path[1:]):
-        span = np.abs(b - a).max() if per_joint else np.linalg.norm(b - a)
-        n = max(1, int(np.ceil(span / step)))
-        out.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
-    return np.vstack(out)
+    if len(path) < 2:
+        return path[:1].copy()
+    # Whole-array form (no loop per segment: the reflex pays this on every move):
+    # segment i gets n_i points a + (b - a)·k/n_i, k = 1..n_i.
+    delta = np.diff(path, axis=0)
+    span = np.abs(delta).max(axis=1) if per_joint else np.linalg.norm(delta, axis=1)
+    n = np.maximum(1, np.ceil(span / step)).astype(np.int64)
+    seg = np.repeat(np.arange(len(delta)), n)
+    k = np.arange(1, len(seg) + 1) - np.repeat(np.cumsum(n) - n, n)
+    return np.vstack([path[:1], path[seg] + delta[seg] * (k / n[seg])[:, None]])
 
 
 def time_parameterize(
