@@ -368,6 +368,35 @@ def test_collision_agrees_with_fcl(ur5, seed):
             assert distance < 1e-5, f"false collision {distance} m from touching"
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_touches_voxels_agrees_with_fcl_and_the_clearance(ur5, seed):
+    """The yes/no box test the reflexes use: FCL's collision verdict (up to GJK's
+    tolerance at touching) and the sign of `clearance_to_voxels`."""
+    rng = np.random.default_rng(seed)
+    tree = earcore.OcTree(0.05)
+    tree.update_nodes(rng.uniform([-0.8, -0.8, 0.0], [0.8, 0.8, 1.0], size=(80, 3)))
+    centres, sizes = tree.occupied_voxels()
+    assert np.all(sizes == 0.05)
+    manager = fcl_boxes(tree)
+    qs = ur5.random_configurations(150, seed=seed)
+    touches = ur5.touches_voxels(centres, 0.05, qs)
+    distance = ur5.clearance_to_voxels(centres, 0.05, qs)["distance"]
+    assert touches.dtype == bool and touches.shape == (len(qs),)
+    assert 0 < touches.sum() < len(qs)
+    for q, ours, d in zip(qs, touches, distance):
+        reference, fcl_distance = fcl_reference(ur5, manager, q)
+        if reference:
+            assert ours, "reported free where FCL finds a collision"
+        elif ours:
+            assert fcl_distance < 1e-5, f"false touch {fcl_distance} m from touching"
+        assert ours == (d <= 0) or abs(d) < 1e-6
+    assert not ur5.touches_voxels(np.zeros((0, 3)), 0.05, qs[:3]).any()
+    with pytest.raises(ValueError, match="finite"):
+        ur5.touches_voxels(np.array([[np.nan, 0, 0]]), 0.05, qs[0])
+    with pytest.raises(ValueError, match=">= 0"):
+        ur5.touches_voxels(centres, -0.05, qs[0])
+
+
 def test_clearance_agrees_with_fcl(ur5):
     tree = cell_tree()
     manager = fcl_boxes(tree)

@@ -696,6 +696,25 @@ impl PyRobotModel {
         clearance_dict(py, &found, single)
     }
 
+    /// Whether the robot's moving bodies meet any of the boxes (centres (N, 3), edge
+    /// `size`; touching counts), per configuration: `clearance_to_voxels`'s
+    /// distance ≤ 0 without computing the distance, so cheaper for a yes/no.
+    #[pyo3(signature = (centres, size, qs))]
+    fn touches_voxels<'py>(
+        &self,
+        py: Python<'py>,
+        centres: &Bound<'py, PyAny>,
+        size: f64,
+        qs: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let (q, _, _) = configurations(qs, self.dof(), "qs")?;
+        let boxes = point_rows(centres, "centres")?;
+        let boxes = boxes.as_slice()?;
+        let half = [0.5 * size; 3];
+        let hits = py.detach(|| robot::touches_boxes(&self.read(), &q, boxes, half));
+        Ok(vec_to_array(py, hits.py()?))
+    }
+
     /// Paper II's Eq. 4 danger cost of the straight motion q0 → q1 on `tree`'s danger
     /// map: Σ over bodies of the mean over the body's axis points of Σ d·(1 + C_voxel).
     #[pyo3(signature = (tree, q0, q1, resolution = 0.02))]

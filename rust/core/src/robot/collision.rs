@@ -288,17 +288,9 @@ pub fn clearances(
     })
 }
 
-/// Robot-to-boxes clearance per configuration, for obstacles given as boxes rather
-/// than a map (e.g. the voxels of one tracked obstacle, all with the same `half`
-/// size): exact body-box distances (negative when overlapping), no index. A box is
-/// skipped when a lower bound on its distance (centre to axis, less the box's half
-/// diagonal and the body's radius) cannot beat the best found.
-pub fn clearances_to_boxes(
-    model: &RobotModel,
-    qs: &[f64],
-    centres: &[[f64; 3]],
-    half: [f64; 3],
-) -> Result<Vec<Option<(usize, Clearance)>>> {
+/// The arguments of the box queries: valid configurations, finite centres, finite
+/// half sizes ≥ 0.
+fn check_boxes(model: &RobotModel, qs: &[f64], centres: &[[f64; 3]], half: [f64; 3]) -> Result<()> {
     check_all(model, qs)?;
     if !half.iter().all(|h| h.is_finite() && *h >= 0.0) {
         return Err(Error::InvalidArgument(format!(
@@ -314,30 +306,91 @@ pub fn clearances_to_boxes(
             centres[i]
         )));
     }
+    Ok(())
+}
+
+/// Whether each configuration's moving bodies meet any of the boxes (touching
+/// counts; all with the same `half` size): the yes/no of `clearances_to_boxes`
+/// (distance ≤ 0) in closed form, stopping at the first overlap. Cheaper than the
+/// clearance where cylinders near a box would need iterative distance queries.
+pub fn touches_boxes(
+    model: &RobotModel,
+    qs: &[f64],
+    centres: &[[f64; 3]],
+    half: [f64; 3],
+) -> Result<Vec<bool>> {
+    check_boxes(model, qs, centres, half)?;
+    let dof = model.dof();
+    chunked(qs, dof, |part| {
+        let mut scratch = Scratch::new(model);
+        Ok(part
+            .chunks(dof)
+            .map(|q| {
+                model.place_into(q, &mut scratch.frames, &mut scratch.placed);
+                let placed = &scratch.placed;
+                placed
+                    .bodies
+                    .iter()
+                    .zip(&placed.moving)
+                    .any(|(body, moving)| {
+                        *moving && centres.iter().any(|c| body.overlaps_box(c, &half))
+                    })
+            })
+            .collect())
+    })
+}
+
+/// Robot-to-boxes clearance per configuration, for obstacles given as boxes rather
+/// than a map (e.g. the voxels of one tracked obstacle, all with the same `half`
+/// size): exact body-box distances (negative when overlapping), no index. A box is
+/// skipped when a lower bound on its distance (centre to axis, less the box's half
+/// diagonal and the body's radius) cannot beat the best found.
+pub fn clearances_to_boxes(
+    model: &RobotModel,
+    qs: &[f64],
+    centres: &[[f64; 3]],
+    half: [f64; 3],
+) -> Result<Vec<Option<(usize, Clearance)>>> {
+    check_boxes(model, qs, centres, half)?;
     let reach = (half[0] * half[0] + half[1] * half[1] + half[2] * half[2]).sqrt();
     let dof = model.dof();
     chunked(qs, dof, |part| {
         let mut scratch = Scratch::new(model);
         let mut nearest = NearestContact::default();
+        // (lower bound, body, box) of every pair of a configuration.
+        let mut bounds: Vec<(f64, usize, usize)> = Vec::new();
         part.chunks(dof)
             .map(|q| {
                 model.place_into(q, &mut scratch.frames, &mut scratch.placed);
                 let placed = &scratch.placed;
                 nearest.clear();
-                for ((link, body), moving) in
-                    placed.links.iter().zip(&placed.bodies).zip(&placed.moving)
-                {
+                bounds.clear();
+                for (b, (body, moving)) in placed.bodies.iter().zip(&placed.moving).enumerate() {
                     if !moving {
                         continue;
                     }
                     let axis = body.enclosing_capsule();
-                    for c in centres {
+                    for (i, c) in centres.iter().enumerate() {
                         let bound = point_segment_distance_squared(&axis.a, &axis.b, c).sqrt()
                             - reach
                             - axis.radius;
-                        if bound < nearest.limit() {
-                            nearest.offer(*link, body, c, &half);
-                        }
+                        bounds.push((bound, b, i));
+                    }
+                }
+                // The most promising pair first: its exact distance then rules out
+                // nearly every other pair by its bound alone (in a robot-held order a
+                // far body's boxes were all computed before the near one's).
+                if let Some(first) = bounds
+                    .iter()
+                    .enumerate()
+                    .min_by(|a, b| a.1 .0.total_cmp(&b.1 .0))
+                    .map(|(k, _)| k)
+                {
+                    bounds.swap(0, first);
+                }
+                for &(bound, b, i) in &bounds {
+                    if bound < nearest.limit() {
+                        nearest.offer(placed.links[b], &placed.bodies[b], &centres[i], &half);
                     }
                 }
                 Ok(nearest

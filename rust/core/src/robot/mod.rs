@@ -15,7 +15,7 @@ pub use capsule::Capsule;
 pub use chain::{Chain, Frame, Joint, JointKind};
 pub use collision::{
     check_configurations, check_motion, clearances, clearances_to_boxes, interpolate,
-    motion_danger, CheckParams, Contact,
+    motion_danger, touches_boxes, CheckParams, Contact,
 };
 pub use fit::{fit_body, fit_capsule, fit_cylinder, FitShape};
 pub use model::{LazyPlacement, PlacedBodies, RobotModel};
