@@ -29,7 +29,7 @@ import numpy as np
 
 import earcore
 from earcore.cloud import voxel_codes
-from earcore.planning.trajectory import densify
+from earcore.planning.trajectory import cumsum0, densify
 
 __all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_recovery", "plan_reflex", "protective_separation"]
 
@@ -41,7 +41,7 @@ class ObstacleTrack:
     history: list[tuple[float, np.ndarray]] = field(default_factory=list)
     voxels: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    #: The centroid's velocity for Eq. 2 (`_velocity_now`: the faster of the slope and
+    #: The centroid's velocity for Eq. 2 (`_velocities`: the faster of the slope and
     #: a constant-acceleration fit at the newest frame; the slope lags a reach that speeds
     #: up by 1-1.5 frames). `velocity`, the slope, decides whether the track moves at all
     #: (`still_speed`): the fit's extra noise would make flickering still obstacles move.
@@ -67,14 +67,14 @@ class ObstacleTrack:
         if self.lead_history and float(np.linalg.norm(lead - self.lead_history[-1][1])) > jump:
             self.lead_history = []
         self.lead_history = (self.lead_history + [(time_s, lead)])[-window:]
-        self.lead_velocity = _velocity_now(self.lead_history)
+        self.lead_velocity = _velocities(self.lead_history)[1]
 
     def approach_velocity(self) -> np.ndarray:
         """The velocity Eq. 2 uses: the centroid's, or the lead's where the lead runs
         ahead in about the same direction (only for an obstacle already moving as a
         whole, so a still one whose visible part flickers stays still), at most
         `LEAD_SPEED_CAP` times the centroid's speed (a hand at the end of a straight arm
-        from a still shoulder moves at twice the centroid's). Both from `_velocity_now`."""
+        from a still shoulder moves at twice the centroid's). Both from `_velocities`."""
         v, lead = self.velocity_now, self.lead_velocity
         speed, lead_speed = float(np.linalg.norm(v)), float(np.linalg.norm(lead))
         if lead_speed > speed > 0 and float(v @ lead) >= 0.7 * speed * lead_speed:
@@ -112,6 +112,9 @@ class RiskReport:
     #: `ObstacleTrack.approach_velocity`) and its voxels.
     velocity: np.ndarray | None = None
     voxels: np.ndarray | None = None
+    #: (3, dof) Jacobian of `on_robot` on `link` at the frame's configuration, when the
+    #: closing speed needed it (the move-away reuses it).
+    jacobian: np.ndarray | None = None
 
     def fires(self, threshold: float, min_separation: float = 0.0) -> bool:
         """Eq. 3 (risk ≥ T), or an approaching obstacle closer than `min_separation`
@@ -231,24 +234,26 @@ class ObstacleTracker:
             moving = float(np.linalg.norm(track.velocity)) >= self.still_speed
             own = v = track.approach_velocity() if moving else track.velocity
             approaching = (moving and float(v @ towards) > 0) if d > 0 else True
+            jacobian = None
             if approaching and qd is not None and c["link"] >= 0:
-                v = v - _point_jacobian(self.robot, q, int(c["link"]), c["on_robot"]) @ qd
+                jacobian = _point_jacobian(self.robot, q, int(c["link"]), c["on_robot"])
+                v = v - jacobian @ qd
             speed = float(np.linalg.norm(v))
             risk = speed**2 / (self.beta * max(d, 1e-3)) if approaching else 0.0
             if best is None or risk > best[0] or (risk == best[0] and d < best[2]):
                 best = (
                     risk, speed, d, c["on_robot"], c["on_obstacle"], approaching and speed > 0.05, int(c["link"]),
-                    own, track.voxels,
+                    own, track.voxels, jacobian,
                 )
         frame_period = 1.0 / 15.0
         if best is None:
             sp = protective_separation(0.0, robot_speed, reaction_time=frame_period, stopping_time=0.0)
             return RiskReport(time_s, 0, 0.0, 0.0, float("inf"), None, None, sp, False, time.perf_counter() - t0)
-        risk, speed, d, on_robot, on_obstacle, approaching, link, velocity, track_voxels = best
+        risk, speed, d, on_robot, on_obstacle, approaching, link, velocity, track_voxels, jacobian = best
         sp = protective_separation(speed, robot_speed, reaction_time=frame_period, stopping_time=0.2)
         return RiskReport(
             time_s, len(self.tracks), risk, speed, d, on_robot, on_obstacle, sp, d < sp,
-            time.perf_counter() - t0, approaching, link, velocity, track_voxels,
+            time.perf_counter() - t0, approaching, link, velocity, track_voxels, jacobian,
         )
 
     def _associate(self, time_s: float, clusters: list[np.ndarray]) -> None:
@@ -264,8 +269,7 @@ class ObstacleTracker:
                 i = unmatched.pop(j)
                 track.history = (track.history + [(time_s, centroids[i])])[-self.window :]
                 track.voxels = clusters[i]
-                track.velocity = _slope(track.history)
-                track.velocity_now = _velocity_now(track.history)
+                track.velocity, track.velocity_now = _velocities(track.history)
                 kept.append(track)
         for i in unmatched:
             kept.append(ObstacleTrack(self._next_id, [(time_s, centroids[i])], clusters[i], anchor=centroids[i]))
@@ -275,35 +279,35 @@ class ObstacleTracker:
         self.tracks = kept
 
 
-def _slope(history: list[tuple[float, np.ndarray]]) -> np.ndarray:
-    """Least-squares velocity of positions over time (zero with one sample)."""
+def _velocities(history: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Velocities of positions over time: the least-squares slope (zero with one
+    sample), and one for Eq. 2 that does not lag a reach that speeds up: of the slope
+    and the velocity at the newest sample from a least-squares constant-acceleration
+    fit (four samples or more), the faster. The fit alone follows a hand's
+    acceleration but amplifies voxel quantisation (~3.5x the slope's noise); for safety
+    an underestimate is what must not happen, so the larger one counts, at the price of
+    an upward bias (a steady 1.2 m/s blob of 5 cm voxels reads up to ~1.5x, more
+    reflexes)."""
     if len(history) < 2:
-        return np.zeros(3)
+        return np.zeros(3), np.zeros(3)
     t = np.array([h[0] for h in history])
     p = np.array([h[1] for h in history])
-    t = t - t.mean()
-    denom = float(t @ t)
-    return (t @ (p - p.mean(axis=0))) / denom if denom > 0 else np.zeros(3)
-
-
-def _velocity_now(history: list[tuple[float, np.ndarray]]) -> np.ndarray:
-    """A velocity for Eq. 2 that does not lag a reach that speeds up: of the slope and
-    the velocity at the newest sample from a least-squares constant-acceleration fit
-    (four samples or more), the faster. The fit alone follows a hand's acceleration
-    but amplifies voxel quantisation (~3.5x the slope's noise); for safety an
-    underestimate is what must not happen, so the larger one counts, at the price of an
-    upward bias (a steady 1.2 m/s blob of 5 cm voxels reads up to ~1.5x, more reflexes)."""
-    slope = _slope(history)
+    tc = t - t.mean()
+    denom = float(tc @ tc)
+    if denom <= 0:  # every sample at one time: no velocity to be had
+        return np.zeros(3), np.zeros(3)
+    slope = (tc @ (p - p.mean(axis=0))) / denom
     if len(history) < 4:
-        return slope
-    t = np.array([h[0] for h in history])
-    p = np.array([h[1] for h in history])
+        return slope, slope
     t = t - t[-1]
     design = np.stack([np.ones_like(t), t, t * t], axis=1)
-    # Normal equations (3×3, well conditioned for frame times): a tenth of lstsq's cost,
-    # which the reflex's latency pays per track and frame.
-    coef = np.linalg.solve(design.T @ design, design.T @ p)
-    return coef[1] if float(np.linalg.norm(coef[1])) > float(np.linalg.norm(slope)) else slope
+    # Normal equations (3×3, well conditioned for distinct frame times): a tenth of
+    # lstsq's cost, which the reflex's latency pays per track and frame.
+    try:
+        coef = np.linalg.solve(design.T @ design, design.T @ p)
+    except np.linalg.LinAlgError:  # fewer than three distinct times
+        return slope, slope
+    return slope, (coef[1] if float(np.linalg.norm(coef[1])) > float(np.linalg.norm(slope)) else slope)
 
 
 @dataclass
@@ -321,7 +325,7 @@ def _point_jacobian(robot, q: np.ndarray, link: int, point: np.ndarray, eps: flo
     lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
     qs = np.clip(np.vstack([q, q + eps * np.eye(dof), q - eps * np.eye(dof)]), lo, hi)
     frames = robot.fk(qs)[:, link]
-    local = np.linalg.solve(frames[0], np.r_[point, 1.0])
+    local = np.linalg.solve(frames[0], np.append(point, 1.0))
     p = frames[:, :3, :] @ local
     steps = (qs[1 : dof + 1] - qs[dof + 1 :]).diagonal()
     return (p[1 : dof + 1] - p[dof + 1 :]).T / np.where(steps == 0, 1.0, steps)
@@ -337,10 +341,11 @@ def _path_free(robot, tree, path: np.ndarray, resolution: float, dynamic, voxel_
     if dynamic is None or not len(dynamic):
         return True
     qs = densify(path, resolution, per_joint=True)
-    d = robot.clearance_to_voxels(dynamic, voxel_size, qs)["distance"]
     if escape:
+        d = robot.clearance_to_voxels(dynamic, voxel_size, qs)["distance"]
         return bool(np.all(np.diff(d) >= -1e-3) and d[-1] > d[0])
-    return bool(np.all(d > 0))
+    # A yes/no needs no distances (cylinders near a box would need iterative ones).
+    return not robot.touches_voxels(dynamic, voxel_size, qs).any()
 
 
 def _leads_away(robot, q_end: np.ndarray, report: RiskReport, voxel_size: float, horizon: float) -> bool:
@@ -396,10 +401,10 @@ def plan_reflex(
         total = seg.sum()
         if total > 1e-6:
             # Walk back from the end until the fraction of the executed length is covered.
-            back = np.r_[0.0, np.cumsum(seg[::-1])]
+            back = cumsum0(seg[::-1])
             n = int(np.searchsorted(back, backtrack_fraction * total))
             tail = np.vstack([q[None], executed[::-1][: n + 1]])
-            keep = np.r_[True, np.linalg.norm(np.diff(tail, axis=0), axis=1) > 1e-9]
+            keep = np.concatenate([[True], np.linalg.norm(np.diff(tail, axis=0), axis=1) > 1e-9])
             tail = tail[keep]
             if (
                 len(tail) >= 2
@@ -412,12 +417,15 @@ def plan_reflex(
     # Move the robot's point closest to the obstacle straight away from it (the paper
     # moves the end-effector; when a forearm is the part in danger, moving the tool
     # away can bring the forearm closer).
+    jac = None
     if report.on_robot is not None and report.link >= 0 and end_effector_link is None:
         link, position = report.link, np.asarray(report.on_robot, dtype=np.float64)
+        jac = report.jacobian
     else:
         link = end_effector_link if end_effector_link is not None else len(robot.link_names) - 1
         position = robot.fk(q)[link, :3, 3]
-    jac = _point_jacobian(robot, q, link, position)
+    if jac is None:
+        jac = _point_jacobian(robot, q, link, position)
     away = position - report.on_obstacle
     if report.clearance <= 0 and dynamic is not None and len(dynamic):
         # Touching: the closest points lie inside each other and their difference can
