@@ -12,7 +12,7 @@ import gc
 import time
 import warnings
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -75,6 +75,8 @@ class ExecutiveLog:
 
     plans: list[tuple[float, np.ndarray]] = field(default_factory=list)
     reflexes: list[dict] = field(default_factory=list)
+    #: Every frame's risk report, without the obstacle's voxels and the Jacobian (kept
+    #: per frame for a whole run they grew the heap that garbage collections walk).
     risk: list[RiskReport] = field(default_factory=list)
     #: (time, message) of every planning call that produced no path.
     failures: list[tuple[float, str]] = field(default_factory=list)
@@ -310,7 +312,7 @@ class Executive:
         tcp_speed = self._tool_speed()
         qd = self.command if self.config.relative_velocity else None
         report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed, qd)
-        self.log.risk.append(report)
+        self.log.risk.append(replace(report, voxels=None, jacobian=None))
         self.planner.rrt.set_keep_out(self.grown_robot, self.tracker.last_dynamic, self.tree.resolution)
         in_reflex = self.motion is not None and self.motion.kind in ("reflex", "backtrack")
         close = report.approaching and report.clearance < self.config.min_separation
