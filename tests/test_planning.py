@@ -133,6 +133,10 @@ def test_densify_matches_segment_by_segment_subdivision(per_joint):
         steps = np.diff(out, axis=0)
         size = np.abs(steps).max(axis=1) if per_joint else np.linalg.norm(steps, axis=1)
         assert (size <= 0.05 + 1e-12).all()
+    with pytest.raises(ValueError, match="finite"):
+        densify(np.array([[0.0] * 6, [np.nan] * 6]), 0.05, per_joint=per_joint)
+    with pytest.raises(ValueError, match="step > 0"):
+        densify(np.zeros((2, 6)), 0.0, per_joint=per_joint)
 
 
 # --- RRT-Connect with the collision core ------------------------------------------------
@@ -468,6 +472,38 @@ def test_reflex_backtracks_or_moves_away(ur5):
     new_tool = ur5.fk(move.path[-1])[-1, :3, 3]
     assert np.linalg.norm(new_tool - obstacle) > np.linalg.norm(tool - obstacle) + 0.05
     assert not ur5.check_motion(tree, move.path[0], move.path[-1])
+
+
+def test_move_away_reuses_the_trackers_jacobian_only_at_its_configuration(ur5):
+    """The tracker's report carries the closest point's Jacobian (for the closing
+    speed); the move-away from the same configuration uses it and must come out as if
+    it computed its own, and a report from another configuration must not lend it."""
+    from dataclasses import replace
+
+    from earcore.planning.reflex import _point_jacobian
+
+    res = 0.05
+    tracker = ObstacleTracker(ur5, res, beta=1.5)
+    blob = np.array([[x, y, z] for x in (0, res) for y in (0, res) for z in (0, res)])
+    tool = ur5.fk(A)[-1, :3, 3]
+    qd = 0.3 * (B - A) / np.linalg.norm(B - A)
+    for k in range(6):
+        centre = tool + np.array([0.5, 0.0, 0.0]) + np.array([-1.2, 0.0, 0.0]) * k / 15
+        report = tracker.update(k / 15, (np.floor((blob + centre) / res) + 0.5) * res, A, qd=qd)
+    assert report.approaching and report.jacobian is not None
+    assert np.array_equal(report.jacobian, _point_jacobian(ur5, A, report.link, report.on_robot))
+    tree, dynamic = earcore.OcTree(res), tracker.last_dynamic
+    kwargs = dict(prefer_move_away=True, dynamic=dynamic, voxel_size=res)
+    move = plan_reflex(ur5, tree, A, np.array([A]), report, **kwargs)
+    fresh = plan_reflex(ur5, tree, A, np.array([A]), replace(report, jacobian=None), **kwargs)
+    assert move.kind == "move_away" and np.array_equal(move.path, fresh.path)
+    # A poisoned Jacobian shows whether it is used: only at the report's own q.
+    poisoned = replace(report, jacobian=np.zeros_like(report.jacobian))
+    assert np.allclose(plan_reflex(ur5, tree, A, np.array([A]), poisoned, **kwargs).path[-1], A)
+    elsewhere = A + 0.01
+    own = plan_reflex(ur5, tree, elsewhere, np.array([elsewhere]), replace(report, jacobian=None), **kwargs)
+    other = plan_reflex(ur5, tree, elsewhere, np.array([elsewhere]), poisoned, **kwargs)
+    assert np.array_equal(own.path, other.path) and not np.allclose(other.path[-1], elsewhere)
 
 
 def test_occupied_cells_near_splits_pruned_nodes():

@@ -270,6 +270,7 @@ class Executive:
         if self.reflexes_on:
             with _collector_paused():
                 report, fired = self._reflex_layer(cell, q)
+            self.log.risk.append(replace(report, voxels=None, jacobian=None))
             if fired:
                 return report
         if self.motion is not None and self.motion.kind in ("reflex", "backtrack"):
@@ -312,7 +313,6 @@ class Executive:
         tcp_speed = self._tool_speed()
         qd = self.command if self.config.relative_velocity else None
         report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed, qd)
-        self.log.risk.append(replace(report, voxels=None, jacobian=None))
         self.planner.rrt.set_keep_out(self.grown_robot, self.tracker.last_dynamic, self.tree.resolution)
         in_reflex = self.motion is not None and self.motion.kind in ("reflex", "backtrack")
         close = report.approaching and report.clearance < self.config.min_separation

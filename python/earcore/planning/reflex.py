@@ -112,9 +112,10 @@ class RiskReport:
     #: `ObstacleTrack.approach_velocity`) and its voxels.
     velocity: np.ndarray | None = None
     voxels: np.ndarray | None = None
-    #: (3, dof) Jacobian of `on_robot` on `link` at the frame's configuration, when the
-    #: closing speed needed it (the move-away reuses it).
+    #: (3, dof) Jacobian of `on_robot` on `link` at `q`, when the closing speed needed
+    #: it (a move-away from the same `q` reuses it), and the joint state of the report.
     jacobian: np.ndarray | None = None
+    q: np.ndarray | None = None
 
     def fires(self, threshold: float, min_separation: float = 0.0) -> bool:
         """Eq. 3 (risk ≥ T), or an approaching obstacle closer than `min_separation`
@@ -253,7 +254,7 @@ class ObstacleTracker:
         sp = protective_separation(speed, robot_speed, reaction_time=frame_period, stopping_time=0.2)
         return RiskReport(
             time_s, len(self.tracks), risk, speed, d, on_robot, on_obstacle, sp, d < sp,
-            time.perf_counter() - t0, approaching, link, velocity, track_voxels, jacobian,
+            time.perf_counter() - t0, approaching, link, velocity, track_voxels, jacobian, np.array(q, dtype=np.float64),
         )
 
     def _associate(self, time_s: float, clusters: list[np.ndarray]) -> None:
@@ -298,7 +299,7 @@ def _velocities(history: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np
         return np.zeros(3), np.zeros(3)
     slope = (tc @ (p - p.mean(axis=0))) / denom
     if len(history) < 4:
-        return slope, slope
+        return slope, slope.copy()
     t = t - t[-1]
     design = np.stack([np.ones_like(t), t, t * t], axis=1)
     # Normal equations (3×3, well conditioned for distinct frame times): a tenth of
@@ -306,8 +307,8 @@ def _velocities(history: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np
     try:
         coef = np.linalg.solve(design.T @ design, design.T @ p)
     except np.linalg.LinAlgError:  # fewer than three distinct times
-        return slope, slope
-    return slope, (coef[1] if float(np.linalg.norm(coef[1])) > float(np.linalg.norm(slope)) else slope)
+        return slope, slope.copy()
+    return slope, (coef[1] if float(np.linalg.norm(coef[1])) > float(np.linalg.norm(slope)) else slope.copy())
 
 
 @dataclass
@@ -420,7 +421,8 @@ def plan_reflex(
     jac = None
     if report.on_robot is not None and report.link >= 0 and end_effector_link is None:
         link, position = report.link, np.asarray(report.on_robot, dtype=np.float64)
-        jac = report.jacobian
+        if report.jacobian is not None and report.q is not None and np.array_equal(report.q, q):
+            jac = report.jacobian
     else:
         link = end_effector_link if end_effector_link is not None else len(robot.link_names) - 1
         position = robot.fk(q)[link, :3, 3]

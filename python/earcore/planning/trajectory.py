@@ -87,7 +87,12 @@ def densify(path: np.ndarray, step: float, *, per_joint: bool = False) -> np.nda
     # segment i gets n_i points a + (b - a)·k/n_i, k = 1..n_i.
     delta = np.diff(path, axis=0)
     span = np.abs(delta).max(axis=1) if per_joint else np.linalg.norm(delta, axis=1)
-    n = np.maximum(1, np.ceil(span / step)).astype(np.int64)
+    if not step > 0:
+        raise ValueError(f"densify needs a step > 0, got {step}")
+    parts = span / step
+    if not np.isfinite(parts).all():
+        raise ValueError(f"densify needs a finite path and step, got step {step}")
+    n = np.maximum(1, np.ceil(parts)).astype(np.int64)
     seg = np.repeat(np.arange(len(delta)), n)
     k = np.arange(1, len(seg) + 1) - np.repeat(np.cumsum(n) - n, n)
     return np.vstack([path[:1], path[seg] + delta[seg] * (k / n[seg])[:, None]])

@@ -345,6 +345,8 @@ pub fn touches_boxes(
 /// size): exact body-box distances (negative when overlapping), no index. A box is
 /// skipped when a lower bound on its distance (centre to axis, less the box's half
 /// diagonal and the body's radius) cannot beat the best found.
+/// Of pairs exactly as near as each other (a link parallel to a column of voxels),
+/// the one reported is the one met first, the smallest lower bound first.
 pub fn clearances_to_boxes(
     model: &RobotModel,
     qs: &[f64],
