@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Trajectory", "densify", "path_length", "time_parameterize"]
+__all__ = ["Trajectory", "blend_corners", "densify", "path_length", "time_parameterize"]
 
 
 def path_length(path: np.ndarray) -> float:
@@ -96,6 +96,67 @@ def densify(path: np.ndarray, step: float, *, per_joint: bool = False) -> np.nda
     seg = np.repeat(np.arange(len(delta)), n)
     k = np.arange(1, len(seg) + 1) - np.repeat(np.cumsum(n) - n, n)
     return np.vstack([path[:1], path[seg] + delta[seg] * (k / n[seg])[:, None]])
+
+
+def blend_corners(path, max_deviation: float, *, step: float = 0.01) -> np.ndarray:
+    """The polyline with every corner replaced by a circular arc tangent to both of its
+    segments (Kunz & Stilman's blends): at most `max_deviation` (rad) from the corner
+    and using at most half of either segment, sampled with chords of at most `step`.
+
+    A corner is a velocity jump, which a time parameterisation must take at a crawl
+    (smoothed plans have a corner every ~0.1 rad); an arc of radius r only limits the
+    speed to about sqrt(a·r). The arcs leave the checked polyline, so a caller must
+    check the result again. Corners that turn back by more than ~170° stay corners."""
+    path = np.asarray(path, dtype=np.float64)
+    if path.ndim != 2 or not np.isfinite(path).all():
+        raise ValueError(f"path must be a finite (M, dof) array, got shape {path.shape}")
+    if not (np.isfinite(max_deviation) and max_deviation >= 0 and step > 0):
+        raise ValueError(f"need max_deviation >= 0 and step > 0, got {max_deviation}, {step}")
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(path, axis=0), axis=1) > 1e-12])
+    path = path[keep]
+    if len(path) < 3 or max_deviation == 0:
+        return path.copy()
+    seg = np.diff(path, axis=0)
+    length = np.linalg.norm(seg, axis=1)
+    unit = seg / length[:, None]
+    u_in, u_out = unit[:-1], unit[1:]
+    turn = np.arccos(np.clip(np.einsum("ij,ij->i", u_in, u_out), -1.0, 1.0))  # θ per corner
+    half = 0.5 * turn
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # Tangent length: half of either segment, or what keeps the arc within the
+        # deviation from the corner: δ·sin(θ/2) / (1 - cos(θ/2)).
+        reach = max_deviation * np.sin(half) / (1.0 - np.cos(half))
+        tangent = np.minimum(np.minimum(0.5 * length[:-1], 0.5 * length[1:]), reach)
+        radius = tangent / np.tan(half)
+    blend = (turn > 1e-6) & (turn < np.radians(170.0)) & np.isfinite(radius) & (radius > 0)
+    corners = path[1:-1]
+    starts = corners - tangent[:, None] * u_in
+    inward = u_out - u_in
+    inward /= np.maximum(np.linalg.norm(inward, axis=1), 1e-300)[:, None]
+    centres = corners + (radius / np.cos(half))[:, None] * inward
+    # Arc samples: p(φ) = c + cos φ (a - c) + sin φ · r · u_in, φ from 0 to θ, k/n of
+    # the way for k = 1..n (the arc's start point first).
+    n = np.where(blend, np.maximum(1, np.ceil(np.where(blend, radius * turn, 0.0) / step)), 0).astype(np.int64)
+    which = np.repeat(np.arange(len(corners)), n)
+    k = np.arange(1, len(which) + 1) - np.repeat(np.cumsum(n) - n, n)
+    phi = turn[which] * (k / n[which])
+    arcs = (
+        centres[which]
+        + np.cos(phi)[:, None] * (starts - centres)[which]
+        + (np.sin(phi) * radius[which])[:, None] * u_in[which]
+    )
+    # Assemble: the start, then per corner either the corner itself or the arc's start
+    # followed by its samples, then the goal.
+    pieces = [path[:1]]
+    offsets = np.concatenate([[0], np.cumsum(n)])
+    for i in range(len(corners)):
+        if blend[i]:
+            pieces.append(starts[i : i + 1])
+            pieces.append(arcs[offsets[i] : offsets[i + 1]])
+        else:
+            pieces.append(corners[i : i + 1])
+    pieces.append(path[-1:])
+    return np.vstack(pieces)
 
 
 def time_parameterize(

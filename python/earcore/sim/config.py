@@ -215,6 +215,11 @@ class PlanningConfig:
     #: obstacles (people) on top of not touching what the map holds of them: the cameras
     #: see one side of a hand, and a tight path brushed its other side. 0 = off.
     person_margin: float = 0.04
+    #: Planned paths have their corners rounded by arcs at most this far (rad) from each
+    #: corner before they run, where the rounded path is still valid (else a quarter
+    #: of it, else none): corners must be taken at a crawl (0 = off; MoveIt's time
+    #: parameterisation uses 0.1 rad too).
+    blend_deviation: float = 0.1
     #: Goal tolerances for end-effector pose goals (m, rad).
     position_tolerance: float = 0.01
     orientation_tolerance: float = 0.1
