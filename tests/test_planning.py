@@ -111,6 +111,73 @@ def test_trajectory_bad_input():
     assert single.duration == 0.0 and np.allclose(single.sample(3.0), [0.5, 0.5])
 
 
+def test_blend_corners_rounds_a_right_angle_with_the_analytic_arc():
+    """(0,0)→(1,0)→(1,1) with deviation δ: tangent length δ·sin45°/(1−cos45°) = r, the
+    arc on the circle of radius r about (1−r, r), its middle δ from the corner."""
+    from earcore.planning.trajectory import blend_corners
+
+    delta = 0.1
+    out = blend_corners(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), delta, step=0.005)
+    r = delta * np.sin(np.pi / 4) / (1 - np.cos(np.pi / 4))
+    assert np.allclose(out[0], [0, 0]) and np.allclose(out[-1], [1, 1])
+    assert np.allclose(out[1], [1 - r, 0])  # the arc leaves the first segment here
+    arc = out[1:-1]
+    assert np.allclose(np.linalg.norm(arc - [1 - r, r], axis=1), r)
+    assert np.min(np.linalg.norm(arc - [1.0, 0.0], axis=1)) == pytest.approx(delta)
+    assert np.linalg.norm(np.diff(arc, axis=0), axis=1).max() <= 0.005 + 1e-12
+    assert np.allclose(arc[-1], [1, r])
+
+
+def test_blend_corners_stays_near_the_polyline_and_is_faster_to_run():
+    from earcore.planning.trajectory import blend_corners
+
+    rng = np.random.default_rng(5)
+    for trial in range(5):
+        path = A + np.cumsum(rng.normal(scale=0.15, size=(12, 6)), axis=0)
+        out = blend_corners(path, 0.1)
+        assert np.allclose(out[0], path[0]) and np.allclose(out[-1], path[-1])
+        # Brute force: every output point within the deviation of the polyline.
+        t = np.linspace(0, 1, 400)[:, None]
+        dense = np.vstack([a + (b - a) * t for a, b in zip(path[:-1], path[1:])])
+        gap = np.linalg.norm(out[:, None, :] - dense[None], axis=2).min(axis=1)
+        assert gap.max() <= 0.1 + 0.01
+        # No corner left: consecutive chords turn by little (arcs sampled at 1 cm).
+        chords = np.diff(out, axis=0)
+        chords /= np.linalg.norm(chords, axis=1)[:, None]
+        assert np.arccos(np.clip(np.einsum("ij,ij->i", chords[:-1], chords[1:]), -1, 1)).max() < 0.35
+        plain = time_parameterize(path, V_MAX, A_MAX).duration
+        assert time_parameterize(out, V_MAX, A_MAX).duration < 0.9 * plain
+    straight = np.stack([A, B])
+    assert np.array_equal(blend_corners(straight, 0.1), straight)
+    with pytest.raises(ValueError, match="finite"):
+        blend_corners(np.array([A, A + np.nan, B]), 0.1)
+    with pytest.raises(ValueError, match="max_deviation"):
+        blend_corners(np.array([A, (A + B) / 2 + 0.1, B]), -0.1)
+
+
+def test_executive_rounds_plans_only_where_the_rounded_path_is_valid():
+    from types import SimpleNamespace
+
+    from earcore.planning.executive import Executive
+    from earcore.planning.trajectory import blend_corners
+
+    path = np.array([A, (A + B) / 2 + 0.3, B])
+    checked = []
+
+    def stub(valid):
+        rrt = SimpleNamespace(path_is_valid=lambda p: checked.append(len(p)) or valid(p))
+        return SimpleNamespace(config=SimpleNamespace(blend_deviation=0.1), planner=SimpleNamespace(rrt=rrt))
+
+    assert np.array_equal(Executive._rounded(stub(lambda p: True), path), blend_corners(path, 0.1))
+    # The full deviation cuts into something, a quarter of it does not.
+    quarter = blend_corners(path, 0.025)
+    out = Executive._rounded(stub(lambda p: len(p) == len(quarter)), path)
+    assert np.array_equal(out, quarter)
+    assert np.array_equal(Executive._rounded(stub(lambda p: False), path), path)
+    off = SimpleNamespace(config=SimpleNamespace(blend_deviation=0.0), planner=None)
+    assert Executive._rounded(off, path) is path
+
+
 @pytest.mark.parametrize("per_joint", [False, True])
 def test_densify_matches_segment_by_segment_subdivision(per_joint):
     """Reference: each segment split on its own into the fewest equal parts no longer

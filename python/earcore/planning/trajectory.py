@@ -156,7 +156,9 @@ def blend_corners(path, max_deviation: float, *, step: float = 0.01) -> np.ndarr
         else:
             pieces.append(corners[i : i + 1])
     pieces.append(path[-1:])
-    return np.vstack(pieces)
+    out = np.vstack(pieces)
+    # Arcs that use half of a segment each meet at its middle: drop the repeated point.
+    return out[np.concatenate([[True], np.linalg.norm(np.diff(out, axis=0), axis=1) > 1e-12])]
 
 
 def time_parameterize(
