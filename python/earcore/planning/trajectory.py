@@ -145,18 +145,14 @@ def blend_corners(path, max_deviation: float, *, step: float = 0.01) -> np.ndarr
         + np.cos(phi)[:, None] * (starts - centres)[which]
         + (np.sin(phi) * radius[which])[:, None] * u_in[which]
     )
-    # Assemble: the start, then per corner either the corner itself or the arc's start
-    # followed by its samples, then the goal.
-    pieces = [path[:1]]
-    offsets = np.concatenate([[0], np.cumsum(n)])
-    for i in range(len(corners)):
-        if blend[i]:
-            pieces.append(starts[i : i + 1])
-            pieces.append(arcs[offsets[i] : offsets[i + 1]])
-        else:
-            pieces.append(corners[i : i + 1])
-    pieces.append(path[-1:])
-    out = np.vstack(pieces)
+    # Assemble: the start, then per corner its block (the corner itself, or the arc's
+    # start followed by its samples), then the goal.
+    size = 1 + n
+    block = 1 + np.concatenate([[0], np.cumsum(size)[:-1]])
+    out = np.empty((2 + size.sum(), path.shape[1]))
+    out[0], out[-1] = path[0], path[-1]
+    out[block] = np.where(blend[:, None], starts, corners)
+    out[block[which] + k] = arcs
     # Arcs that use half of a segment each meet at its middle: drop the repeated point.
     return out[np.concatenate([[True], np.linalg.norm(np.diff(out, axis=0), axis=1) > 1e-12])]
 
