@@ -155,27 +155,19 @@ def test_blend_corners_stays_near_the_polyline_and_is_faster_to_run():
         blend_corners(np.array([A, (A + B) / 2 + 0.1, B]), -0.1)
 
 
-def test_executive_rounds_plans_only_where_the_rounded_path_is_valid():
-    from types import SimpleNamespace
-
-    from earcore.planning.executive import Executive
+def test_plans_are_rounded_only_where_the_rounded_path_is_valid(ur5):
     from earcore.planning.trajectory import blend_corners
 
+    planner = JointSpacePlanner(ur5, earcore.OcTree(0.05))
     path = np.array([A, (A + B) / 2 + 0.3, B])
-    checked = []
-
-    def stub(valid):
-        rrt = SimpleNamespace(path_is_valid=lambda p: checked.append(len(p)) or valid(p))
-        return SimpleNamespace(config=SimpleNamespace(blend_deviation=0.1), planner=SimpleNamespace(rrt=rrt))
-
-    assert np.array_equal(Executive._rounded(stub(lambda p: True), path), blend_corners(path, 0.1))
-    # The full deviation cuts into something, a quarter of it does not.
+    assert np.array_equal(planner.rounded(path, 0.1), blend_corners(path, 0.1))  # free space
+    # The full deviation cuts into something, a quarter of it does not; then nothing fits.
     quarter = blend_corners(path, 0.025)
-    out = Executive._rounded(stub(lambda p: len(p) == len(quarter)), path)
-    assert np.array_equal(out, quarter)
-    assert np.array_equal(Executive._rounded(stub(lambda p: False), path), path)
-    off = SimpleNamespace(config=SimpleNamespace(blend_deviation=0.0), planner=None)
-    assert Executive._rounded(off, path) is path
+    planner.path_is_valid = lambda p: len(p) == len(quarter)
+    assert np.array_equal(planner.rounded(path, 0.1), quarter)
+    planner.path_is_valid = lambda p: False
+    assert np.array_equal(planner.rounded(path, 0.1), path)
+    assert np.array_equal(planner.rounded(path, 0.0), path)
 
 
 @pytest.mark.parametrize("per_joint", [False, True])

@@ -19,7 +19,7 @@ import numpy as np
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
 from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, plan_recovery, plan_reflex
-from earcore.planning.trajectory import Trajectory, blend_corners, path_length, time_parameterize
+from earcore.planning.trajectory import Trajectory, path_length, time_parameterize
 
 __all__ = ["Executive", "TripReport"]
 
@@ -144,7 +144,8 @@ class Executive:
 
     def _start_motion(self, path: np.ndarray, kind: str) -> None:
         if kind == "plan":
-            path = self._rounded(path)
+            # Corners rounded where still valid; reflex moves run as they are (no time to check).
+            path = self.planner.rrt.rounded(path, self.config.blend_deviation)
         # Keep the speed the robot already has along the new path's first direction.
         first = path[1] - path[0] if len(path) > 1 else np.zeros(len(path[0]))
         norm = float(np.linalg.norm(first))
@@ -153,19 +154,6 @@ class Executive:
             path, self.v_max, self.a_max, control_period=self.cell.config.time_step, initial_speed=along
         )
         self.motion = _Motion(traj, self.cell.time, kind)
-
-    def _rounded(self, path: np.ndarray) -> np.ndarray:
-        """The planned path with its corners rounded (`blend_corners`), as far as the
-        rounded path stays valid on the map: a quarter of the deviation is tried next,
-        then the path is left as planned. Reflex moves are not rounded (no time to check)."""
-        deviation = self.config.blend_deviation
-        if deviation <= 0 or len(path) < 3:
-            return path
-        for d in (deviation, 0.25 * deviation):
-            rounded = blend_corners(path, d)
-            if self.planner.rrt.path_is_valid(rounded):
-                return rounded
-        return path
 
     def _remaining(self) -> np.ndarray | None:
         if self.motion is None:

@@ -17,7 +17,7 @@ import numpy as np
 
 from earcore.planning.errors import GoalInCollision, NoPathFound, StartInCollision
 from earcore.planning.ik import solve_ik
-from earcore.planning.trajectory import path_length
+from earcore.planning.trajectory import blend_corners, path_length
 
 __all__ = ["JointSpacePlanner", "PlannedPath"]
 
@@ -172,6 +172,19 @@ class JointSpacePlanner:
             near = robot.check_motions(tree, path[:-1], path[1:], self.resolution, self_collision=False)
             return not bool(np.any(near))
         return True
+
+    def rounded(self, path, max_deviation: float) -> np.ndarray:
+        """`path` with its corners rounded by arcs (`blend_corners`) as far as the
+        rounded path stays valid (`path_is_valid`): `max_deviation` first, then a
+        quarter of it, else the path as it is."""
+        path = np.asarray(path, dtype=np.float64)
+        if max_deviation <= 0 or len(path) < 3:
+            return path
+        for deviation in (max_deviation, 0.25 * max_deviation):
+            candidate = blend_corners(path, deviation)
+            if self.path_is_valid(candidate):
+                return candidate
+        return path
 
     def _describe(self, q) -> str | None:
         hit, link = self.robot.check_configurations(self.tree, q, obstacles=self.obstacles, return_links=True)
