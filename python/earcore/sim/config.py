@@ -215,11 +215,13 @@ class PlanningConfig:
     #: obstacles (people) on top of not touching what the map holds of them: the cameras
     #: see one side of a hand, and a tight path brushed its other side. 0 = off.
     person_margin: float = 0.04
-    #: Planned paths have their corners rounded by arcs at most this far (rad) from each
-    #: corner before they run, where the rounded path is still valid (else a quarter
-    #: of it, else none): corners must be taken at a crawl (0 = off; MoveIt's time
-    #: parameterisation uses 0.1 rad too).
-    blend_deviation: float = 0.1
+    #: Round planned paths' corners by arcs at most this far (rad) from each corner
+    #: before they run, where the rounded path is still valid (else a quarter of it,
+    #: else none); corners are otherwise taken at a crawl. 0 = off, the default: with
+    #: 0.1 rad every experiment ran 25-35 % faster, Exp. 1 most (10.7 -> 7.0 s per
+    #: return trip, Exp. 3 11.1 -> 7.9 s), and Exp. 3 touched the person once in five
+    #: seeds (a faster robot meets more fast reaches while moving; NOTES.md, session 13).
+    blend_deviation: float = 0.0
     #: Goal tolerances for end-effector pose goals (m, rad).
     position_tolerance: float = 0.01
     orientation_tolerance: float = 0.1
