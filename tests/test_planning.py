@@ -145,6 +145,7 @@ def test_blend_corners_stays_near_the_polyline_and_is_faster_to_run():
         chords = np.diff(out, axis=0)
         chords /= np.linalg.norm(chords, axis=1)[:, None]
         assert np.arccos(np.clip(np.einsum("ij,ij->i", chords[:-1], chords[1:]), -1, 1)).max() < 0.35
+        # Durations of the planned motions (simulated seconds, deterministic), not timings.
         plain = time_parameterize(path, V_MAX, A_MAX).duration
         assert time_parameterize(out, V_MAX, A_MAX).duration < 0.9 * plain
     straight = np.stack([A, B])

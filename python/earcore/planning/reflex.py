@@ -29,7 +29,7 @@ import numpy as np
 
 import earcore
 from earcore.cloud import voxel_codes
-from earcore.planning.trajectory import cumsum0, densify
+from earcore.planning.trajectory import cumsum0, densify, without_repeats
 
 __all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_recovery", "plan_reflex", "protective_separation"]
 
@@ -405,8 +405,7 @@ def plan_reflex(
             back = cumsum0(seg[::-1])
             n = int(np.searchsorted(back, backtrack_fraction * total))
             tail = np.vstack([q[None], executed[::-1][: n + 1]])
-            keep = np.concatenate([[True], np.linalg.norm(np.diff(tail, axis=0), axis=1) > 1e-9])
-            tail = tail[keep]
+            tail = without_repeats(tail, 1e-9)
             if (
                 len(tail) >= 2
                 and _path_free(robot, tree, tail, resolution, dynamic, voxel_size, escape)

@@ -68,6 +68,12 @@ class Trajectory:
         return np.vstack([self.sample(t)[None], later])
 
 
+def without_repeats(path: np.ndarray, tolerance: float = 1e-12) -> np.ndarray:
+    """The polyline without points within `tolerance` of the one before (zero-length
+    segments have no direction)."""
+    return path[np.concatenate([[True], np.linalg.norm(np.diff(path, axis=0), axis=1) > tolerance])]
+
+
 def cumsum0(values: np.ndarray) -> np.ndarray:
     """The running sum with a leading 0 (np.r_[0, cumsum] at a fraction of np.r_'s
     overhead, which the reflex's latency pays)."""
@@ -112,8 +118,7 @@ def blend_corners(path, max_deviation: float, *, step: float = 0.01) -> np.ndarr
         raise ValueError(f"path must be a finite (M, dof) array, got shape {path.shape}")
     if not (np.isfinite(max_deviation) and max_deviation >= 0 and step > 0):
         raise ValueError(f"need max_deviation >= 0 and step > 0, got {max_deviation}, {step}")
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(path, axis=0), axis=1) > 1e-12])
-    path = path[keep]
+    path = without_repeats(path)
     if len(path) < 3 or max_deviation == 0:
         return path.copy()
     seg = np.diff(path, axis=0)
@@ -154,7 +159,7 @@ def blend_corners(path, max_deviation: float, *, step: float = 0.01) -> np.ndarr
     out[block] = np.where(blend[:, None], starts, corners)
     out[block[which] + k] = arcs
     # Arcs that use half of a segment each meet at its middle: drop the repeated point.
-    return out[np.concatenate([[True], np.linalg.norm(np.diff(out, axis=0), axis=1) > 1e-12])]
+    return without_repeats(out)
 
 
 def time_parameterize(
@@ -181,9 +186,7 @@ def time_parameterize(
     a_max = np.broadcast_to(np.asarray(max_acceleration, dtype=np.float64), path.shape[1:])
     if not (np.all(v_max > 0) and np.all(a_max > 0)):
         raise ValueError("velocity and acceleration limits must be > 0")
-    # Drop repeated waypoints (zero-length segments have no direction).
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(path, axis=0), axis=1) > 1e-12])
-    path = path[keep]
+    path = without_repeats(path)
     if len(path) == 1:
         return Trajectory(np.zeros(1), path.copy(), np.zeros_like(path), np.zeros(1), np.zeros(1))
     # At least two samples per path: from rest to rest over a single one the profile

@@ -380,8 +380,8 @@ pub fn clearances_to_boxes(
                     }
                 }
                 // The most promising pair first: its exact distance then rules out
-                // nearly every other pair by its bound alone (in a robot-held order a
-                // far body's boxes were all computed before the near one's).
+                // nearly every other pair by its bound alone (in body-then-box order,
+                // every box of a far body was computed exactly before the near one).
                 if let Some(first) = bounds
                     .iter()
                     .enumerate()
