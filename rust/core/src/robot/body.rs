@@ -2,8 +2,9 @@
 //!
 //! Capsules have closed-form distances (segment geometry). Cylinders (Paper II's
 //! choice, tighter for stubby links such as a UR shoulder) have closed-form overlap
-//! tests with boxes; their distances to a box near a flat end, and cylinder pairs,
-//! use parry's GJK queries.
+//! tests with boxes; their distances to a box near a flat end, and cylinder pairs
+//! that no closed-form test settles (touching axes' closest points, a separating
+//! plane among four candidates), use parry's GJK queries.
 //! Every cylinder lies inside the capsule with the same axis and radius, which the
 //! fast conservative tests exploit.
 
@@ -236,6 +237,47 @@ impl Body {
         Cylinder::new(0.5 * self.axis.length(), self.axis.radius.max(0.0))
     }
 
+    /// Half the extent of the body along the unit direction `w` (its projection is
+    /// centre·w ± this): the axis' share plus the rim's (a cylinder's flat ends) or
+    /// the full radius (a capsule's round ends).
+    #[inline]
+    fn spread_along(&self, w: &Vector3<f64>) -> f64 {
+        let d = Vector3::from(self.axis.b) - Vector3::from(self.axis.a);
+        let along = d.dot(w).abs();
+        let r = self.axis.radius;
+        match self.shape {
+            BodyShape::Capsule => 0.5 * along + r,
+            BodyShape::Cylinder => {
+                let len2 = d.norm_squared();
+                let cos2 = if len2 > 0.0 {
+                    along * along / len2
+                } else {
+                    1.0
+                };
+                0.5 * along + r * (1.0 - cos2).max(0.0).sqrt()
+            }
+        }
+    }
+
+    /// Is there a separating plane among a few candidates: normal to either axis, to
+    /// both, or along `closest` (between the axes' closest points)? True proves the
+    /// bodies apart; false proves nothing.
+    fn separated_from(&self, other: &Body, closest: &Vector3<f64>) -> bool {
+        let centre = |b: &Body| 0.5 * (Vector3::from(b.axis.a) + Vector3::from(b.axis.b));
+        let gap = centre(other) - centre(self);
+        let d1 = Vector3::from(self.axis.b) - Vector3::from(self.axis.a);
+        let d2 = Vector3::from(other.axis.b) - Vector3::from(other.axis.a);
+        [*closest, d1, d2, d1.cross(&d2)].iter().any(|w| {
+            let n = w.norm();
+            if n < 1e-12 {
+                return false;
+            }
+            let w = w / n;
+            // A strict margin: touching counts as meeting, so only a clear gap separates.
+            gap.dot(&w).abs() > self.spread_along(&w) + other.spread_along(&w) + 1e-12
+        })
+    }
+
     /// Does the body meet the axis-aligned box (touching counts)? Exact, in closed
     /// form: for cylinders the enclosing capsule's closest approach decides, unless it
     /// is at a flat end, where the end disc decides.
@@ -447,6 +489,12 @@ impl Body {
             |shape: BodyShape, at: f64| shape == BodyShape::Capsule || (at > 0.0 && at < 1.0);
         if inside(self.shape, s) && inside(other.shape, t) {
             return true;
+        }
+        // Near misses at a flat end are most of what reaches here (a robot's
+        // neighbouring links): a separating plane found in closed form spares GJK.
+        let closest = Vector3::from(lerp(&q.a, &q.b, t)) - Vector3::from(lerp(&p.a, &p.b, s));
+        if self.separated_from(other, &closest) {
+            return false;
         }
         let shape = |b: &Body| -> Box<dyn parry3d_f64::shape::Shape> {
             match b.shape {
@@ -832,6 +880,47 @@ mod tests {
             shortcut += usize::from(ours && s > 0.0 && s < 1.0 && t > 0.0 && t < 1.0);
         }
         assert!(hits > 2000 && shortcut > 1000, "{hits} {shortcut}");
+    }
+
+    #[test]
+    fn separating_planes_are_sound_and_catch_most_near_misses() {
+        // Pairs whose enclosing capsules meet (what the plane test is asked about):
+        // it must never separate bodies GJK finds touching, and it should settle
+        // most of the ones GJK finds apart (else GJK runs for every near miss).
+        let mut rng = Rng::new(7);
+        let (mut apart, mut settled, mut touching) = (0, 0, 0);
+        while apart < 3000 || touching < 3000 {
+            let mut v = || rng.uniform(-0.2, 0.2);
+            let mut cylinder =
+                || Body::cylinder([v(), v(), v()], [v(), v(), v()], 0.03 + 0.1 * v().abs());
+            let (x, y) = (cylinder(), cylinder());
+            let (d2, s, t) = segment_segment_closest(&x.axis.a, &x.axis.b, &y.axis.a, &y.axis.b);
+            let r = x.radius() + y.radius();
+            if d2 > r * r {
+                continue;
+            }
+            let gap = query::distance(
+                &x.parry_pose(),
+                &x.cylinder_shape(),
+                &y.parry_pose(),
+                &y.cylinder_shape(),
+            )
+            .unwrap();
+            let closest = Vector3::from(lerp(&y.axis.a, &y.axis.b, t))
+                - Vector3::from(lerp(&x.axis.a, &x.axis.b, s));
+            let separated = x.separated_from(&y, &closest);
+            if gap <= 1e-9 {
+                assert!(!separated, "a plane separates touching bodies (gap {gap})");
+                touching += 1;
+            } else {
+                apart += 1;
+                settled += usize::from(separated);
+            }
+        }
+        assert!(
+            settled * 2 > apart,
+            "planes settled only {settled} of {apart} near misses"
+        );
     }
 
     #[test]
