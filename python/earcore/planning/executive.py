@@ -19,7 +19,7 @@ import numpy as np
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
 from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, plan_recovery, plan_reflex
-from earcore.planning.trajectory import Trajectory, path_length, time_parameterize
+from earcore.planning.trajectory import Trajectory, braking, path_length, time_parameterize
 
 __all__ = ["Executive", "TripReport"]
 
@@ -82,6 +82,16 @@ class ExecutiveLog:
     failures: list[tuple[float, str]] = field(default_factory=list)
 
 
+def _report_at(robot, report: RiskReport, q: np.ndarray, start: np.ndarray) -> RiskReport:
+    """`report` (made at q) for a reflex that leaves from `start`: the robot's closest
+    point carried along with its link, the Jacobian no longer valid."""
+    if report.on_robot is None or report.link < 0 or np.array_equal(start, q):
+        return report
+    frames = robot.fk(np.stack([q, start]))[:, report.link]
+    moved = frames[1] @ np.linalg.solve(frames[0], np.append(report.on_robot, 1.0))
+    return replace(report, on_robot=moved[:3], jacobian=None, q=None)
+
+
 class Executive:
     def __init__(self, cell, pipeline, config, goals: list[np.ndarray], *, seed: int = 0) -> None:
         if config.mode not in ("predictive", "reactive"):
@@ -142,17 +152,23 @@ class Executive:
 
     # --- helpers -----------------------------------------------------------------
 
-    def _start_motion(self, path: np.ndarray, kind: str) -> None:
+    def _start_motion(self, path: np.ndarray, kind: str, *, after: Trajectory | None = None) -> None:
+        """Run `path`: from the robot's current motion (keeping its speed along the
+        path's first direction), or, given `after` (a stop), from rest at its end."""
         if kind == "plan":
             # Corners rounded where still valid; reflex moves run as they are (no time to check).
             path = self.planner.rrt.rounded(path, self.config.blend_deviation)
-        # Keep the speed the robot already has along the new path's first direction.
-        first = path[1] - path[0] if len(path) > 1 else np.zeros(len(path[0]))
-        norm = float(np.linalg.norm(first))
-        along = float(self.command @ first) / norm if norm > 0 else 0.0
+        along = 0.0
+        if after is None:
+            # Keep the speed the robot already has along the new path's first direction.
+            first = path[1] - path[0] if len(path) > 1 else np.zeros(len(path[0]))
+            norm = float(np.linalg.norm(first))
+            along = float(self.command @ first) / norm if norm > 0 else 0.0
         traj = time_parameterize(
             path, self.v_max, self.a_max, control_period=self.cell.config.time_step, initial_speed=along
         )
+        if after is not None:
+            traj = after.then(traj)
         self.motion = _Motion(traj, self.cell.time, kind)
 
     def _remaining(self) -> np.ndarray | None:
@@ -323,10 +339,16 @@ class Executive:
         # closes in on: then it becomes a move away.
         backtracking = self.motion is not None and self.motion.kind == "backtrack"
         if report.fires(self.config.risk_threshold, self.config.min_separation) and (not in_reflex or (close and backtracking)):
-            # The static scene (index cached) plus this frame's moving voxels
-            # (exact): no rebuild of the live map's index before the reflex.
+            # The robot cannot turn on the spot: it first stops (on its current line,
+            # as fast as the limits allow) and the reflex leaves from there, so the move
+            # checked is the move made (and no catching up on a reference that left
+            # without it). The static scene (index cached) plus this frame's moving
+            # voxels (exact): no rebuild of the live map's index before the reflex.
+            stop = braking(q, self.command, self.a_max)
+            start = np.clip(stop.positions[-1], *self.robot.joint_limits.T)
+            stop.positions[-1] = start
             move = plan_reflex(
-                self.robot, self.static_tree, q, np.asarray(self.progress), report,
+                self.robot, self.static_tree, start, np.asarray(self.progress), _report_at(self.robot, report, q, start),
                 backtrack_fraction=self.config.backtrack_fraction,
                 move_away_distance=self.config.move_away_distance,
                 resolution=self.config.motion_resolution,
@@ -335,7 +357,7 @@ class Executive:
             )
             self.trip.reflexes += 1
             if move is not None:
-                self._start_motion(move.path, "backtrack" if move.kind == "backtrack" else "reflex")
+                self._start_motion(move.path, "backtrack" if move.kind == "backtrack" else "reflex", after=stop)
                 if move.kind == "backtrack":
                     # Take the undone stretch off the progress stack.
                     del self.progress[max(1, len(self.progress) - (len(move.path) - 1)):]

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Trajectory", "blend_corners", "densify", "path_length", "time_parameterize"]
+__all__ = ["Trajectory", "blend_corners", "braking", "densify", "path_length", "time_parameterize"]
 
 
 def path_length(path: np.ndarray) -> float:
@@ -66,6 +66,46 @@ class Trajectory:
         """Knot positions from time t to the end (the current position first)."""
         later = self.positions[self.times > t]
         return np.vstack([self.sample(t)[None], later])
+
+    def then(self, other: Trajectory) -> Trajectory:
+        """This trajectory followed by `other`, which starts where and at the speed this
+        one ends (its first knot is this one's last)."""
+        if not np.allclose(other.positions[0], self.positions[-1], atol=1e-9):
+            raise ValueError("the second trajectory must start where the first ends")
+        return Trajectory(
+            np.concatenate([self.times, self.times[-1] + other.times[1:]]),
+            np.vstack([self.positions, other.positions[1:]]),
+            np.vstack([self.velocities, other.velocities[1:]]),
+            np.concatenate([self.s, self.s[-1] + other.s[1:]]),
+            np.concatenate([self.speed, other.speed[1:]]),
+        )
+
+
+def braking(q, velocity, max_acceleration) -> Trajectory:
+    """The quickest stop from `velocity` at `q` in which the joints keep their ratio (so
+    the robot stays on its current joint-space line): every joint decelerates at a
+    constant rate and all come to rest together, when the one slowest to stop does at
+    its limit. A motion planned from the end of it starts where the robot can actually
+    be at rest, so what was checked is what the robot does."""
+    q = np.asarray(q, dtype=np.float64)
+    v = np.asarray(velocity, dtype=np.float64)
+    a = np.broadcast_to(np.asarray(max_acceleration, dtype=np.float64), q.shape)
+    if not (np.isfinite(q).all() and np.isfinite(v).all() and v.shape == q.shape):
+        raise ValueError(f"q and velocity must be finite and of one shape, got {q.shape} and {v.shape}")
+    if not np.all(a > 0):
+        raise ValueError("acceleration limits must be > 0")
+    t_stop = float(np.max(np.abs(v) / a))
+    if t_stop == 0.0:
+        return Trajectory(np.zeros(1), q[None].copy(), np.zeros((1, len(q))), np.zeros(1), np.zeros(1))
+    speed = float(np.linalg.norm(v))
+    stop = q + 0.5 * t_stop * v
+    return Trajectory(
+        np.array([0.0, t_stop]),
+        np.stack([q, stop]),
+        np.stack([v, np.zeros_like(v)]),
+        np.array([0.0, 0.5 * t_stop * speed]),
+        np.array([speed, 0.0]),
+    )
 
 
 def without_repeats(path: np.ndarray, tolerance: float = 1e-12) -> np.ndarray:
