@@ -19,7 +19,7 @@ import numpy as np
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
 from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, plan_recovery, plan_reflex
-from earcore.planning.trajectory import Trajectory, braking, path_length, time_parameterize
+from earcore.planning.trajectory import Braking, StopThenMove, Trajectory, braking, path_length, time_parameterize
 
 __all__ = ["Executive", "TripReport"]
 
@@ -64,7 +64,7 @@ class TripReport:
 
 @dataclass
 class _Motion:
-    trajectory: Trajectory
+    trajectory: Trajectory | StopThenMove
     start: float
     kind: str  # "plan" | "reflex" (move away) | "backtrack"
 
@@ -152,7 +152,7 @@ class Executive:
 
     # --- helpers -----------------------------------------------------------------
 
-    def _start_motion(self, path: np.ndarray, kind: str, *, after: Trajectory | None = None) -> None:
+    def _start_motion(self, path: np.ndarray, kind: str, *, after: Braking | None = None) -> None:
         """Run `path`: from the robot's current motion (keeping its speed along the
         path's first direction), or, given `after` (a stop), from rest at its end."""
         if kind == "plan":
@@ -345,8 +345,10 @@ class Executive:
             # without it). The static scene (index cached) plus this frame's moving
             # voxels (exact): no rebuild of the live map's index before the reflex.
             stop = braking(q, self.command, self.a_max)
-            start = np.clip(stop.positions[-1], *self.robot.joint_limits.T)
-            stop.positions[-1] = start
+            lo, hi = self.robot.joint_limits.T
+            if np.any(stop.end < lo) or np.any(stop.end > hi):
+                stop = braking(q, np.zeros_like(q), self.a_max)  # no stop within the limits: leave from here
+            start = stop.end
             move = plan_reflex(
                 self.robot, self.static_tree, start, np.asarray(self.progress), _report_at(self.robot, report, q, start),
                 backtrack_fraction=self.config.backtrack_fraction,

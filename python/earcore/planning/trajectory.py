@@ -21,7 +21,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Trajectory", "blend_corners", "braking", "densify", "path_length", "time_parameterize"]
+__all__ = [
+    "Braking",
+    "StopThenMove",
+    "Trajectory",
+    "blend_corners",
+    "braking",
+    "densify",
+    "path_length",
+    "time_parameterize",
+]
 
 
 def path_length(path: np.ndarray) -> float:
@@ -67,26 +76,54 @@ class Trajectory:
         later = self.positions[self.times > t]
         return np.vstack([self.sample(t)[None], later])
 
-    def then(self, other: Trajectory) -> Trajectory:
-        """This trajectory followed by `other`, which starts where and at the speed this
-        one ends (its first knot is this one's last)."""
-        if not np.allclose(other.positions[0], self.positions[-1], atol=1e-9):
-            raise ValueError("the second trajectory must start where the first ends")
-        return Trajectory(
-            np.concatenate([self.times, self.times[-1] + other.times[1:]]),
-            np.vstack([self.positions, other.positions[1:]]),
-            np.vstack([self.velocities, other.velocities[1:]]),
-            np.concatenate([self.s, self.s[-1] + other.s[1:]]),
-            np.concatenate([self.speed, other.speed[1:]]),
-        )
+
+@dataclass
+class Braking:
+    """The quickest stop from `velocity` at `start`: every joint decelerates at its
+    limit (`deceleration`, signed against its velocity) until it rests. Joints with
+    little speed stop first, so the robot leaves its current joint-space line, but no
+    joint travels farther than it must."""
+
+    start: np.ndarray
+    velocity: np.ndarray
+    deceleration: np.ndarray
+
+    @property
+    def joint_durations(self) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.velocity == 0, 0.0, self.velocity / self.deceleration)
+
+    @property
+    def duration(self) -> float:
+        return float(self.joint_durations.max())
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.sample(self.duration)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """The stop sampled at 9 times (start and end included), e.g. to draw it."""
+        return self.sample(np.linspace(0.0, self.duration, 9))
+
+    def sample(self, t: float | np.ndarray) -> np.ndarray:
+        """Positions at time(s) t (clamped to [0, duration]), each joint on its own clock."""
+        t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
+        tau = np.minimum(np.atleast_1d(t)[:, None], self.joint_durations)
+        out = self.start + self.velocity * tau - 0.5 * self.deceleration * tau**2
+        return out[0] if t.ndim == 0 else out
+
+    def then(self, move: Trajectory) -> StopThenMove:
+        """This stop followed by `move`, which must start from rest where it ends."""
+        if not np.allclose(move.positions[0], self.end, atol=1e-9):
+            raise ValueError("the move must start where the stop ends")
+        return StopThenMove(self, move)
 
 
-def braking(q, velocity, max_acceleration) -> Trajectory:
-    """The quickest stop from `velocity` at `q` in which the joints keep their ratio (so
-    the robot stays on its current joint-space line): every joint decelerates at a
-    constant rate and all come to rest together, when the one slowest to stop does at
-    its limit. A motion planned from the end of it starts where the robot can actually
-    be at rest, so what was checked is what the robot does."""
+def braking(q, velocity, max_acceleration) -> Braking:
+    """The quickest stop from `velocity` at `q` within the joints' acceleration limits
+    (`Braking`). A motion planned from its end starts where the robot can actually be
+    at rest, so what is checked is what the robot does."""
     q = np.asarray(q, dtype=np.float64)
     v = np.asarray(velocity, dtype=np.float64)
     a = np.broadcast_to(np.asarray(max_acceleration, dtype=np.float64), q.shape)
@@ -94,18 +131,38 @@ def braking(q, velocity, max_acceleration) -> Trajectory:
         raise ValueError(f"q and velocity must be finite and of one shape, got {q.shape} and {v.shape}")
     if not np.all(a > 0):
         raise ValueError("acceleration limits must be > 0")
-    t_stop = float(np.max(np.abs(v) / a))
-    if t_stop == 0.0:
-        return Trajectory(np.zeros(1), q[None].copy(), np.zeros((1, len(q))), np.zeros(1), np.zeros(1))
-    speed = float(np.linalg.norm(v))
-    stop = q + 0.5 * t_stop * v
-    return Trajectory(
-        np.array([0.0, t_stop]),
-        np.stack([q, stop]),
-        np.stack([v, np.zeros_like(v)]),
-        np.array([0.0, 0.5 * t_stop * speed]),
-        np.array([speed, 0.0]),
-    )
+    return Braking(q.copy(), v.copy(), np.sign(v) * a)
+
+
+@dataclass
+class StopThenMove:
+    """A `Braking` followed by a `Trajectory` from rest at its end, sampled as one
+    motion (what the executive runs for a reflex)."""
+
+    stop: Braking
+    move: Trajectory
+
+    @property
+    def duration(self) -> float:
+        return self.stop.duration + self.move.duration
+
+    @property
+    def positions(self) -> np.ndarray:
+        return np.vstack([self.stop.positions, self.move.positions[1:]])
+
+    def sample(self, t: float | np.ndarray) -> np.ndarray:
+        t = np.asarray(t, dtype=np.float64)
+        d = self.stop.duration
+        stopping = self.stop.sample(np.minimum(t, d))
+        moving = self.move.sample(np.maximum(t - d, 0.0))
+        return np.where((t < d)[..., None] if t.ndim else t < d, stopping, moving)
+
+    def remaining_path(self, t: float) -> np.ndarray:
+        d = self.stop.duration
+        if t >= d:
+            return self.move.remaining_path(t - d)
+        later = np.linspace(t, d, 9)
+        return np.vstack([self.stop.sample(later), self.move.positions[1:]])
 
 
 def without_repeats(path: np.ndarray, tolerance: float = 1e-12) -> np.ndarray:
