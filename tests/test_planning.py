@@ -149,6 +149,48 @@ def test_braking_stops_every_joint_at_its_limit_and_then_goes_on():
         braking(q, v + np.nan, a)
 
 
+def test_transfer_is_each_joints_quickest_move_within_its_limits():
+    """Every joint's profile from its current velocity to rest at the target, against
+    a fine-stepped simulation of the time-optimal feedback law (speed command
+    sign(e)·min(v_max, sqrt(2·a·|e|)), acceleration-limited): the same arrival times;
+    and, differentiated numerically, the start velocity, the limits, rest at the end."""
+    from earcore.planning.trajectory import transfer
+
+    rng = np.random.default_rng(11)
+    vmax, amax = np.array([0.8, 0.8, 0.8, 1.2, 1.2, 1.2]), np.array([1.8, 1.8, 1.5, 2.5, 2.5, 2.5])
+    for trial in range(6):
+        q = rng.uniform(-1, 1, 6)
+        v = rng.uniform(-1, 1, 6) * vmax
+        target = q + rng.uniform(-0.6, 0.6, 6)
+        target[trial] = q[trial]  # one joint asked to stay: it brakes and comes back
+        move = transfer(q, v, target, vmax, amax)
+        assert np.allclose(move.sample(move.duration), target, atol=1e-12)
+        dt = 1e-4
+        t = np.arange(0.0, move.duration + 0.05, dt)
+        x = move.sample(t)
+        velocity = np.diff(x, axis=0) / dt
+        assert np.allclose(velocity[0], v, atol=amax.max() * dt)
+        assert np.all(np.abs(velocity) <= vmax + 1e-6)
+        assert np.all(np.abs(np.diff(velocity, axis=0) / dt) <= amax + 1e-3)
+        assert np.allclose(velocity[-10:], 0.0)
+        # Reference arrival per joint (step h): the feedback law reaches the target to
+        # within 1e-4 rad at rest.
+        h = 1e-4
+        for j in range(6):
+            xj, vj, time_ = q[j], v[j], 0.0
+            while True:
+                e = target[j] - xj
+                if abs(e) < 1e-4 and abs(vj) < amax[j] * h * 2:
+                    break
+                want = np.sign(e) * min(vmax[j], np.sqrt(2 * amax[j] * abs(e)))
+                vj = vj + np.clip(want - vj, -amax[j] * h, amax[j] * h)
+                xj, time_ = xj + vj * h, time_ + h
+            ours = sum(d for d, _ in move.phases[j])
+            assert ours == pytest.approx(time_, abs=0.01), (trial, j)
+    with pytest.raises(ValueError, match="finite"):
+        transfer(q, v, target + np.nan, vmax, amax)
+
+
 def test_blend_corners_rounds_a_right_angle_with_the_analytic_arc():
     """(0,0)→(1,0)→(1,1) with deviation δ: tangent length δ·sin45°/(1−cos45°) = r, the
     arc on the circle of radius r about (1−r, r), its middle δ from the corner."""

@@ -18,8 +18,8 @@ import numpy as np
 
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
-from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, plan_recovery, plan_reflex
-from earcore.planning.trajectory import Braking, StopThenMove, Trajectory, braking, path_length, time_parameterize
+from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, path_is_clear, plan_recovery, plan_reflex
+from earcore.planning.trajectory import StopThenMove, Trajectory, Transfer, braking, path_length, time_parameterize, transfer
 
 __all__ = ["Executive", "TripReport"]
 
@@ -64,7 +64,7 @@ class TripReport:
 
 @dataclass
 class _Motion:
-    trajectory: Trajectory | StopThenMove
+    trajectory: Trajectory | StopThenMove | Transfer
     start: float
     kind: str  # "plan" | "reflex" (move away) | "backtrack"
 
@@ -80,16 +80,6 @@ class ExecutiveLog:
     risk: list[RiskReport] = field(default_factory=list)
     #: (time, message) of every planning call that produced no path.
     failures: list[tuple[float, str]] = field(default_factory=list)
-
-
-def _report_at(robot, report: RiskReport, q: np.ndarray, start: np.ndarray) -> RiskReport:
-    """`report` (made at q) for a reflex that leaves from `start`: the robot's closest
-    point carried along with its link, the Jacobian no longer valid."""
-    if report.on_robot is None or report.link < 0 or np.array_equal(start, q):
-        return report
-    frames = robot.fk(np.stack([q, start]))[:, report.link]
-    moved = frames[1] @ np.linalg.solve(frames[0], np.append(report.on_robot, 1.0))
-    return replace(report, on_robot=moved[:3], jacobian=None, q=None)
 
 
 class Executive:
@@ -152,23 +142,17 @@ class Executive:
 
     # --- helpers -----------------------------------------------------------------
 
-    def _start_motion(self, path: np.ndarray, kind: str, *, after: Braking | None = None) -> None:
-        """Run `path`: from the robot's current motion (keeping its speed along the
-        path's first direction), or, given `after` (a stop), from rest at its end."""
+    def _start_motion(self, path: np.ndarray, kind: str) -> None:
         if kind == "plan":
             # Corners rounded where still valid; reflex moves run as they are (no time to check).
             path = self.planner.rrt.rounded(path, self.config.blend_deviation)
-        along = 0.0
-        if after is None:
-            # Keep the speed the robot already has along the new path's first direction.
-            first = path[1] - path[0] if len(path) > 1 else np.zeros(len(path[0]))
-            norm = float(np.linalg.norm(first))
-            along = float(self.command @ first) / norm if norm > 0 else 0.0
+        # Keep the speed the robot already has along the new path's first direction.
+        first = path[1] - path[0] if len(path) > 1 else np.zeros(len(path[0]))
+        norm = float(np.linalg.norm(first))
+        along = float(self.command @ first) / norm if norm > 0 else 0.0
         traj = time_parameterize(
             path, self.v_max, self.a_max, control_period=self.cell.config.time_step, initial_speed=along
         )
-        if after is not None:
-            traj = after.then(traj)
         self.motion = _Motion(traj, self.cell.time, kind)
 
     def _remaining(self) -> np.ndarray | None:
@@ -339,18 +323,10 @@ class Executive:
         # closes in on: then it becomes a move away.
         backtracking = self.motion is not None and self.motion.kind == "backtrack"
         if report.fires(self.config.risk_threshold, self.config.min_separation) and (not in_reflex or (close and backtracking)):
-            # The robot cannot turn on the spot: it first stops (on its current line,
-            # as fast as the limits allow) and the reflex leaves from there, so the move
-            # checked is the move made (and no catching up on a reference that left
-            # without it). The static scene (index cached) plus this frame's moving
-            # voxels (exact): no rebuild of the live map's index before the reflex.
-            stop = braking(q, self.command, self.a_max)
-            lo, hi = self.robot.joint_limits.T
-            if np.any(stop.end < lo) or np.any(stop.end > hi):
-                stop = braking(q, np.zeros_like(q), self.a_max)  # no stop within the limits: leave from here
-            start = stop.end
+            # The static scene (index cached) plus this frame's moving voxels
+            # (exact): no rebuild of the live map's index before the reflex.
             move = plan_reflex(
-                self.robot, self.static_tree, start, np.asarray(self.progress), _report_at(self.robot, report, q, start),
+                self.robot, self.static_tree, q, np.asarray(self.progress), report,
                 backtrack_fraction=self.config.backtrack_fraction,
                 move_away_distance=self.config.move_away_distance,
                 resolution=self.config.motion_resolution,
@@ -358,8 +334,18 @@ class Executive:
                 prefer_move_away=close, escape=report.clearance <= 0,
             )
             self.trip.reflexes += 1
+            # The robot is moving and cannot turn on the spot: run the motion it will
+            # really make from here, and check that one.
             if move is not None:
-                self._start_motion(move.path, "backtrack" if move.kind == "backtrack" else "reflex", after=stop)
+                kind = "backtrack" if move.kind == "backtrack" else "reflex"
+                # The robot is moving and cannot turn on the spot: run the motion it
+                # will really make from here, checked as such; where that is not clear,
+                # the planned move from here as it is (the follower brakes into it).
+                motion = self._reflex_motion(q, move, escape=report.clearance <= 0)
+                if motion is not None:
+                    self.motion = _Motion(motion, cell.time, kind)
+                else:
+                    self._start_motion(move.path, kind)
                 if move.kind == "backtrack":
                     # Take the undone stretch off the progress stack.
                     del self.progress[max(1, len(self.progress) - (len(move.path) - 1)):]
@@ -369,6 +355,28 @@ class Executive:
             self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk})
             return report, True
         return report, False
+
+    def _reflex_motion(self, q: np.ndarray, move, *, escape: bool):
+        """What the robot does for a reflex `move` planned from q while it moves at its
+        commanded velocity: a move away runs as every joint's quickest transfer to the
+        target (the joints leave their current course as soon as each can; a curve,
+        checked as such); a backtrack first stops (every joint braking at its limit)
+        and then retraces the path from q. None when that motion is not clear."""
+        dynamic, voxel = self.tracker.last_dynamic, self.tree.resolution
+        resolution = self.config.motion_resolution
+        if move.kind == "move_away":
+            curve = transfer(q, self.command, move.path[-1], self.v_max, self.a_max)
+            clear = path_is_clear(self.robot, self.static_tree, curve.path(), resolution, dynamic, voxel, escape)
+            return curve if clear else None
+        stop = braking(q, self.command, self.a_max)
+        lo, hi = self.robot.joint_limits.T
+        if np.any(stop.end < lo) or np.any(stop.end > hi):
+            return None
+        path = np.vstack([stop.end[None], move.path])
+        if stop.duration > 0 and not path_is_clear(self.robot, self.static_tree, path[:2], resolution, dynamic, voxel, escape):
+            return None
+        traj = time_parameterize(path, self.v_max, self.a_max, control_period=self.cell.config.time_step)
+        return stop.then(traj)
 
     def _tool_speed(self) -> float:
         """End-effector speed (m/s) from the commanded joint velocities."""

@@ -332,7 +332,7 @@ def _point_jacobian(robot, q: np.ndarray, link: int, point: np.ndarray, eps: flo
     return (p[1 : dof + 1] - p[dof + 1 :]).T / np.where(steps == 0, 1.0, steps)
 
 
-def _path_free(robot, tree, path: np.ndarray, resolution: float, dynamic, voxel_size: float, escape: bool) -> bool:
+def path_is_clear(robot, tree, path: np.ndarray, resolution: float, dynamic, voxel_size: float, escape: bool) -> bool:
     """Every edge of `path` free on `tree` and, when given, clear of the `dynamic` voxel
     boxes (checked exactly at configurations ≤ `resolution` apart). With `escape` (the
     robot already touches a dynamic obstacle) the path must instead take the robot
@@ -390,7 +390,7 @@ def plan_reflex(
     `dynamic` voxel centres (edge `voxel_size`), checked exactly without an index, so a
     reflex never waits for the live map's index to be rebuilt. `escape`: the robot
     touches a dynamic obstacle already; accept moves that steadily increase the
-    clearance to it (see `_path_free`). `prefer_move_away`: skip the backtrack (an
+    clearance to it (see `path_is_clear`). `prefer_move_away`: skip the backtrack (an
     obstacle this close is escaped fastest straight away from it). A backtrack is taken
     only if it ends farther from the obstacle than the robot is now, with the obstacle
     where it is and where its velocity takes it in `horizon` seconds: the executed path
@@ -408,7 +408,7 @@ def plan_reflex(
             tail = without_repeats(tail, 1e-9)
             if (
                 len(tail) >= 2
-                and _path_free(robot, tree, tail, resolution, dynamic, voxel_size, escape)
+                and path_is_clear(robot, tree, tail, resolution, dynamic, voxel_size, escape)
                 and _leads_away(robot, tail[-1], report, voxel_size, horizon)
             ):
                 return ReflexMove("backtrack", tail)
@@ -444,7 +444,7 @@ def plan_reflex(
     lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
     target = np.clip(q + dq, lo, hi)
     path = np.stack([q, target])
-    if not _path_free(robot, tree, path, resolution, dynamic, voxel_size, escape):
+    if not path_is_clear(robot, tree, path, resolution, dynamic, voxel_size, escape):
         return None
     return ReflexMove("move_away", path)
 

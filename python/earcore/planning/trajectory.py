@@ -25,11 +25,13 @@ __all__ = [
     "Braking",
     "StopThenMove",
     "Trajectory",
+    "Transfer",
     "blend_corners",
     "braking",
     "densify",
     "path_length",
     "time_parameterize",
+    "transfer",
 ]
 
 
@@ -132,6 +134,96 @@ def braking(q, velocity, max_acceleration) -> Braking:
     if not np.all(a > 0):
         raise ValueError("acceleration limits must be > 0")
     return Braking(q.copy(), v.copy(), np.sign(v) * a)
+
+
+def _joint_phases(x0: float, v0: float, x1: float, vmax: float, amax: float) -> list[tuple[float, float]]:
+    """(duration, acceleration) phases of one joint's quickest move from (x0, v0) to
+    rest at x1: brake first if it moves away from x1 or too fast to stop there, then
+    accelerate, cruise at `vmax` if it gets there, and decelerate onto x1."""
+    phases = []
+    d = x1 - x0
+    stop = v0 * abs(v0) / (2 * amax)
+    if v0 != 0.0 and (np.sign(v0) != np.sign(d) or abs(stop) > abs(d)):
+        phases.append((abs(v0) / amax, -np.sign(v0) * amax))
+        x0, v0 = x0 + stop, 0.0
+        d = x1 - x0
+    if d == 0.0:
+        return phases
+    sign, u, distance = np.sign(d), abs(v0), abs(d)
+    peak = np.sqrt(amax * distance + 0.5 * u * u)  # speed where accelerating meets braking
+    if peak <= vmax:
+        return phases + [((peak - u) / amax, sign * amax), (peak / amax, -sign * amax)]
+    to_cruise = abs(vmax * vmax - u * u) / (2 * amax)
+    braking_distance = vmax * vmax / (2 * amax)
+    return phases + [
+        (abs(vmax - u) / amax, sign * np.sign(vmax - u) * amax),
+        ((distance - to_cruise - braking_distance) / vmax, 0.0),
+        (vmax / amax, -sign * amax),
+    ]
+
+
+@dataclass
+class Transfer:
+    """Every joint's quickest move from its current position and velocity to rest at
+    a target, each on its own clock within its limits (bang-bang with a cruise: what
+    a velocity-controlled robot does when asked to go somewhere now). The joints do not
+    arrive together, so the robot's path is a curve; `positions` samples it densely
+    enough to be checked."""
+
+    start: np.ndarray
+    velocity: np.ndarray
+    #: Per joint: (duration, acceleration) phases.
+    phases: list[list[tuple[float, float]]]
+
+    @property
+    def duration(self) -> float:
+        return max((sum(d for d, _ in p) for p in self.phases), default=0.0)
+
+    def sample(self, t: float | np.ndarray) -> np.ndarray:
+        """Positions at time(s) t (clamped to [0, duration])."""
+        t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
+        times = np.atleast_1d(t)
+        out = np.empty((len(times), len(self.start)))
+        for j, phases in enumerate(self.phases):
+            x = np.full(len(times), self.start[j])
+            v = np.full(len(times), self.velocity[j])
+            left = times.copy()
+            for duration, accel in phases:
+                dt = np.minimum(left, duration)
+                x += v * dt + 0.5 * accel * dt * dt
+                v = v + accel * dt
+                left = left - dt
+            out[:, j] = x
+        return out[0] if t.ndim == 0 else out
+
+    def path(self, step: float = 0.01) -> np.ndarray:
+        """The curve sampled so that no joint moves more than ~`step` between samples."""
+        coarse = self.sample(np.linspace(0.0, self.duration, 9))
+        travel = np.abs(np.diff(coarse, axis=0)).max(axis=1).sum()
+        n = int(np.clip(np.ceil(travel / step), 8, 2000))
+        return self.sample(np.linspace(0.0, self.duration, n + 1))
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.path()
+
+    def remaining_path(self, t: float) -> np.ndarray:
+        return self.sample(np.linspace(min(t, self.duration), self.duration, 17))
+
+
+def transfer(q, velocity, target, max_velocity, max_acceleration) -> Transfer:
+    """The quickest move from `q` moving at `velocity` to rest at `target`, every joint
+    on its own (`Transfer`)."""
+    q, v, target = (np.asarray(x, dtype=np.float64) for x in (q, velocity, target))
+    vmax = np.broadcast_to(np.asarray(max_velocity, dtype=np.float64), q.shape)
+    amax = np.broadcast_to(np.asarray(max_acceleration, dtype=np.float64), q.shape)
+    if not all(np.isfinite(x).all() and x.shape == q.shape for x in (q, v, target)):
+        raise ValueError("q, velocity and target must be finite and of one shape")
+    if not (np.all(vmax > 0) and np.all(amax > 0)):
+        raise ValueError("velocity and acceleration limits must be > 0")
+    v = np.clip(v, -vmax, vmax)
+    phases = [_joint_phases(*map(float, (q[j], v[j], target[j], vmax[j], amax[j]))) for j in range(len(q))]
+    return Transfer(q.copy(), v, phases)
 
 
 @dataclass
