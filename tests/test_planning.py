@@ -173,6 +173,10 @@ def test_transfer_is_each_joints_quickest_move_within_its_limits():
         assert np.all(np.abs(velocity) <= vmax + 1e-6)
         assert np.all(np.abs(np.diff(velocity, axis=0) / dt) <= amax + 1e-3)
         assert np.allclose(velocity[-10:], 0.0)
+        # `path(step)` samples the curve with no joint moving more than step between samples.
+        samples = move.path(0.02)
+        assert np.abs(np.diff(samples, axis=0)).max() <= 0.02 + 1e-12
+        assert np.allclose(samples[[0, -1]], [q, target])
         # Reference arrival per joint (step h): the feedback law reaches the target to
         # within 1e-4 rad at rest.
         h = 1e-4

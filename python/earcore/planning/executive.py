@@ -366,7 +366,8 @@ class Executive:
         resolution = self.config.motion_resolution
         if move.kind == "move_away":
             curve = transfer(q, self.command, move.path[-1], self.v_max, self.a_max)
-            clear = path_is_clear(self.robot, self.static_tree, curve.path(), resolution, dynamic, voxel, escape)
+            samples = curve.path(resolution)
+            clear = path_is_clear(self.robot, self.static_tree, samples, resolution, dynamic, voxel, escape, sampled=True)
             return curve if clear else None
         stop = braking(q, self.command, self.a_max)
         lo, hi = self.robot.joint_limits.T

@@ -332,16 +332,23 @@ def _point_jacobian(robot, q: np.ndarray, link: int, point: np.ndarray, eps: flo
     return (p[1 : dof + 1] - p[dof + 1 :]).T / np.where(steps == 0, 1.0, steps)
 
 
-def path_is_clear(robot, tree, path: np.ndarray, resolution: float, dynamic, voxel_size: float, escape: bool) -> bool:
+def path_is_clear(
+    robot, tree, path: np.ndarray, resolution: float, dynamic, voxel_size: float, escape: bool, *, sampled: bool = False
+) -> bool:
     """Every edge of `path` free on `tree` and, when given, clear of the `dynamic` voxel
     boxes (checked exactly at configurations ≤ `resolution` apart). With `escape` (the
     robot already touches a dynamic obstacle) the path must instead take the robot
-    steadily away from them: clearance never shrinking, larger at the end."""
-    if np.any(robot.check_motions(tree, path[:-1], path[1:], resolution)):
+    steadily away from them: clearance never shrinking, larger at the end. `sampled`:
+    the path is a curve already sampled at most `resolution` apart; its samples are
+    checked as they are."""
+    if sampled:
+        if np.any(robot.check_configurations(tree, path)):
+            return False
+    elif np.any(robot.check_motions(tree, path[:-1], path[1:], resolution)):
         return False
     if dynamic is None or not len(dynamic):
         return True
-    qs = densify(path, resolution, per_joint=True)
+    qs = path if sampled else densify(path, resolution, per_joint=True)
     if escape:
         d = robot.clearance_to_voxels(dynamic, voxel_size, qs)["distance"]
         return bool(np.all(np.diff(d) >= -1e-3) and d[-1] > d[0])

@@ -197,10 +197,17 @@ class Transfer:
         return out[0] if t.ndim == 0 else out
 
     def path(self, step: float = 0.01) -> np.ndarray:
-        """The curve sampled so that no joint moves more than ~`step` between samples."""
-        coarse = self.sample(np.linspace(0.0, self.duration, 9))
-        travel = np.abs(np.diff(coarse, axis=0)).max(axis=1).sum()
-        n = int(np.clip(np.ceil(travel / step), 8, 2000))
+        """The curve sampled in time so that no joint moves more than `step` between
+        samples (speeds are piecewise linear in time: the fastest is at a phase end)."""
+        top = 0.0
+        for j, phases in enumerate(self.phases):
+            v = float(self.velocity[j])
+            top_j = abs(v)
+            for duration, accel in phases:
+                v += accel * duration
+                top_j = max(top_j, abs(v))
+            top = max(top, top_j)
+        n = int(np.clip(np.ceil(self.duration * top / step), 1, 100_000))
         return self.sample(np.linspace(0.0, self.duration, n + 1))
 
     @property
