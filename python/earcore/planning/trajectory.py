@@ -17,12 +17,13 @@ control period, so hand it smoothed paths (the planner does).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 __all__ = [
-    "Braking",
     "StopThenMove",
     "Trajectory",
     "Transfer",
@@ -79,86 +80,31 @@ class Trajectory:
         return np.vstack([self.sample(t)[None], later])
 
 
-@dataclass
-class Braking:
-    """The quickest stop from `velocity` at `start`: every joint decelerates at its
-    limit (`deceleration`, signed against its velocity) until it rests. Joints with
-    little speed stop first, so the robot leaves its current joint-space line, but no
-    joint travels farther than it must."""
-
-    start: np.ndarray
-    velocity: np.ndarray
-    deceleration: np.ndarray
-
-    @property
-    def joint_durations(self) -> np.ndarray:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self.velocity == 0, 0.0, self.velocity / self.deceleration)
-
-    @property
-    def duration(self) -> float:
-        return float(self.joint_durations.max())
-
-    @property
-    def end(self) -> np.ndarray:
-        return self.sample(self.duration)
-
-    @property
-    def positions(self) -> np.ndarray:
-        """The stop sampled at 9 times (start and end included), e.g. to draw it."""
-        return self.sample(np.linspace(0.0, self.duration, 9))
-
-    def sample(self, t: float | np.ndarray) -> np.ndarray:
-        """Positions at time(s) t (clamped to [0, duration]), each joint on its own clock."""
-        t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
-        tau = np.minimum(np.atleast_1d(t)[:, None], self.joint_durations)
-        out = self.start + self.velocity * tau - 0.5 * self.deceleration * tau**2
-        return out[0] if t.ndim == 0 else out
-
-    def then(self, move: Trajectory) -> StopThenMove:
-        """This stop followed by `move`, which must start from rest where it ends."""
-        if not np.allclose(move.positions[0], self.end, atol=1e-9):
-            raise ValueError("the move must start where the stop ends")
-        return StopThenMove(self, move)
-
-
-def braking(q, velocity, max_acceleration) -> Braking:
-    """The quickest stop from `velocity` at `q` within the joints' acceleration limits
-    (`Braking`). A motion planned from its end starts where the robot can actually be
-    at rest, so what is checked is what the robot does."""
-    q = np.asarray(q, dtype=np.float64)
-    v = np.asarray(velocity, dtype=np.float64)
-    a = np.broadcast_to(np.asarray(max_acceleration, dtype=np.float64), q.shape)
-    if not (np.isfinite(q).all() and np.isfinite(v).all() and v.shape == q.shape):
-        raise ValueError(f"q and velocity must be finite and of one shape, got {q.shape} and {v.shape}")
-    if not np.all(a > 0):
-        raise ValueError("acceleration limits must be > 0")
-    return Braking(q.copy(), v.copy(), np.sign(v) * a)
-
-
 def _joint_phases(x0: float, v0: float, x1: float, vmax: float, amax: float) -> list[tuple[float, float]]:
     """(duration, acceleration) phases of one joint's quickest move from (x0, v0) to
     rest at x1: brake first if it moves away from x1 or too fast to stop there, then
-    accelerate, cruise at `vmax` if it gets there, and decelerate onto x1."""
+    accelerate, cruise at `vmax` if it gets there, and decelerate onto x1. (Plain
+    floats and `math`: numpy's scalar calls would cost the reflex more than the rest.)"""
     phases = []
     d = x1 - x0
     stop = v0 * abs(v0) / (2 * amax)
-    if v0 != 0.0 and (np.sign(v0) != np.sign(d) or abs(stop) > abs(d)):
-        phases.append((abs(v0) / amax, -np.sign(v0) * amax))
+    if v0 != 0.0 and (v0 * d <= 0.0 or abs(stop) > abs(d)):
+        phases.append((abs(v0) / amax, -math.copysign(amax, v0)))
         x0, v0 = x0 + stop, 0.0
         d = x1 - x0
     if d == 0.0:
         return phases
-    sign, u, distance = np.sign(d), abs(v0), abs(d)
-    peak = np.sqrt(amax * distance + 0.5 * u * u)  # speed where accelerating meets braking
+    u, distance = abs(v0), abs(d)
+    accel = math.copysign(amax, d)
+    peak = math.sqrt(amax * distance + 0.5 * u * u)  # speed where accelerating meets braking
     if peak <= vmax:
-        return phases + [((peak - u) / amax, sign * amax), (peak / amax, -sign * amax)]
+        return phases + [(max(peak - u, 0.0) / amax, accel), (peak / amax, -accel)]
     to_cruise = abs(vmax * vmax - u * u) / (2 * amax)
     braking_distance = vmax * vmax / (2 * amax)
     return phases + [
-        (abs(vmax - u) / amax, sign * np.sign(vmax - u) * amax),
+        (abs(vmax - u) / amax, accel if vmax >= u else -accel),
         ((distance - to_cruise - braking_distance) / vmax, 0.0),
-        (vmax / amax, -sign * amax),
+        (vmax / amax, -accel),
     ]
 
 
@@ -167,55 +113,62 @@ class Transfer:
     """Every joint's quickest move from its current position and velocity to rest at
     a target, each on its own clock within its limits (bang-bang with a cruise: what
     a velocity-controlled robot does when asked to go somewhere now). The joints do not
-    arrive together, so the robot's path is a curve; `positions` samples it densely
-    enough to be checked."""
+    arrive together, so the robot's path is a curve; `path` samples it densely enough
+    to be checked."""
 
     start: np.ndarray
     velocity: np.ndarray
-    #: Per joint: (duration, acceleration) phases.
-    phases: list[list[tuple[float, float]]]
+    #: Per joint (rows), its phases in order (columns, zero-padded): duration and
+    #: constant acceleration.
+    durations: np.ndarray
+    accelerations: np.ndarray
+
+    def __post_init__(self) -> None:
+        # Each phase's start time and start velocity, per joint.
+        self._phase_start = np.cumsum(self.durations, axis=1) - self.durations
+        gained = np.cumsum(self.durations * self.accelerations, axis=1) - self.durations * self.accelerations
+        self._phase_velocity = self.velocity[:, None] + gained
+
+    @property
+    def joint_durations(self) -> np.ndarray:
+        return self.durations.sum(axis=1)
 
     @property
     def duration(self) -> float:
-        return max((sum(d for d, _ in p) for p in self.phases), default=0.0)
+        return float(self.joint_durations.max()) if len(self.start) else 0.0
 
     def sample(self, t: float | np.ndarray) -> np.ndarray:
         """Positions at time(s) t (clamped to [0, duration])."""
         t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
-        times = np.atleast_1d(t)
-        out = np.empty((len(times), len(self.start)))
-        for j, phases in enumerate(self.phases):
-            x = np.full(len(times), self.start[j])
-            v = np.full(len(times), self.velocity[j])
-            left = times.copy()
-            for duration, accel in phases:
-                dt = np.minimum(left, duration)
-                x += v * dt + 0.5 * accel * dt * dt
-                v = v + accel * dt
-                left = left - dt
-            out[:, j] = x
+        # Time spent in each phase so far: (times, joints, phases).
+        dt = np.clip(np.atleast_1d(t)[:, None, None] - self._phase_start, 0.0, self.durations)
+        out = self.start + (self._phase_velocity * dt + 0.5 * self.accelerations * dt * dt).sum(axis=2)
         return out[0] if t.ndim == 0 else out
 
     def path(self, step: float = 0.01) -> np.ndarray:
         """The curve sampled in time so that no joint moves more than `step` between
         samples (speeds are piecewise linear in time: the fastest is at a phase end)."""
-        top = 0.0
-        for j, phases in enumerate(self.phases):
-            v = float(self.velocity[j])
-            top_j = abs(v)
-            for duration, accel in phases:
-                v += accel * duration
-                top_j = max(top_j, abs(v))
-            top = max(top, top_j)
+        ends = self._phase_velocity + self.durations * self.accelerations
+        top = max(float(np.abs(self.velocity).max(initial=0.0)), float(np.abs(ends).max(initial=0.0)))
         n = int(np.clip(np.ceil(self.duration * top / step), 1, 100_000))
         return self.sample(np.linspace(0.0, self.duration, n + 1))
 
-    @property
+    @cached_property
     def positions(self) -> np.ndarray:
         return self.path()
 
+    @property
+    def end(self) -> np.ndarray:
+        return self.sample(self.duration)
+
     def remaining_path(self, t: float) -> np.ndarray:
         return self.sample(np.linspace(min(t, self.duration), self.duration, 17))
+
+    def then(self, move: Trajectory) -> StopThenMove:
+        """This motion followed by `move`, which must start from rest where it ends."""
+        if not np.allclose(move.positions[0], self.end, atol=1e-9):
+            raise ValueError("the move must start where the first motion ends")
+        return StopThenMove(self, move)
 
 
 def transfer(q, velocity, target, max_velocity, max_acceleration) -> Transfer:
@@ -230,15 +183,35 @@ def transfer(q, velocity, target, max_velocity, max_acceleration) -> Transfer:
         raise ValueError("velocity and acceleration limits must be > 0")
     v = np.clip(v, -vmax, vmax)
     phases = [_joint_phases(*map(float, (q[j], v[j], target[j], vmax[j], amax[j]))) for j in range(len(q))]
-    return Transfer(q.copy(), v, phases)
+    durations = np.zeros((len(q), 4))
+    accelerations = np.zeros((len(q), 4))
+    for j, joint in enumerate(phases):
+        for k, (duration, accel) in enumerate(joint):
+            durations[j, k], accelerations[j, k] = duration, accel
+    return Transfer(q.copy(), v, durations, accelerations)
+
+
+def braking(q, velocity, max_acceleration) -> Transfer:
+    """The quickest stop from `velocity` at `q`: every joint decelerates at its limit
+    until it rests (joints with little speed stop first, so the robot leaves its
+    current joint-space line, but no joint travels farther than it must). A motion
+    planned from its end starts where the robot can actually be at rest, so what is
+    checked is what the robot does."""
+    v = np.asarray(velocity, dtype=np.float64)
+    a = np.broadcast_to(np.asarray(max_acceleration, dtype=np.float64), v.shape)
+    if not np.all(a > 0):
+        raise ValueError("acceleration limits must be > 0")
+    with np.errstate(invalid="ignore"):
+        rest = np.asarray(q, dtype=np.float64) + v * np.abs(v) / (2 * a)
+    return transfer(q, v, rest, np.inf, a)
 
 
 @dataclass
 class StopThenMove:
-    """A `Braking` followed by a `Trajectory` from rest at its end, sampled as one
-    motion (what the executive runs for a reflex)."""
+    """A stop (`braking`) followed by a `Trajectory` from rest at its end, sampled as
+    one motion (what the executive runs for a backtrack)."""
 
-    stop: Braking
+    stop: Transfer
     move: Trajectory
 
     @property
