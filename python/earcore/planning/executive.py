@@ -331,11 +331,9 @@ class Executive:
                 move_away_distance=self.config.move_away_distance,
                 resolution=self.config.motion_resolution,
                 dynamic=self.tracker.last_dynamic, voxel_size=self.tree.resolution,
-                prefer_move_away=close, escape=report.clearance <= 0,
+                prefer_move_away=close, escape=report.clearance <= 0, check_move_away=False,
             )
             self.trip.reflexes += 1
-            # The robot is moving and cannot turn on the spot: run the motion it will
-            # really make from here, and check that one.
             if move is not None:
                 kind = "backtrack" if move.kind == "backtrack" else "reflex"
                 # The robot is moving and cannot turn on the spot: run the motion it
@@ -344,13 +342,15 @@ class Executive:
                 motion = self._reflex_motion(q, move, escape=report.clearance <= 0)
                 if motion is not None:
                     self.motion = _Motion(motion, cell.time, kind)
-                else:
+                elif move.kind == "backtrack" or self._clear(move.path, escape=report.clearance <= 0):
                     self._start_motion(move.path, kind)
-                if move.kind == "backtrack":
-                    # Take the undone stretch off the progress stack.
-                    del self.progress[max(1, len(self.progress) - (len(move.path) - 1)):]
+                else:
+                    move, self.motion = None, None  # nothing free: stop where we are
             else:
                 self.motion = None  # nothing free: stop where we are
+            if move is not None and move.kind == "backtrack":
+                # Take the undone stretch off the progress stack.
+                del self.progress[max(1, len(self.progress) - (len(move.path) - 1)):]
             self.reflex_latencies.append(time.perf_counter() - t0)
             self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk})
             return report, True
@@ -362,22 +362,27 @@ class Executive:
         target (the joints leave their current course as soon as each can; a curve,
         checked as such); a backtrack first stops (every joint braking at its limit)
         and then retraces the path from q. None when that motion is not clear."""
-        dynamic, voxel = self.tracker.last_dynamic, self.tree.resolution
-        resolution = self.config.motion_resolution
+        lo, hi = self.robot.joint_limits.T
         if move.kind == "move_away":
             curve = transfer(q, self.command, move.path[-1], self.v_max, self.a_max)
-            samples = curve.path(resolution)
-            clear = path_is_clear(self.robot, self.static_tree, samples, resolution, dynamic, voxel, escape, sampled=True)
-            return curve if clear else None
+            samples = curve.path(self.config.motion_resolution)
+            inside = not (np.any(samples < lo) or np.any(samples > hi))
+            return curve if inside and self._clear(samples, escape=escape, sampled=True) else None
         stop = braking(q, self.command, self.a_max)
-        lo, hi = self.robot.joint_limits.T
         if np.any(stop.end < lo) or np.any(stop.end > hi):
             return None
         path = np.vstack([stop.end[None], move.path])
-        if stop.duration > 0 and not path_is_clear(self.robot, self.static_tree, path[:2], resolution, dynamic, voxel, escape):
+        if stop.duration > 0 and not self._clear(path[:2], escape=escape):
             return None
         traj = time_parameterize(path, self.v_max, self.a_max, control_period=self.cell.config.time_step)
         return stop.then(traj)
+
+    def _clear(self, path: np.ndarray, *, escape: bool, sampled: bool = False) -> bool:
+        """A reflex path clear of the static scene and this frame's moving voxels."""
+        return path_is_clear(
+            self.robot, self.static_tree, path, self.config.motion_resolution,
+            self.tracker.last_dynamic, self.tree.resolution, escape, sampled=sampled,
+        )
 
     def _tool_speed(self) -> float:
         """End-effector speed (m/s) from the commanded joint velocities."""

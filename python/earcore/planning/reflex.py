@@ -384,6 +384,7 @@ def plan_reflex(
     escape: bool = False,
     prefer_move_away: bool = False,
     horizon: float = 0.3,
+    check_move_away: bool = True,
 ) -> ReflexMove | None:
     """Paper II's reflex for the current state: backtrack along the last
     `backtrack_fraction` of `executed` (the joint states passed, oldest first) if that
@@ -401,7 +402,9 @@ def plan_reflex(
     obstacle this close is escaped fastest straight away from it). A backtrack is taken
     only if it ends farther from the obstacle than the robot is now, with the obstacle
     where it is and where its velocity takes it in `horizon` seconds: the executed path
-    can lead back towards the obstacle (a hand coming from behind)."""
+    can lead back towards the obstacle (a hand coming from behind). `check_move_away`:
+    False returns the move away unchecked, for a caller that checks the motion the
+    robot will really make towards its end (see `Executive._reflex_motion`)."""
     q = np.asarray(q, dtype=np.float64)
     executed = np.asarray(executed, dtype=np.float64).reshape(-1, len(q))
     if len(executed) >= 2 and not prefer_move_away:
@@ -451,7 +454,7 @@ def plan_reflex(
     lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
     target = np.clip(q + dq, lo, hi)
     path = np.stack([q, target])
-    if not path_is_clear(robot, tree, path, resolution, dynamic, voxel_size, escape):
+    if check_move_away and not path_is_clear(robot, tree, path, resolution, dynamic, voxel_size, escape):
         return None
     return ReflexMove("move_away", path)
 
