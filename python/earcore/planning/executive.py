@@ -366,10 +366,10 @@ class Executive:
         if move.kind == "move_away":
             curve = transfer(q, self.command, move.path[-1], self.v_max, self.a_max)
             samples = curve.path(self.config.motion_resolution)
-            inside = not (np.any(samples < lo) or np.any(samples > hi))
+            inside = bool(np.all((lo <= samples) & (samples <= hi)))
             return curve if inside and self._clear(samples, escape=escape, sampled=True) else None
         stop = braking(q, self.command, self.a_max)
-        if np.any(stop.end < lo) or np.any(stop.end > hi):
+        if not np.all((lo <= stop.end) & (stop.end <= hi)):
             return None
         path = np.vstack([stop.end[None], move.path])
         if stop.duration > 0 and not self._clear(path[:2], escape=escape):

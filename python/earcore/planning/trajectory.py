@@ -218,8 +218,9 @@ class StopThenMove:
     def duration(self) -> float:
         return self.stop.duration + self.move.duration
 
-    @property
+    @cached_property
     def positions(self) -> np.ndarray:
+        # Cached: the follower reads the last one every control step.
         return np.vstack([self.stop.positions, self.move.positions[1:]])
 
     def sample(self, t: float | np.ndarray) -> np.ndarray:
