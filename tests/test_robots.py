@@ -390,6 +390,13 @@ def test_touches_voxels_agrees_with_fcl_and_the_clearance(ur5, seed):
         elif ours:
             assert fcl_distance < 1e-5, f"false touch {fcl_distance} m from touching"
         assert ours == (d <= 0) or abs(d) < 1e-6
+    # A compact cluster (a hand): most bodies' bounds miss it and skip the box tests.
+    for _ in range(10):
+        centre = rng.uniform([-0.6, -0.6, 0.1], [0.6, 0.6, 0.8])
+        cluster = centre + 0.05 * rng.integers(-2, 3, size=(25, 3))
+        touches = ur5.touches_voxels(cluster, 0.05, qs)
+        distance = ur5.clearance_to_voxels(cluster, 0.05, qs)["distance"]
+        assert np.all((touches == (distance <= 0)) | (np.abs(distance) < 1e-6))
     assert not ur5.touches_voxels(np.zeros((0, 3)), 0.05, qs[:3]).any()
     with pytest.raises(ValueError, match="finite"):
         ur5.touches_voxels(np.array([[np.nan, 0, 0]]), 0.05, qs[0])

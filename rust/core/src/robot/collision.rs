@@ -320,6 +320,16 @@ pub fn touches_boxes(
     half: [f64; 3],
 ) -> Result<Vec<bool>> {
     check_boxes(model, qs, centres, half)?;
+    // The boxes' joint bounds: a body whose bounds miss them meets none (most bodies,
+    // most configurations), so only bodies near the boxes test them one by one.
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for c in centres {
+        for i in 0..3 {
+            lo[i] = lo[i].min(c[i] - half[i]);
+            hi[i] = hi[i].max(c[i] + half[i]);
+        }
+    }
     let dof = model.dof();
     chunked(qs, dof, |part| {
         let mut scratch = Scratch::new(model);
@@ -333,7 +343,9 @@ pub fn touches_boxes(
                     .iter()
                     .zip(&placed.moving)
                     .any(|(body, moving)| {
-                        *moving && centres.iter().any(|c| body.overlaps_box(c, &half))
+                        let (a, b) = body.aabb();
+                        let near = (0..3).all(|i| a[i] <= hi[i] && b[i] >= lo[i]);
+                        *moving && near && centres.iter().any(|c| body.overlaps_box(c, &half))
                     })
             })
             .collect())
