@@ -763,6 +763,17 @@ def test_a_still_obstacle_is_no_reflex_matter(ur5):
 
 
 @pytest.mark.slow
+def test_reflex_layer_runs_single_threaded_and_restores_the_setting():
+    from earcore.planning.executive import _on_this_thread
+
+    before = earcore.get_num_threads()
+    with pytest.raises(RuntimeError):
+        with _on_this_thread():
+            assert earcore.get_num_threads() == 1
+            raise RuntimeError("a failing reflex step")
+    assert earcore.get_num_threads() == before
+
+
 def test_executive_shuttles_in_the_cell(tmp_path):
     pytest.importorskip("pybullet")
     from earcore.run import run

@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
+import earcore
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
 from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, path_is_clear, plan_recovery, plan_reflex
@@ -36,6 +37,20 @@ def _collector_paused():
     finally:
         if enabled:
             gc.enable()
+
+
+@contextmanager
+def _on_this_thread():
+    """The core's batched calls run on the calling thread for a latency-critical step:
+    its batches are small (a reflex's few dozen configurations), and handing them to
+    worker threads costs their wake-up, or milliseconds when another process holds
+    the cores."""
+    threads = earcore.get_num_threads()
+    earcore.set_num_threads(1)
+    try:
+        yield
+    finally:
+        earcore.set_num_threads(threads)
 
 
 @dataclass
@@ -271,7 +286,7 @@ class Executive:
         self._in_contact = contact
         report = None
         if self.reflexes_on:
-            with _collector_paused():
+            with _collector_paused(), _on_this_thread():
                 report, fired = self._reflex_layer(cell, q)
             self.log.risk.append(replace(report, voxels=None, jacobian=None))
             if fired:
