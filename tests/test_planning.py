@@ -762,7 +762,6 @@ def test_a_still_obstacle_is_no_reflex_matter(ur5):
 # --- the executive in the cell -------------------------------------------------------------------
 
 
-@pytest.mark.slow
 def test_reflex_layer_runs_single_threaded_and_restores_the_setting():
     from earcore.planning.executive import _on_this_thread
 
@@ -774,6 +773,7 @@ def test_reflex_layer_runs_single_threaded_and_restores_the_setting():
     assert earcore.get_num_threads() == before
 
 
+@pytest.mark.slow
 def test_executive_shuttles_in_the_cell(tmp_path):
     pytest.importorskip("pybullet")
     from earcore.run import run

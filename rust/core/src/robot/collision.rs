@@ -342,10 +342,11 @@ pub fn touches_boxes(
                     .bodies
                     .iter()
                     .zip(&placed.moving)
-                    .any(|(body, moving)| {
+                    .filter(|(_, moving)| **moving)
+                    .any(|(body, _)| {
                         let (a, b) = body.aabb();
-                        let near = (0..3).all(|i| a[i] <= hi[i] && b[i] >= lo[i]);
-                        *moving && near && centres.iter().any(|c| body.overlaps_box(c, &half))
+                        (0..3).all(|i| a[i] <= hi[i] && b[i] >= lo[i])
+                            && centres.iter().any(|c| body.overlaps_box(c, &half))
                     })
             })
             .collect())
