@@ -31,6 +31,25 @@ pub struct Body {
     pub shape: BodyShape,
 }
 
+/// Axis-aligned bounds kept as twice the centre and twice the half extent per axis:
+/// the disjointness test is then three subtractions and compares, with none of the
+/// min/max that bounds as corners need (which cost more than the test they save).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AxisBounds {
+    twice_centre: [f64; 3],
+    twice_extent: [f64; 3],
+}
+
+impl AxisBounds {
+    #[inline]
+    pub fn disjoint(&self, other: &AxisBounds) -> bool {
+        (0..3).any(|i| {
+            (self.twice_centre[i] - other.twice_centre[i]).abs()
+                > self.twice_extent[i] + other.twice_extent[i]
+        })
+    }
+}
+
 /// Closest approach of a body and a box: signed distance (negative inside) and points.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BodyBoxContact {
@@ -469,7 +488,26 @@ impl Body {
     }
 
     /// Do two bodies touch?
+    #[inline]
     pub fn intersects(&self, other: &Body) -> bool {
+        !self.bounds().disjoint(&other.bounds()) && self.intersects_within_bounds(other)
+    }
+
+    /// The enclosing capsule's axis-aligned bounds, in the form `AxisBounds::disjoint`
+    /// tests fastest.
+    #[inline]
+    pub fn bounds(&self) -> AxisBounds {
+        let c = &self.axis;
+        AxisBounds {
+            twice_centre: [0, 1, 2].map(|i| c.a[i] + c.b[i]),
+            twice_extent: [0, 1, 2].map(|i| (c.a[i] - c.b[i]).abs() + 2.0 * c.radius),
+        }
+    }
+
+    /// `intersects` for bodies whose bounds overlap (the exact part; most pairs of a
+    /// robot's links are far apart and never get here).
+    #[inline(never)]
+    pub fn intersects_within_bounds(&self, other: &Body) -> bool {
         let (p, q) = (&self.axis, &other.axis);
         if self.shape == BodyShape::Capsule && other.shape == BodyShape::Capsule {
             let (d2, _, _) = segment_segment_closest(&p.a, &p.b, &q.a, &q.b);

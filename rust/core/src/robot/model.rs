@@ -2,7 +2,7 @@
 //! where its base stands, and which link pairs to test for self-collision.
 
 use crate::error::{Error, Result};
-use crate::robot::body::Body;
+use crate::robot::body::{AxisBounds, Body};
 use crate::robot::chain::{Chain, Frame};
 use crate::synthetic::Rng;
 
@@ -268,12 +268,35 @@ impl RobotModel {
         placed: &PlacedBodies,
         pairs: &[(usize, usize)],
     ) -> Option<(usize, usize)> {
-        let slot = |link: usize| placed.links.iter().position(|&l| l == link);
+        // Each body's bounds and slot once, not once per pair: most pairs end at their
+        // bounds, and a search for the slots cost more than the test. Small tables on
+        // the stack (a robot arm has about ten links); larger robots take the plain path.
+        const LINKS: usize = 64;
+        const BODIES: usize = 16;
+        let small = placed.bodies.len() <= BODIES && placed.links.iter().all(|&l| l < LINKS);
+        if !small {
+            let slot = |link: usize| placed.links.iter().position(|&l| l == link);
+            return pairs.iter().copied().find(|&(a, b)| {
+                let (Some(i), Some(j)) = (slot(a), slot(b)) else {
+                    return false;
+                };
+                placed.bodies[i].intersects(&placed.bodies[j])
+            });
+        }
+        let mut slot_of = [u8::MAX; LINKS];
+        let mut bounds = [AxisBounds::default(); BODIES];
+        for (k, (&link, body)) in placed.links.iter().zip(&placed.bodies).enumerate() {
+            slot_of[link] = k as u8;
+            bounds[k] = body.bounds();
+        }
         pairs.iter().copied().find(|&(a, b)| {
+            let slot = |link: usize| slot_of.get(link).copied().filter(|&k| k != u8::MAX);
             let (Some(i), Some(j)) = (slot(a), slot(b)) else {
                 return false;
             };
-            placed.bodies[i].intersects(&placed.bodies[j])
+            let (i, j) = (i as usize, j as usize);
+            !bounds[i].disjoint(&bounds[j])
+                && placed.bodies[i].intersects_within_bounds(&placed.bodies[j])
         })
     }
 

@@ -11,7 +11,7 @@
 use crate::error::{Error, Result};
 use crate::floor::fast_floor;
 use crate::octree::{OcTree, OcTreeKey, TREE_DEPTH};
-use crate::robot::body::{Body, BodyBoxContact, NearestContact};
+use crate::robot::body::{Body, BodyBoxContact, BodyShape, NearestContact};
 use crate::robot::capsule::point_segment_distance_squared;
 
 const NONE: u32 = u32::MAX;
@@ -440,9 +440,14 @@ impl VoxelIndex {
             len: 0,
             overflow: false,
         };
-        // The ball of radius r + spacing/2 around a sample covers the enclosing capsule
-        // near it.
-        let needed = r + 0.5 * spacing + 1e-6;
+        // The ball of radius `needed` around a sample covers the body's slice within half
+        // a spacing of it: r + spacing/2 for a capsule (its rounded ends included), only
+        // √(r² + (spacing/2)²) for a cylinder, whose flat ends stop at the end samples.
+        // The cylinder's smaller band is what decides a UR upper arm beside the table.
+        let needed = match body.shape {
+            BodyShape::Capsule => r + 0.5 * spacing,
+            BodyShape::Cylinder => r.hypot(0.5 * spacing),
+        } + 1e-6;
         // Reciprocals once: divisions in the loop cost more than the rest of a step.
         let (per_step, per_spacing) = (1.0 / steps as f64, 1.0 / spacing);
         let mut s = 0;
@@ -807,6 +812,85 @@ mod tests {
             }
         }
         assert!(hits > 1000 && hits < 9000, "{hits}");
+    }
+
+    /// Near misses decide the distance field's band: bodies of every orientation that
+    /// touch a voxel are moved away in a random direction until they just stop touching
+    /// the map (a table-like slab and scattered voxels), then left 0-3 cm further, so
+    /// flat ends, rims and sides all pass close to boxes, between samples too.
+    #[test]
+    fn near_misses_equal_exact_tests() {
+        let res = 0.05;
+        let mut index = VoxelIndex::empty(res, [0.0; 3], 2.0).unwrap();
+        index.mark_box([-5, -5, -1], [4, 4, -1]);
+        let mut rng = Rng::new(12);
+        for _ in 0..40 {
+            index.mark_point([
+                rng.uniform(-0.5, 0.5),
+                rng.uniform(-0.5, 0.5),
+                rng.uniform(0.0, 0.5),
+            ]);
+        }
+        index.compute_distance_field();
+        let occupied = index.occupied_centers();
+        let half = index.half();
+        let brute = |body: &Body| occupied.iter().any(|c| body.overlaps_box(c, &half));
+        let (mut free, mut touching) = (0, 0);
+        for i in 0..3000 {
+            let c =
+                occupied[(rng.uniform(0.0, 1.0) * occupied.len() as f64) as usize % occupied.len()];
+            let unit = |rng: &mut Rng| {
+                let v = [
+                    rng.uniform(-1.0, 1.0),
+                    rng.uniform(-1.0, 1.0),
+                    rng.uniform(-1.0, 1.0),
+                ];
+                let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-9);
+                v.map(|x| x / n)
+            };
+            let (u, d) = (unit(&mut rng), unit(&mut rng));
+            let (len, at, r) = (
+                rng.uniform(0.02, 0.5),
+                rng.uniform(0.0, 1.0),
+                rng.uniform(0.01, 0.1),
+            );
+            let make = |s: f64| {
+                let a = [0, 1, 2].map(|k| c[k] - u[k] * at * len + d[k] * s);
+                let b = [0, 1, 2].map(|k| c[k] + u[k] * (1.0 - at) * len + d[k] * s);
+                if i % 2 == 0 {
+                    Body::capsule(a, b, r)
+                } else {
+                    Body::cylinder(a, b, r)
+                }
+            };
+            // Bisect a distance at which the body stops touching the map.
+            let (mut lo, mut hi) = (0.0, 1.2);
+            if brute(&make(hi)) {
+                continue;
+            }
+            for _ in 0..30 {
+                let mid = 0.5 * (lo + hi);
+                if brute(&make(mid)) {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            for gap in [rng.uniform(0.0, 0.03), -rng.uniform(0.0, 0.003)] {
+                let body = make(hi + gap);
+                let expected = brute(&body);
+                assert_eq!(index.body_collides(&body).unwrap(), expected, "{body:?}");
+                if expected {
+                    touching += 1;
+                } else {
+                    free += 1;
+                }
+            }
+        }
+        assert!(
+            free > 2000 && touching > 2000,
+            "{free} free, {touching} touching"
+        );
     }
 
     #[test]
