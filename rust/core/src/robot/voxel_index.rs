@@ -46,22 +46,29 @@ pub enum SampleVerdict {
     Undecided(UndecidedRuns),
 }
 
-/// Runs of consecutive axis samples the distance fields could not decide.
+/// Runs of consecutive axis samples the distance fields could not decide. Small (u16
+/// sample numbers) because every body check returns one: at 150 bytes its copy was a
+/// twentieth of a motion check.
 #[derive(Clone, Copy, Debug)]
 pub struct UndecidedRuns {
-    steps: usize,
-    runs: [(usize, usize); 8],
-    len: usize,
-    /// More runs than fit: the scan covers the whole body.
+    steps: u32,
+    runs: [(u16, u16); 8],
+    len: u8,
+    /// More runs than fit (or samples beyond u16): the scan covers the whole body.
     overflow: bool,
 }
 
 impl UndecidedRuns {
     fn push(&mut self, s: usize) {
-        if self.len > 0 && self.runs[self.len - 1].1 + 1 == s {
-            self.runs[self.len - 1].1 = s;
-        } else if self.len < self.runs.len() {
-            self.runs[self.len] = (s, s);
+        let Ok(s) = u16::try_from(s) else {
+            self.overflow = true;
+            return;
+        };
+        let len = self.len as usize;
+        if len > 0 && self.runs[len - 1].1 as usize + 1 == s as usize {
+            self.runs[len - 1].1 = s;
+        } else if len < self.runs.len() {
+            self.runs[len] = (s, s);
             self.len += 1;
         } else {
             self.overflow = true;
@@ -427,15 +434,22 @@ impl VoxelIndex {
     /// The distance-field pass alone: walk the axis samples, proving stretches free or
     /// the body colliding; what stays undecided is returned for `body_scan`.
     pub fn body_samples(&self, body: &Body) -> Result<SampleVerdict> {
-        let res = self.resolution;
         let capsule = body.enclosing_capsule();
         let r = capsule.radius;
         let len = capsule.length();
-        let steps = (SAMPLES_PER_VOXEL * len / res).ceil().max(1.0) as usize;
-        let spacing = len / steps as f64;
+        // ceil(len / spacing) without a division or libm's ceil (neither is cheap next
+        // to a sample's work).
+        let wanted = SAMPLES_PER_VOXEL * len * self.inverse_resolution;
+        let mut steps = wanted as usize;
+        if (steps as f64) < wanted {
+            steps += 1;
+        }
+        let steps = steps.max(1);
+        let per_step = 1.0 / steps as f64;
+        let spacing = len * per_step;
         let half = self.half();
         let mut runs = UndecidedRuns {
-            steps,
+            steps: u32::try_from(steps).unwrap_or(u32::MAX),
             runs: [(0, 0); 8],
             len: 0,
             overflow: false,
@@ -446,10 +460,12 @@ impl VoxelIndex {
         // The cylinder's smaller band is what decides a UR upper arm beside the table.
         let needed = match body.shape {
             BodyShape::Capsule => r + 0.5 * spacing,
-            BodyShape::Cylinder => r.hypot(0.5 * spacing),
+            // Not `hypot`: glibc's, careful about overflow, cost a twentieth of a check.
+            BodyShape::Cylinder => (r * r + 0.25 * spacing * spacing).sqrt(),
         } + 1e-6;
-        // Reciprocals once: divisions in the loop cost more than the rest of a step.
-        let (per_step, per_spacing) = (1.0 / steps as f64, 1.0 / spacing);
+        // A reciprocal once: divisions in the loop cost more than the rest of a step
+        // (infinite for a point-like body, whose one sample then ends the walk).
+        let per_spacing = 1.0 / spacing;
         let mut s = 0;
         while s <= steps {
             let t = (s as f64 * per_step).min(1.0);
@@ -472,7 +488,9 @@ impl VoxelIndex {
             if clear > needed {
                 // Sphere tracing: a sample m spacings further on is ≥ clear − m·spacing
                 // from every box, so it is free too while that exceeds `needed`.
-                s += ((clear - needed) * per_spacing) as usize + 1;
+                s = s
+                    .saturating_add(((clear - needed) * per_spacing) as usize)
+                    .saturating_add(1);
                 continue;
             }
             // A ball inside the body that reaches the nearest box proves a collision; so
@@ -504,7 +522,7 @@ impl VoxelIndex {
         }
         let capsule = body.enclosing_capsule();
         let steps = runs.steps as f64;
-        runs.runs[..runs.len].iter().any(|&(j0, j1)| {
+        runs.runs[..runs.len as usize].iter().any(|&(j0, j1)| {
             let t0 = ((j0 as f64 - 0.5) / steps).max(0.0);
             let t1 = ((j1 as f64 + 0.5) / steps).min(1.0);
             let piece = crate::robot::capsule::Capsule::new(
@@ -891,6 +909,31 @@ mod tests {
             free > 2000 && touching > 2000,
             "{free} free, {touching} touching"
         );
+    }
+
+    /// A body of zero length (a ball) has one sample and an infinite sphere-tracing
+    /// step; the walk must end, not wrap around.
+    #[test]
+    fn point_like_bodies_are_checked() {
+        let mut index = VoxelIndex::empty(0.05, [0.0; 3], 1.0).unwrap();
+        index.mark_point([0.325, 0.01, 0.01]);
+        index.compute_distance_field();
+        let (centre, half) = (index.occupied_centers()[0], index.half());
+        for (x, hit) in [
+            (0.0, false),
+            (0.2, false),
+            (0.25, false),
+            (0.27, true),
+            (0.32, true),
+        ] {
+            let ball = Body::capsule([x, 0.0, 0.0], [x, 0.0, 0.0], 0.04);
+            assert_eq!(index.body_collides(&ball).unwrap(), hit, "{ball:?}");
+            let disc = Body::cylinder([x, 0.0, 0.0], [x, 0.0, 0.0], 0.04);
+            assert_eq!(
+                index.body_collides(&disc).unwrap(),
+                disc.overlaps_box(&centre, &half)
+            );
+        }
     }
 
     #[test]
