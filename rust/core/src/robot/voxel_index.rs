@@ -452,7 +452,8 @@ impl VoxelIndex {
             steps: u32::try_from(steps).unwrap_or(u32::MAX),
             runs: [(0, 0); 8],
             len: 0,
-            overflow: false,
+            // (A body billions of samples long is scanned whole.)
+            overflow: steps > u32::MAX as usize,
         };
         // The ball of radius `needed` around a sample covers the body's slice within half
         // a spacing of it: r + spacing/2 for a capsule (its rounded ends included), only
