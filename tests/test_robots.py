@@ -558,8 +558,8 @@ def test_bad_urdfs(tmp_path):
     assert issubclass(robots.UrdfError, earcore.EarcoreError)
 
 
-def test_primitive_geometry_and_a_two_link_arm(tmp_path):
-    """Primitives (box, cylinder, sphere) and a hand-checkable chain."""
+def _two_link_arm(tmp_path):
+    """A base box, a 0.5 m cylinder on a pitch joint, a 3 cm sphere at its tip (no padding)."""
     path = tmp_path / "arm.urdf"
     path.write_text(
         """<robot name="arm">
@@ -571,7 +571,12 @@ def test_primitive_geometry_and_a_two_link_arm(tmp_path):
   <joint name="wrist" type="fixed"><parent link="upper"/><child link="tool"/><origin xyz="0 0 0.5"/></joint>
 </robot>"""
     )
-    arm = robots.RobotModel.from_urdf(path, padding=0.0)
+    return robots.RobotModel.from_urdf(path, padding=0.0)
+
+
+def test_primitive_geometry_and_a_two_link_arm(tmp_path):
+    """Primitives (box, cylinder, sphere) and a hand-checkable chain."""
+    arm = _two_link_arm(tmp_path)
     assert arm.dof == 1 and arm.link_names == ["base", "upper", "tool"]
     tool = arm.fk([np.pi / 2])[2][:3, 3]
     assert np.allclose(tool, [0.5, 0, 0.05], atol=1e-12)
@@ -580,3 +585,32 @@ def test_primitive_geometry_and_a_two_link_arm(tmp_path):
     a, b, r, shape = arm.link_bodies[1]
     assert r == pytest.approx(0.04 / np.cos(np.pi / 64), rel=1e-6)  # circumscribed 64-gon
     assert np.linalg.norm(np.subtract(b, a)) == pytest.approx(0.5, abs=1e-6)
+
+
+def test_a_sphere_body_is_checked_against_the_map(tmp_path):
+    """A URDF sphere becomes a zero-length body; checks of it once never returned (its
+    free-space step was infinite and wrapped to zero). Verdicts against the analytic
+    distance from the sphere's centre to the one voxel, which only the sphere can reach."""
+    import threading
+
+    arm = _two_link_arm(tmp_path)
+    tree = earcore.OcTree(0.02)
+    tree.update_nodes(np.array([[0.525, 0.005, 0.05]]))  # cell [0.52, 0.54) × [0, 0.02) × [0.04, 0.06)
+    lo, hi = np.array([0.52, 0.0, 0.04]), np.array([0.54, 0.02, 0.06])
+    qs = np.linspace(-2.0, 2.0, 801)[:, None]
+    centres = np.array([arm.fk(q)[2][:3, 3] for q in qs])
+    gap = np.linalg.norm(centres - np.clip(centres, lo, hi), axis=1)
+    assert np.any(gap <= 0.03 - 1e-4) and np.any(gap > 0.05)
+    decided = np.abs(gap - 0.03) > 1e-6
+    result = {}
+
+    def check():
+        result["hits"] = np.asarray(arm.check_configurations(tree, qs)).astype(bool)
+        result["motions"] = [bool(arm.check_motion(tree, [0.0], [q1])) for q1 in (1.3, 2.0)]
+
+    worker = threading.Thread(target=check, daemon=True)
+    worker.start()
+    worker.join(timeout=60)
+    assert not worker.is_alive(), "the check of a sphere body did not return"
+    assert np.array_equal(result["hits"][decided], (gap <= 0.03)[decided])
+    assert result["motions"] == [False, True]  # 0 → 1.3 rad stays clear; 0 → 2 passes the voxel
