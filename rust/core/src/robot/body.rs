@@ -37,10 +37,14 @@ pub struct Body {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct AxisBounds {
     twice_centre: [f64; 3],
+    /// Grown by a slack far above rounding (1e-9 relative, of the extent and the
+    /// centre's magnitude): only a filter in front of the exact tests, it must let bodies
+    /// that exactly touch (which counts as touching) reach them.
     twice_extent: [f64; 3],
 }
 
 impl AxisBounds {
+    /// Certainly apart on some axis.
     #[inline]
     pub fn disjoint(&self, other: &AxisBounds) -> bool {
         (0..3).any(|i| {
@@ -498,9 +502,15 @@ impl Body {
     #[inline]
     pub fn bounds(&self) -> AxisBounds {
         let c = &self.axis;
+        let twice_centre = [0, 1, 2].map(|i| c.a[i] + c.b[i]);
         AxisBounds {
-            twice_centre: [0, 1, 2].map(|i| c.a[i] + c.b[i]),
-            twice_extent: [0, 1, 2].map(|i| (c.a[i] - c.b[i]).abs() + 2.0 * c.radius),
+            twice_centre,
+            // The slack (see `AxisBounds::disjoint`) is part of the extent, so a pair's
+            // test stays three compares.
+            twice_extent: [0, 1, 2].map(|i| {
+                let extent = (c.a[i] - c.b[i]).abs() + 2.0 * c.radius;
+                extent + 1e-9 * (extent + twice_centre[i].abs())
+            }),
         }
     }
 
@@ -971,5 +981,26 @@ mod tests {
         // Beyond the cylinder's flat end but inside its enclosing capsule.
         let d = Body::capsule([0.0, 0.0, 1.15], [0.0, 0.0, 2.0], 0.1);
         assert!(!a.intersects(&d));
+    }
+
+    /// The bounds filter must not decide pairs that exactly touch (touching counts):
+    /// capsules stacked along z with their ends one radius sum apart, at random places
+    /// and sizes, where rounding puts the gap on either side of the bounds' reach.
+    #[test]
+    fn bounds_never_reject_touching_pairs() {
+        let mut rng = crate::synthetic::Rng::new(21);
+        let mut touching = 0;
+        for _ in 0..20_000 {
+            let (x, y) = (rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0));
+            let (z, len) = (rng.uniform(-1.0, 1.0), rng.uniform(0.0, 0.5));
+            let (r1, r2) = (rng.uniform(0.0, 0.2), rng.uniform(0.0, 0.2));
+            let p = Body::capsule([x, y, z], [x, y, z + len], r1);
+            let z2 = z + len + r1 + r2;
+            let q = Body::capsule([x, y, z2], [x + rng.uniform(-0.1, 0.1), y, z2], r2);
+            let exact = p.intersects_within_bounds(&q);
+            touching += usize::from(exact);
+            assert_eq!(p.intersects(&q), exact, "{p:?} {q:?}");
+        }
+        assert!(touching > 1000, "{touching}");
     }
 }
