@@ -357,3 +357,93 @@ impl RobotModel {
             .collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::na::Vector3;
+    use crate::robot::chain::{Joint, JointKind};
+
+    /// A model of `n` links in a fixed chain, with no bodies of its own (the test
+    /// places bodies directly).
+    fn fixed_chain(n: usize) -> RobotModel {
+        let joints = (1..n)
+            .map(|c| Joint {
+                name: format!("j{c}"),
+                kind: JointKind::Fixed,
+                parent: c - 1,
+                child: c,
+                origin: Frame::identity(),
+                axis: Vector3::z(),
+                lower: 0.0,
+                upper: 0.0,
+            })
+            .collect();
+        let names = (0..n).map(|l| format!("l{l}")).collect();
+        RobotModel::new(Chain::new(names, joints).unwrap(), vec![None; n]).unwrap()
+    }
+
+    /// Both ways `self_collision` runs (stack tables for arm-sized robots, a search per
+    /// pair for larger ones) report the first listed pair that touches, as testing the
+    /// pairs one by one does; pairs naming links without bodies never count.
+    #[test]
+    fn self_collision_reports_the_first_touching_pair() {
+        let mut rng = Rng::new(3);
+        let mut found = 0;
+        for (links, with_bodies) in [(10, 7), (12, 12), (40, 16), (40, 17), (80, 10)] {
+            let model = fixed_chain(links);
+            for _ in 0..200 {
+                let mut chosen: Vec<usize> = (0..links).collect();
+                for i in 0..links {
+                    let j = i + (rng.uniform(0.0, 1.0) * (links - i) as f64) as usize;
+                    chosen.swap(i, j.min(links - 1));
+                }
+                chosen.truncate(with_bodies);
+                chosen.sort_unstable();
+                let mut v = || rng.uniform(-0.5, 0.5);
+                let bodies: Vec<Body> = chosen
+                    .iter()
+                    .map(|&l| {
+                        let (a, b) = ([v(), v(), v()], [v(), v(), v()]);
+                        let r = 0.05 + 0.05 * (v() + 0.5);
+                        if l % 2 == 0 {
+                            Body::capsule(a, b, r)
+                        } else {
+                            Body::cylinder(a, b, r)
+                        }
+                    })
+                    .collect();
+                let placed = PlacedBodies {
+                    links: chosen.clone(),
+                    moving: vec![true; chosen.len()],
+                    bodies,
+                };
+                let mut pairs = Vec::new();
+                for _ in 0..30 {
+                    let a = (rng.uniform(0.0, 1.0) * links as f64) as usize % links;
+                    let b = (rng.uniform(0.0, 1.0) * links as f64) as usize % links;
+                    if a != b {
+                        pairs.push((a, b));
+                    }
+                }
+                let body_of = |l: usize| {
+                    chosen
+                        .iter()
+                        .position(|&c| c == l)
+                        .map(|k| &placed.bodies[k])
+                };
+                let expected =
+                    pairs
+                        .iter()
+                        .copied()
+                        .find(|&(a, b)| match (body_of(a), body_of(b)) {
+                            (Some(p), Some(q)) => p.intersects_within_bounds(q),
+                            _ => false,
+                        });
+                assert_eq!(model.self_collision(&placed, &pairs), expected);
+                found += usize::from(expected.is_some());
+            }
+        }
+        assert!(found > 100 && found < 900, "{found} of 1000 lists touch");
+    }
+}
