@@ -776,6 +776,17 @@ mod tests {
     use crate::robot::capsule::segment_box_closest;
     use crate::synthetic::Rng;
 
+    /// A unit vector of uniformly random direction (rejection from the unit ball).
+    fn random_unit(rng: &mut Rng) -> [f64; 3] {
+        loop {
+            let v = [0; 3].map(|_| rng.uniform(-1.0, 1.0));
+            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if n > 0.1 && n <= 1.0 {
+                return v.map(|x| x / n);
+            }
+        }
+    }
+
     fn random_index(rng: &mut Rng, res: f64, count: usize) -> VoxelIndex {
         let mut index = VoxelIndex::empty(res, [0.0; 3], 0.6).unwrap();
         for _ in 0..count {
@@ -877,16 +888,7 @@ mod tests {
         for i in 0..3000 {
             let c =
                 occupied[(rng.uniform(0.0, 1.0) * occupied.len() as f64) as usize % occupied.len()];
-            let unit = |rng: &mut Rng| {
-                let v = [
-                    rng.uniform(-1.0, 1.0),
-                    rng.uniform(-1.0, 1.0),
-                    rng.uniform(-1.0, 1.0),
-                ];
-                let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-9);
-                v.map(|x| x / n)
-            };
-            let (u, d) = (unit(&mut rng), unit(&mut rng));
+            let (u, d) = (random_unit(&mut rng), random_unit(&mut rng));
             let (len, at, r) = (
                 rng.uniform(0.02, 0.5),
                 rng.uniform(0.0, 1.0),
@@ -943,17 +945,10 @@ mod tests {
         index.compute_distance_field();
         let (c, half) = (index.occupied_centers()[0], index.half());
         let mut rng = Rng::new(991);
-        let unit = |rng: &mut Rng| loop {
-            let v = [0; 3].map(|_| rng.uniform(-1.0, 1.0));
-            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if n > 0.1 && n <= 1.0 {
-                return v.map(|x| x / n);
-            }
-        };
         let mut touching = 0;
         for _ in 0..400_000 {
             // Axis u, and v across it towards the voxel.
-            let (u, w) = (unit(&mut rng), unit(&mut rng));
+            let (u, w) = (random_unit(&mut rng), random_unit(&mut rng));
             let along = u[0] * w[0] + u[1] * w[1] + u[2] * w[2];
             let v = [0, 1, 2].map(|k| w[k] - along * u[k]);
             let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
