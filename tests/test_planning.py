@@ -500,6 +500,39 @@ def test_tracker_rates_a_reaching_arm_by_its_hand(ur5):
     assert report.speed == pytest.approx(np.linalg.norm(track.lead_velocity))
 
 
+def test_track_velocities_equal_least_squares_fits():
+    """The tracker's two velocities (the slope over the window, and the
+    constant-acceleration fit's velocity at the newest sample) against numpy's lstsq on
+    the same samples: uneven frame times, two to six samples; degenerate times give
+    the documented fallbacks (no velocity, or the slope)."""
+    from earcore.planning.reflex import _velocities
+
+    rng = np.random.default_rng(5)
+    for n in range(2, 7):
+        for _ in range(20):
+            times = np.cumsum(rng.uniform(0.03, 0.1, n)) + rng.uniform(0, 100)
+            positions = rng.normal(size=(n, 3))
+            slope, now = _velocities([(float(t), p) for t, p in zip(times, positions)])
+            design1 = np.stack([np.ones(n), times - times.mean()], axis=1)
+            want_slope = np.linalg.lstsq(design1, positions, rcond=None)[0][1]
+            np.testing.assert_allclose(slope, want_slope, rtol=1e-9, atol=1e-9)
+            if n < 4:
+                np.testing.assert_array_equal(now, slope)
+                continue
+            t = times - times[-1]
+            design2 = np.stack([np.ones(n), t, t * t], axis=1)
+            fit = np.linalg.lstsq(design2, positions, rcond=None)[0][1]
+            want_now = fit if np.linalg.norm(fit) > np.linalg.norm(want_slope) else want_slope
+            np.testing.assert_allclose(now, want_now, rtol=1e-7, atol=1e-7)
+    p = rng.normal(size=(4, 3))
+    assert not np.any(_velocities([(1.0, p[0])])[0])
+    assert not np.any(_velocities([(1.0, x) for x in p])[1])  # one time: no velocity
+    two_times = [(1.0, p[0]), (1.0, p[1]), (2.0, p[2]), (2.0, p[3])]
+    slope, now = _velocities(two_times)  # a line fits, a parabola does not: the slope
+    np.testing.assert_allclose(slope, (p[2] + p[3] - p[0] - p[1]) / 2)
+    np.testing.assert_array_equal(now, slope)
+
+
 def test_tracker_follows_a_reach_that_speeds_up(ur5):
     """A hand accelerating at 6 m/s² towards the tool (seen as 5 cm voxels at 15 Hz):
     Eq. 2's speed is the hand's at the newest frame, where a plain slope over the

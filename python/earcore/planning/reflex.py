@@ -22,6 +22,7 @@ of the executed path if that path is free, else move the end-effector
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -62,9 +63,9 @@ class ObstacleTrack:
         about half the hand's speed; the lead moves with the hand. A lead that jumps
         farther than `jump` in one frame is another part of the obstacle (the far end
         switched, or the robot hid it): its history starts again."""
-        far = self.voxels[np.argmax(np.linalg.norm(self.voxels - self.anchor, axis=1))]
-        lead = self.voxels[np.linalg.norm(self.voxels - far, axis=1) <= radius].mean(axis=0)
-        if self.lead_history and float(np.linalg.norm(lead - self.lead_history[-1][1])) > jump:
+        far = self.voxels[np.argmax(_squared_norms(self.voxels - self.anchor))]
+        lead = self.voxels[_squared_norms(self.voxels - far) <= radius * radius].mean(axis=0)
+        if self.lead_history and math.dist(lead, self.lead_history[-1][1]) > jump:
             self.lead_history = []
         self.lead_history = (self.lead_history + [(time_s, lead)])[-window:]
         self.lead_velocity = _velocities(self.lead_history)[1]
@@ -76,10 +77,14 @@ class ObstacleTrack:
         `LEAD_SPEED_CAP` times the centroid's speed (a hand at the end of a straight arm
         from a still shoulder moves at twice the centroid's). Both from `_velocities`."""
         v, lead = self.velocity_now, self.lead_velocity
-        speed, lead_speed = float(np.linalg.norm(v)), float(np.linalg.norm(lead))
+        speed, lead_speed = math.hypot(*v), math.hypot(*lead)
         if lead_speed > speed > 0 and float(v @ lead) >= 0.7 * speed * lead_speed:
             return lead * min(1.0, LEAD_SPEED_CAP * speed / lead_speed)
         return v
+
+
+def _squared_norms(rows: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", rows, rows)
 
 
 #: The lead's speed counts up to this multiple of its obstacle's centroid speed.
@@ -232,14 +237,14 @@ class ObstacleTracker:
             # taken relative to the robot's closest point.
             # A still obstacle's voxel centroid jitters (noise, and the robot hiding parts
             # of it): below `still_speed` it does not count as coming by itself.
-            moving = float(np.linalg.norm(track.velocity)) >= self.still_speed
+            moving = math.hypot(*track.velocity) >= self.still_speed
             own = v = track.approach_velocity() if moving else track.velocity
             approaching = (moving and float(v @ towards) > 0) if d > 0 else True
             jacobian = None
             if approaching and qd is not None and c["link"] >= 0:
                 jacobian = _point_jacobian(self.robot, q, int(c["link"]), c["on_robot"])
                 v = v - jacobian @ qd
-            speed = float(np.linalg.norm(v))
+            speed = math.hypot(*v)
             risk = speed**2 / (self.beta * max(d, 1e-3)) if approaching else 0.0
             if best is None or risk > best[0] or (risk == best[0] and d < best[2]):
                 best = (
@@ -264,7 +269,7 @@ class ObstacleTracker:
         for track in self.tracks:
             if not unmatched:
                 break
-            dists = [np.linalg.norm(centroids[i] - track.centroid) for i in unmatched]
+            dists = [math.dist(centroids[i], track.centroid) for i in unmatched]
             j = int(np.argmin(dists))
             if dists[j] <= self.gate:
                 i = unmatched.pop(j)
@@ -289,26 +294,48 @@ def _velocities(history: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np
     an underestimate is what must not happen, so the larger one counts, at the price of
     an upward bias (a steady 1.2 m/s blob of 5 cm voxels reads up to ~1.5x, more
     reflexes)."""
-    if len(history) < 2:
+    slope_weights, fit_weights = _velocity_weights([h[0] for h in history])
+    if slope_weights is None:  # one sample, or every sample at one time
         return np.zeros(3), np.zeros(3)
-    t = np.array([h[0] for h in history])
     p = np.array([h[1] for h in history])
-    tc = t - t.mean()
-    denom = float(tc @ tc)
-    if denom <= 0:  # every sample at one time: no velocity to be had
-        return np.zeros(3), np.zeros(3)
-    slope = (tc @ (p - p.mean(axis=0))) / denom
-    if len(history) < 4:
+    slope = np.array(slope_weights) @ p
+    if fit_weights is None:
         return slope, slope.copy()
-    t = t - t[-1]
-    design = np.stack([np.ones_like(t), t, t * t], axis=1)
-    # Normal equations (3×3, well conditioned for distinct frame times): a tenth of
-    # lstsq's cost, which the reflex's latency pays per track and frame.
-    try:
-        coef = np.linalg.solve(design.T @ design, design.T @ p)
-    except np.linalg.LinAlgError:  # fewer than three distinct times
-        return slope, slope.copy()
-    return slope, (coef[1] if float(np.linalg.norm(coef[1])) > float(np.linalg.norm(slope)) else slope.copy())
+    fit = np.array(fit_weights) @ p
+    return slope, (fit if float(fit @ fit) > float(slope @ slope) else slope.copy())
+
+
+def _velocity_weights(times: list[float]) -> tuple[list[float] | None, list[float] | None]:
+    """Both velocities of `_velocities` are linear in the positions: the weights of
+    the least-squares slope and of the constant-acceleration fit's velocity at the
+    newest sample (None where there are too few samples or distinct times). In plain
+    floats: for a handful of samples numpy's per-call cost was most of the reflex
+    layer's tracking time."""
+    n = len(times)
+    if n < 2:
+        return None, None
+    mean = sum(times) / n
+    tc = [t - mean for t in times]
+    denom = sum(c * c for c in tc)
+    if denom <= 0:
+        return None, None
+    slope = [c / denom for c in tc]
+    if n < 4:
+        return slope, None
+    # Fit p(t) = a + b t + c t² (t from the newest sample) by the normal equations;
+    # b's weights are the middle row of (DᵀD)⁻¹ Dᵀ, from the 3×3 inverse by cofactors.
+    t = [x - times[-1] for x in times]
+    s1, s2 = sum(t), sum(x * x for x in t)
+    s3, s4 = sum(x**3 for x in t), sum(x**4 for x in t)
+    s0 = float(n)
+    det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
+    if not abs(det) > 1e-12 * max(s0 * s2 * s4, 1e-300):  # fewer than three distinct times
+        return slope, None
+    # Middle row of the inverse (symmetric matrix): cofactors of the second column.
+    r0 = -(s1 * s4 - s2 * s3) / det
+    r1 = (s0 * s4 - s2 * s2) / det
+    r2 = -(s0 * s3 - s1 * s2) / det
+    return slope, [r0 + r1 * x + r2 * x * x for x in t]
 
 
 @dataclass

@@ -3,7 +3,7 @@
 //! the connected components of the occupied voxels, which the reflex layer tracks as
 //! obstacles (Paper II §C.6).
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use crate::error::{Error, Result};
 use crate::floor::floor_i64;
@@ -15,7 +15,9 @@ pub fn cluster_points(points: &[[f64; 3]], cell: f64) -> Result<Vec<u32>> {
             "cell size must be finite and > 0, got {cell}"
         )));
     }
-    let mut cells: HashMap<[i64; 3], u32> = HashMap::with_capacity(points.len());
+    // Fx hashing: the reflex layer clusters every frame, and SipHash was most of it.
+    let mut cells: FxHashMap<[i64; 3], u32> =
+        FxHashMap::with_capacity_and_hasher(points.len(), Default::default());
     let mut parent: Vec<u32> = Vec::with_capacity(points.len());
     let mut of_point = Vec::with_capacity(points.len());
     for (i, p) in points.iter().enumerate() {
@@ -45,7 +47,7 @@ pub fn cluster_points(points: &[[f64; 3]], cell: f64) -> Result<Vec<u32>> {
             }
         }
     }
-    let mut label_of_root: HashMap<u32, u32> = HashMap::new();
+    let mut label_of_root: FxHashMap<u32, u32> = FxHashMap::default();
     Ok(of_point
         .iter()
         .map(|&id| {
