@@ -291,6 +291,25 @@ def test_the_loop_filters_the_robot_and_keeps_the_arm(tmp_path):
     assert fading.any(), np.unique(danger)
 
 
+def test_far_ray_selection_helpers():
+    """The far rays' pixel grid is every stride-th row and column (stride = width /
+    FAR_RAYS_ACROSS, rounded); membership in the crop's ascending index by binary
+    search equals np.isin, empty index included."""
+    from earcore.perception.pipeline import FAR_RAYS_ACROSS, _in_sorted, _pixel_grid
+
+    for shape in ((424, 512), (120, 160), (7, 3)):
+        height, width = shape
+        stride = max(1, round(width / FAR_RAYS_ACROSS))
+        pixels = np.arange(height * width)
+        want = ((pixels % width) % stride == 0) & ((pixels // width) % stride == 0)
+        np.testing.assert_array_equal(_pixel_grid(shape), want)
+    rng = np.random.default_rng(4)
+    values = np.unique(rng.integers(0, 1000, 300))
+    queries = rng.integers(-5, 1010, 500)
+    np.testing.assert_array_equal(_in_sorted(values, queries), np.isin(queries, values))
+    assert not _in_sorted(values[:0], queries).any()
+
+
 def test_far_points_clear_the_space_inside_the_crop_sphere():
     """Points beyond the crop radius are not inserted, but their rays still show that
     the space in front of them is empty: with `clear_beyond_crop` the map learns that

@@ -10,6 +10,7 @@ then runs on ~10× fewer points; the result differs only in which isolated point
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -50,6 +51,26 @@ class FrameReport:
 #: Far points (beyond the crop) whose rays clear space: about this many per image row
 #: and column (0.55° apart for a Kinect V2: 1.9 cm at 2 m, under the map's 5 cm cells).
 FAR_RAYS_ACROSS = 128
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_grid(shape: tuple[int, int]) -> np.ndarray:
+    """Flat mask of an image's pixels on a grid about FAR_RAYS_ACROSS wide (every
+    stride-th row and column)."""
+    height, width = shape
+    stride = max(1, round(width / FAR_RAYS_ACROSS))
+    grid = np.zeros(shape, dtype=bool)
+    grid[::stride, ::stride] = True
+    return grid.reshape(-1)
+
+
+def _in_sorted(sorted_values: np.ndarray, queries: np.ndarray) -> np.ndarray:
+    """Whether each query is in the ascending array `sorted_values` (binary search:
+    the queries are few, the array long)."""
+    if not len(sorted_values):
+        return np.zeros(len(queries), dtype=bool)
+    at = np.minimum(np.searchsorted(sorted_values, queries), len(sorted_values) - 1)
+    return sorted_values[at] == queries
 
 
 def _cut_at_sphere(points: np.ndarray, sensor: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
@@ -210,18 +231,16 @@ class PerceptionPipeline:
                 # About FAR_RAYS_ACROSS rays across the image are plenty (they are thinned to
                 # one per map cell where they leave the sphere anyway) and keep this cheap:
                 # at full resolution the far points are most of a Kinect's frame.
-                width = frame.depth.shape[1]
-                stride = max(1, round(width / FAR_RAYS_ACROSS))
-                beyond = ((pixels % width) % stride == 0) & ((pixels // width) % stride == 0)
-                beyond[idx] = False
-                far.append(_cut_at_sphere(all_pts[beyond], pose[:3, 3], origin, c.crop_radius))
+                on_grid = np.flatnonzero(_pixel_grid(frame.depth.shape)[pixels])
+                beyond = on_grid[~_in_sorted(idx, on_grid)]
+                far.append(_cut_at_sphere(all_pts.take(beyond, axis=0), pose[:3, 3], origin, c.crop_radius))
             else:
                 far.append(np.zeros((0, 3)))
             if c.min_height is not None:
                 # Low points (the table) only clear the space in front of them.
                 above = pts[:, 2] >= c.min_height
-                lows.append(pts[~above])
-                pts, idx = pts[above], idx[above]
+                lows.append(np.compress(~above, pts, axis=0))
+                pts, idx = np.compress(above, pts, axis=0), idx[above]
             else:
                 lows.append(np.zeros((0, 3)))
             robot = np.zeros(len(pts))
@@ -277,11 +296,11 @@ class PerceptionPipeline:
             tracked = label > 0.5
             report.tracked_points += int(tracked.sum())
             report.tracked_inserted += int((tracked & keep).sum())
-        pts, camera = pts[keep], camera[keep]
+        pts, camera = np.compress(keep, pts, axis=0), camera[keep]
         t5 = time.perf_counter()
         self._insert_free_rays(origins, lows, far)
         for i, sensor_origin in enumerate(origins):
-            mine = pts[camera == i]
+            mine = np.compress(camera == i, pts, axis=0)
             if len(mine):
                 self.tree.insert_point_cloud(mine, sensor_origin, max_range=c.max_range)
                 report.points_inserted += len(mine)
