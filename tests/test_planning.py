@@ -59,8 +59,9 @@ def dense_collides(robot, tree, path, step=0.005) -> bool:
 # --- time parameterisation ------------------------------------------------------------
 
 
+@pytest.mark.parametrize("share", [0.5, 1.0])
 @pytest.mark.parametrize("kind", ["polyline", "smooth"])
-def test_trajectory_respects_limits_and_follows_the_path(kind):
+def test_trajectory_respects_limits_and_follows_the_path(kind, share):
     rng = np.random.default_rng(3)
     if kind == "polyline":
         path = A + np.cumsum(rng.normal(scale=0.4, size=(5, 6)), axis=0)
@@ -68,7 +69,7 @@ def test_trajectory_respects_limits_and_follows_the_path(kind):
         s = np.linspace(0, 1, 150)[:, None]
         path = A + 0.6 * np.sin(3 * s + np.arange(6))
     dt = 1 / 30
-    traj = time_parameterize(path, V_MAX, A_MAX, control_period=dt)
+    traj = time_parameterize(path, V_MAX, A_MAX, control_period=dt, straight_share=share)
     assert np.allclose(traj.sample(0.0), path[0]) and np.allclose(traj.sample(traj.duration), path[-1])
     # Every waypoint is passed (the knots include them).
     for w in path:
@@ -84,20 +85,63 @@ def test_trajectory_respects_limits_and_follows_the_path(kind):
     assert np.abs(v[0]).max() < 0.1 and np.abs(v[-1]).max() < 0.1  # rest to rest
 
 
+@pytest.mark.parametrize("share", [0.5, 1.0])
 @pytest.mark.parametrize("length", [1e-8, 1e-5, 1e-3, 0.3])
-def test_short_moves_take_the_rest_to_rest_time(length):
+def test_short_moves_take_the_rest_to_rest_time(length, share):
     """A straight move from rest to rest under a tangential acceleration limit a takes
     2·sqrt(L / a) (accelerate half-way, brake half-way) while the speed limit is not
     reached. A move shorter than one resampling step once came out as 10^4-10^8 s (zero
     speed at both of its only two knots) and hung a reflex."""
     direction = np.array([1.0, -1.0, 0.5, 0.0, 0.0, 0.0]) / 1.5
     path = np.stack([A, A + length * direction])
-    traj = time_parameterize(path, V_MAX, A_MAX, control_period=1 / 240)
-    # The tangential share of the acceleration is half of every joint's limit.
+    traj = time_parameterize(path, V_MAX, A_MAX, control_period=1 / 240, straight_share=share)
+    # The tangential share of the acceleration is half of every joint's limit, or on a
+    # straight line (no corner, no curvature) `straight_share` of it.
     moving = np.abs(direction) > 0
-    a = np.min(0.5 * A_MAX[moving] / np.abs(direction)[moving])
+    a = np.min(share * A_MAX[moving] / np.abs(direction)[moving])
     assert traj.duration == pytest.approx(2 * np.sqrt(length / a), rel=0.05)
     assert np.allclose(traj.sample(traj.duration), path[-1])
+
+
+def test_straight_stretches_may_use_the_whole_acceleration():
+    """`straight_share=1` on random polylines and sampled curves: never slower than the
+    split, faster on polylines with long straight stretches; on stretches more than
+    CORNER_REACH segments from any corner the tangent accelerates or brakes at up to
+    (and mostly at) a joint's whole limit unless the speed is at its cap, measured from
+    the knot velocities, where the split uses half."""
+    from earcore.planning.trajectory import CORNER_REACH
+
+    rng = np.random.default_rng(11)
+    for trial in range(10):
+        if trial % 2:
+            path = A + np.cumsum(rng.normal(scale=0.4, size=(4, 6)), axis=0)
+        else:
+            s = np.linspace(0, 1, 120)[:, None]
+            path = A + rng.uniform(0.2, 0.8) * np.sin(rng.uniform(1, 4) * s + rng.uniform(0, 6, 6))
+        split = time_parameterize(path, V_MAX, A_MAX)
+        full = time_parameterize(path, V_MAX, A_MAX, straight_share=1.0)
+        assert np.allclose(full.positions, split.positions)
+        assert full.duration <= split.duration * (1 + 1e-12)
+        if trial % 2 == 0:  # a sampled curve: corners every few segments
+            continue
+        assert full.duration < 0.9 * split.duration
+        seg = np.diff(full.positions, axis=0)
+        unit = seg / np.linalg.norm(seg, axis=1)[:, None]
+        corner = np.flatnonzero(np.abs(np.diff(unit, axis=0)).max(axis=1) > 1e-6) + 1
+        far = np.ones(len(seg), dtype=bool)
+        for c in corner:
+            far[max(0, c - CORNER_REACH) : c + CORNER_REACH] = False
+        for traj, want in ((full, 1.0), (split, 0.5)):
+            accel = np.diff(traj.velocities, axis=0) / np.diff(traj.times)[:, None]
+            used = np.max(np.abs(accel) / A_MAX, axis=1)
+            at_cap = np.max(np.abs(traj.velocities) / V_MAX, axis=1)
+            capped = np.maximum(at_cap[:-1], at_cap[1:]) > 0.999
+            moving = far & ~capped
+            assert moving.sum() > 10
+            assert np.all(used[moving] <= want * (1 + 1e-6))
+            assert np.median(used[moving]) > 0.98 * want
+    with pytest.raises(ValueError, match="straight_share"):
+        time_parameterize(np.stack([A, B]), V_MAX, A_MAX, straight_share=1.5)
 
 
 def test_trajectory_bad_input():

@@ -170,7 +170,8 @@ class Executive:
         norm = float(np.linalg.norm(first))
         along = float(self.command @ first) / norm if norm > 0 else 0.0
         traj = time_parameterize(
-            path, self.v_max, self.a_max, control_period=self.cell.config.time_step, initial_speed=along
+            path, self.v_max, self.a_max, control_period=self.cell.config.time_step, initial_speed=along,
+            straight_share=self.config.straight_acceleration_share,
         )
         self.motion = _Motion(traj, self.cell.time, kind)
 
@@ -394,7 +395,9 @@ class Executive:
         path = np.vstack([stop.end[None], move.path])
         if stop.duration > 0 and not self._clear(path[:2], escape=escape):
             return None
-        traj = time_parameterize(path, self.v_max, self.a_max, control_period=self.cell.config.time_step)
+        traj = time_parameterize(
+            path, self.v_max, self.a_max, control_period=self.cell.config.time_step, straight_share=self.config.straight_acceleration_share
+        )
         return stop.then(traj)
 
     def _clear(self, path: np.ndarray, *, escape: bool, sampled: bool = False) -> bool:
