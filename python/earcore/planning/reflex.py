@@ -443,10 +443,13 @@ def plan_reflex(
             n = int(np.searchsorted(back, backtrack_fraction * total))
             tail = np.vstack([q[None], executed[::-1][: n + 1]])
             tail = without_repeats(tail, 1e-9)
+            # The cheap test first: in Exp. 3 runs the backtrack was clear but led back
+            # towards the hand in 25 of 26 reflexes (0.06 ms to tell, against 0.2 ms for
+            # the path check).
             if (
                 len(tail) >= 2
-                and path_is_clear(robot, tree, tail, resolution, dynamic, voxel_size, escape)
                 and _leads_away(robot, tail[-1], report, voxel_size, horizon)
+                and path_is_clear(robot, tree, tail, resolution, dynamic, voxel_size, escape)
             ):
                 return ReflexMove("backtrack", tail)
     if report.on_obstacle is None:
