@@ -359,7 +359,7 @@ def time_parameterize(
     path's first direction continue instead of being asked to be at rest (re-planning
     on the fly); it is capped by the limits there. `straight_share`: the share of each
     joint's acceleration the tangent may use on straight stretches more than
-    `CORNER_REACH` steps from a corner (0.5, the split, everywhere by default; up to 1)."""
+    `CORNER_REACH` segments from a corner (0.5, the split, everywhere by default; up to 1)."""
     path = np.asarray(path, dtype=np.float64)
     if path.ndim != 2 or len(path) < 1:
         raise ValueError(f"path must be an (M, dof) array with M >= 1, got shape {path.shape}")
