@@ -140,6 +140,12 @@ def test_straight_stretches_may_use_the_whole_acceleration():
             assert moving.sum() > 10
             assert np.all(used[moving] <= want * (1 + 1e-6))
             assert np.median(used[moving]) > 0.98 * want
+            # Within CORNER_REACH segments of a corner the tangent keeps to half (the
+            # corner's jump takes the rest); the curvature sits at the corner knots.
+            near = ~far
+            near[corner - 1] = near[corner] = False  # the segments touching a corner
+            tangential = np.abs(accel[near]) / A_MAX
+            assert near.sum() > 0 and np.all(tangential.max(axis=1) <= 0.5 * (1 + 1e-6))
     with pytest.raises(ValueError, match="straight_share"):
         time_parameterize(np.stack([A, B]), V_MAX, A_MAX, straight_share=1.5)
 
@@ -571,6 +577,7 @@ def test_track_velocities_equal_least_squares_fits():
     p = rng.normal(size=(4, 3))
     assert not np.any(_velocities([(1.0, p[0])])[0])
     assert not np.any(_velocities([(1.0, x) for x in p])[1])  # one time: no velocity
+    assert not np.any(_velocities([(0.1, x) for x in p[:3]])[0])  # (0.1's mean is not 0.1)
     two_times = [(1.0, p[0]), (1.0, p[1]), (2.0, p[2]), (2.0, p[3])]
     slope, now = _velocities(two_times)  # a line fits, a parabola does not: the slope
     np.testing.assert_allclose(slope, (p[2] + p[3] - p[0] - p[1]) / 2)

@@ -61,6 +61,7 @@ def _pixel_grid(shape: tuple[int, int]) -> np.ndarray:
     stride = max(1, round(width / FAR_RAYS_ACROSS))
     grid = np.zeros(shape, dtype=bool)
     grid[::stride, ::stride] = True
+    grid.flags.writeable = False  # shared by every frame of that shape (cached)
     return grid.reshape(-1)
 
 

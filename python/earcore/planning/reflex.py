@@ -312,7 +312,7 @@ def _velocity_weights(times: list[float]) -> tuple[list[float] | None, list[floa
     floats: for a handful of samples numpy's per-call cost was most of the reflex
     layer's tracking time."""
     n = len(times)
-    if n < 2:
+    if n < 2 or max(times) == min(times):  # (t - mean need not round to 0 then)
         return None, None
     mean = sum(times) / n
     tc = [t - mean for t in times]
