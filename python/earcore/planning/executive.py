@@ -396,7 +396,8 @@ class Executive:
         if stop.duration > 0 and not self._clear(path[:2], escape=escape):
             return None
         traj = time_parameterize(
-            path, self.v_max, self.a_max, control_period=self.cell.config.time_step, straight_share=self.config.straight_acceleration_share
+            path, self.v_max, self.a_max, control_period=self.cell.config.time_step,
+            straight_share=self.config.straight_acceleration_share,
         )
         return stop.then(traj)
 

@@ -317,7 +317,7 @@ def _velocity_weights(times: list[float]) -> tuple[list[float] | None, list[floa
     mean = sum(times) / n
     tc = [t - mean for t in times]
     denom = sum(c * c for c in tc)
-    if denom <= 0:
+    if denom <= 0:  # (times apart by less than the square root of the smallest double)
         return None, None
     slope = [c / denom for c in tc]
     if n < 4:
