@@ -318,7 +318,7 @@ def test_far_points_clear_the_space_inside_the_crop_sphere():
     import dataclasses
 
     from earcore.perception import PerceptionPipeline
-    from earcore.perception.pipeline import _cut_at_sphere
+    from earcore.perception.pipeline import FAR_RAYS_ACROSS, _cut_at_sphere
     from earcore.sim.cell import SimulatedCell
 
     # The cut: where each ray leaves the sphere, on the segment, |c - centre| = radius.
@@ -340,6 +340,7 @@ def test_far_points_clear_the_space_inside_the_crop_sphere():
     assert np.allclose(_cut_at_sphere(ends, outside, centre, radius), [centre + [-radius, 0.0, 0.0]])
 
     config = small_run_config(0.2)
+    config.cell.camera_scale = 0.6  # 307 px wide: the far rays take every second pixel
     config.cell.cameras = [c for c in config.cell.cameras if c.name == "kinect_v2_left"]
     config.cell.person.enabled = False
     cell = SimulatedCell(config.cell)
@@ -347,15 +348,28 @@ def test_far_points_clear_the_space_inside_the_crop_sphere():
     while not frames:
         cell.step()
         frames = cell.capture()
-    known = {}
+    known, cleared = {}, []
     for clear in (True, False):
         perception = dataclasses.replace(config.perception, clear_beyond_crop=clear)
         pipeline = PerceptionPipeline(perception, cell.model)
+        if clear:  # record what process() hands over as far rays
+            insert = pipeline._insert_free_rays
+            pipeline._insert_free_rays = lambda origins, lows, far: (cleared.extend(far), insert(origins, lows, far))
         pipeline.process(frames, cell.q, cell.time)
         known[clear] = pipeline
     pose = known[True]._pose_of(frames[0])
-    points = known[True]._points_of(frames[0], base_from_camera=pose)
+    points, pixels = known[True]._points_of(frames[0], base_from_camera=pose, return_pixels=True)
     base = cell.model.base[:3, 3]
+    # End to end: the far rays are the points on the pixel grid (every stride-th row and
+    # column) strictly beyond the crop radius, cut where they leave the sphere; no
+    # point inside the sphere makes one.
+    height, width = frames[0].depth.shape
+    stride = max(1, round(width / FAR_RAYS_ACROSS))
+    on_grid = ((pixels % width) % stride == 0) & ((pixels // width) % stride == 0)
+    outside = np.linalg.norm(points - base, axis=1) > config.perception.crop_radius
+    want = _cut_at_sphere(points[on_grid & outside], pose[:3, 3], base, config.perception.crop_radius)
+    assert len(cleared) == 1 and len(want) > 100
+    np.testing.assert_array_equal(cleared[0], want)
     beyond = points[np.linalg.norm(points - base, axis=1) > config.perception.crop_radius + 0.1]
     cut = _cut_at_sphere(beyond, pose[:3, 3], base, config.perception.crop_radius)
     # 15 cm before each far ray leaves the sphere.
