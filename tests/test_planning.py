@@ -857,6 +857,136 @@ def test_reflex_layer_runs_single_threaded_and_restores_the_setting():
     assert earcore.get_num_threads() == before
 
 
+class KinematicCell:
+    """What the executive sees of the cell, without pybullet: the cell's own step rule
+    (q ← clip(q + q̇·dt, limits), `Cell.step`) and the UR5's limits."""
+
+    def __init__(self, robot, q, *, time_step=1 / 30):
+        from types import SimpleNamespace
+
+        self.model = robot
+        self.config = SimpleNamespace(robot="ur5", padding=0.005, time_step=time_step)
+        self.controller = SimpleNamespace(max_velocity=V_MAX, max_acceleration=A_MAX)
+        self.person = None
+        self.q = np.array(q, dtype=np.float64)
+        self.time = 0.0
+        self._commanded = np.zeros(robot.dof)
+
+    def command_velocities(self, qd):
+        self._commanded = np.asarray(qd, dtype=np.float64)
+
+    def step(self):
+        lo, hi = self.model.joint_limits.T
+        self.q = np.clip(self.q + self._commanded * self.config.time_step, lo, hi)
+        self.time += self.config.time_step
+
+
+def moving_executive(robot, tree, q, velocity):
+    """An executive whose arm is at q moving at `velocity` (rad/s), no plan running."""
+    from types import SimpleNamespace
+
+    from earcore.planning.executive import Executive, TripReport
+    from earcore.sim.config import PlanningConfig
+
+    cell = KinematicCell(robot, q)
+    executive = Executive(cell, SimpleNamespace(tree=tree), PlanningConfig(warmup=0.0), [B])
+    executive.trip = TripReport(goal=0, start_time=0.0)  # mid-trip: control() starts none
+    executive.command = np.asarray(velocity, dtype=np.float64)
+    return executive
+
+
+#: The pan joint swinging at 1.5 rad/s, and a plan that lifts the arm (joints 2-3):
+#: the pan cannot stop at once, so the arm swings ~0.6 rad past the plan's start.
+SWING = np.array([1.5, 0.0, 0.0, 0.0, 0.0, 0.0])
+LIFT = np.array([A, A + [0.0, 0.5, -0.5, 0.0, 0.0, 0.0]])
+
+
+def test_follower_commands_stay_within_the_limits():
+    from earcore.planning.follower import Follower
+
+    rng = np.random.default_rng(3)
+    follower = Follower(V_MAX, A_MAX)
+    dt = 1 / 30
+    for _ in range(200):
+        q, now = rng.uniform(-3, 3, (2, 6))
+        ahead = now + rng.uniform(-0.1, 0.1, 6)
+        last = rng.uniform(-1.57, 1.57, 6)
+        command = follower.command(q, last, now, ahead, dt)
+        assert np.all(np.abs(command) <= V_MAX + 1e-12)
+        assert np.all(np.abs(command - last) <= A_MAX * dt + 1e-12)
+    # No reference: every joint brakes at its limit, and rests once it can.
+    last = np.array([1.0, -0.5, 0.03, 0.0, -0.06, 0.2])
+    assert follower.command(np.zeros(6), last, None, None, dt) == pytest.approx(
+        np.sign(last) * np.maximum(np.abs(last) - A_MAX * dt, 0.0), abs=1e-15)
+
+
+def test_rollout_is_the_motion_the_executive_runs(ur5):
+    executive = moving_executive(ur5, earcore.OcTree(0.05), A, SWING)
+    assert executive._start_motion(LIFT, "plan")
+    rollout = executive.follower.rollout(
+        executive.motion.trajectory, A, SWING, executive.cell.config.time_step, ur5.joint_limits)
+    assert rollout.rejoined and rollout.largest_error > 0.3  # a real detour, then back on the path
+    # The executive's own loop on the cell's step rule passes through the same states.
+    cell, executed = executive.cell, [executive.cell.q.copy()]
+    for _ in range(len(rollout.states) - 1):
+        executive.control(cell.config.time_step)
+        cell.step()
+        executed.append(cell.q.copy())
+    np.testing.assert_allclose(np.array(executed), rollout.states, atol=1e-12)
+    # From there on the arm stays on the timed path.
+    t = cell.time - executive.motion.start
+    for _ in range(30):
+        executive.control(cell.config.time_step)
+        cell.step()
+        t += cell.config.time_step
+        assert np.abs(cell.q - executive.motion.trajectory.sample(t)).max() < 2e-3
+
+
+def test_a_plan_whose_way_on_is_blocked_does_not_start(ur5):
+    from earcore.planning.follower import Follower
+    from earcore.planning.trajectory import time_parameterize
+
+    # Where the swing carries the tool, off the plan's own path: one voxel there.
+    trajectory = time_parameterize(LIFT, V_MAX, A_MAX, control_period=1 / 30)
+    swing = Follower(V_MAX, A_MAX).rollout(trajectory, A, SWING, 1 / 30, ur5.joint_limits).states
+    widest = swing[np.abs(swing - A).max(axis=1).argmax()]
+    tree = earcore.OcTree(0.05)
+    tree.update_nodes(ur5.fk(widest)[-1, :3, 3][None])
+    # The reference: the plan's path is free, the states the arm would pass through are not.
+    assert not dense_collides(ur5, tree, LIFT)
+    assert ur5.check_configurations(tree, swing).any()
+
+    executive = moving_executive(ur5, tree, A, SWING)
+    assert not executive._start_motion(LIFT, "plan")
+    assert executive.motion is None and len(executive.log.refused_transitions) == 1
+    assert executive.log.refused_transitions[0][1] > 0.3
+    # The arm brakes instead (the way a stop takes is along its own swing, clear here)
+    # and, at rest, the same plan starts.
+    executive.motion = None
+    for _ in range(30):
+        executive.control(1 / 30)
+        executive.cell.step()
+    assert not np.any(executive.command)
+    assert executive._start_motion(np.array([executive.cell.q, LIFT[1]]), "plan")
+
+
+def test_a_running_plan_is_checked_along_the_way_the_arm_takes(ur5):
+    tree = earcore.OcTree(0.05)
+    executive = moving_executive(ur5, tree, A, SWING)
+    assert executive._start_motion(LIFT, "plan")  # the map is empty: the swing is free
+    for _ in range(3):
+        executive.control(1 / 30)
+        executive.cell.step()
+    ahead = executive._remaining()
+    np.testing.assert_array_equal(ahead[0], executive.cell.q)
+    # Something appears where the rest of the swing goes, off the planned path.
+    widest = ahead[np.abs(ahead[:, 0] - A[0]).argmax()]
+    tree.update_nodes(ur5.fk(widest)[-1, :3, 3][None])
+    reference = executive.motion.trajectory.remaining_path(executive.cell.time - executive.motion.start)
+    assert executive.planner.rrt.path_is_valid(reference)
+    assert not executive.planner.rrt.path_is_valid(ahead)
+
+
 @pytest.mark.slow
 def test_executive_shuttles_in_the_cell(tmp_path):
     pytest.importorskip("pybullet")

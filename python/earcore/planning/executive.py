@@ -18,6 +18,7 @@ import numpy as np
 
 import earcore
 from earcore.planning.errors import PlanningError, StartInCollision
+from earcore.planning.follower import Follower
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
 from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, path_is_clear, plan_recovery, plan_reflex
 from earcore.planning.trajectory import StopThenMove, Trajectory, Transfer, braking, path_length, time_parameterize, transfer
@@ -95,6 +96,9 @@ class ExecutiveLog:
     risk: list[RiskReport] = field(default_factory=list)
     #: (time, message) of every planning call that produced no path.
     failures: list[tuple[float, str]] = field(default_factory=list)
+    #: (time, largest joint distance from the path in rad) of every plan not started
+    #: because the robot's way onto it, from its velocity then, was not free.
+    refused_transitions: list[tuple[float, float]] = field(default_factory=list)
 
 
 class Executive:
@@ -138,8 +142,7 @@ class Executive:
         self.a_max = cell.controller.max_acceleration
         self.motion: _Motion | None = None
         self.command = np.zeros(self.robot.dof)
-        #: Position feedback gain of the trajectory follower (1/s).
-        self.gain = 8.0
+        self.follower = Follower(self.v_max, self.a_max)
         self.goal_index = 0
         self.trip: TripReport | None = None
         self.trips: list[TripReport] = []
@@ -161,7 +164,9 @@ class Executive:
 
     # --- helpers -----------------------------------------------------------------
 
-    def _start_motion(self, path: np.ndarray, kind: str) -> None:
+    def _start_motion(self, path: np.ndarray, kind: str) -> bool:
+        """Run `path` from here. A plan starts only if the robot's way onto it is free
+        (`_transition_is_free`); returns whether the motion started."""
         if kind == "plan":
             # Corners rounded where still valid; reflex moves run as they are (no time to check).
             path = self.planner.rrt.rounded(path, self.config.blend_deviation)
@@ -173,12 +178,39 @@ class Executive:
             path, self.v_max, self.a_max, control_period=self.cell.config.time_step, initial_speed=along,
             straight_share=self.config.straight_acceleration_share,
         )
+        if kind == "plan" and not self._transition_is_free(traj):
+            return False
         self.motion = _Motion(traj, self.cell.time, kind)
+        return True
+
+    def _transition_is_free(self, traj: Trajectory) -> bool:
+        """Whether the states the follower passes through from the robot's position and
+        velocity until it has rejoined `traj` are free (the map and the keep-out, as
+        the planner checks paths). From rest they are the path's own (it rejoins in a
+        step); while the arm moves they are not, and a switch into a blocked transition
+        would carry the arm off its checked path into what the plan avoided. Refused
+        transitions are counted in the log."""
+        rollout = self.follower.rollout(
+            traj, self.cell.q, self.command, self.cell.config.time_step, self.robot.joint_limits,
+        )
+        if rollout.rejoined and self.planner.rrt.path_is_valid(rollout.states):
+            return True
+        self.log.refused_transitions.append((self.cell.time, rollout.largest_error))
+        return False
 
     def _remaining(self) -> np.ndarray | None:
+        """The way the robot will go on its motion from here: the follower's states until
+        it is back on the reference (one step when it is on it), then the reference's
+        remaining knots. Checked every frame, so a map that changes during a
+        transition is seen on the way the arm really takes."""
         if self.motion is None:
             return None
-        return self.motion.trajectory.remaining_path(self.cell.time - self.motion.start)
+        t = self.cell.time - self.motion.start
+        rollout = self.follower.rollout(
+            self.motion.trajectory, self.cell.q, self.command, self.cell.config.time_step,
+            self.robot.joint_limits, start=t,
+        )
+        return np.vstack([rollout.states, self.motion.trajectory.remaining_path(t + rollout.duration)[1:]])
 
     def _plan(self, q: np.ndarray) -> PlanChoice | None:
         goal = self.goals[self.goal_index]
@@ -241,19 +273,11 @@ class Executive:
         q = self.cell.q
         if self.trip is None and self.cell.time >= self.config.warmup:
             self._new_trip()
-        desired = np.zeros_like(q)
+        now = ahead = None
         if self.motion is not None:
-            # Feed-forward of the reference's velocity plus a feedback on the position
-            # error that never asks for more speed than can be braked away before the
-            # error closes (√(2·a·|e|)): no overshoot when the reference changes abruptly.
             t = self.cell.time - self.motion.start
             now, ahead = self.motion.trajectory.sample(np.array([t, t + dt]))
-            error = now - q
-            feedback = np.sign(error) * np.minimum(self.gain * np.abs(error), np.sqrt(2 * self.a_max * np.abs(error)))
-            desired = (ahead - now) / dt + feedback
-        step = self.a_max * dt
-        command = np.clip(desired, self.command - step, self.command + step)
-        self.command = np.clip(command, -self.v_max, self.v_max)
+        self.command = self.follower.command(q, self.command, now, ahead, dt)
         self.cell.command_velocities(self.command)
 
     def after_step(self) -> None:
@@ -322,7 +346,8 @@ class Executive:
                     self.motion = None
                 return report
             if blocked or self.motion is None:
-                self._start_motion(choice.path, "plan")
+                if not self._start_motion(choice.path, "plan"):
+                    self.motion = None  # stop: the arm brakes, and the next frame plans from where it is
             else:
                 current = self.planner.cost(remaining) if len(remaining) > 1 else 0.0
                 if choice.cost < (1 - self.config.replan_gain) * current:
@@ -424,6 +449,7 @@ class Executive:
             out[key] = (float(values.mean()), float(values.std())) if len(values) else (float("nan"), float("nan"))
         for key in ("collisions", "reflexes", "stops", "plans"):
             out[key] = int(sum(getattr(t, key) for t in trips))
+        out["refused_transitions"] = len(self.log.refused_transitions)
         clear = [t.min_clearance for t in trips]
         out["min_clearance"] = float(min(clear)) if clear else float("inf")
         lat = np.array(self.reflex_latencies)
