@@ -96,9 +96,10 @@ class ExecutiveLog:
     risk: list[RiskReport] = field(default_factory=list)
     #: (time, message) of every planning call that produced no path.
     failures: list[tuple[float, str]] = field(default_factory=list)
-    #: (time, largest joint distance from the path in rad) of every plan not started
-    #: because the robot's way onto it, from its velocity then, was not free.
-    refused_transitions: list[tuple[float, float]] = field(default_factory=list)
+    #: Every plan not started because the way the arm would take onto it from its
+    #: velocity then was not free ("rejoined": False where the arm would not have got
+    #: back onto the path within the follower's horizon).
+    refused_plans: list[dict] = field(default_factory=list)
 
 
 class Executive:
@@ -164,53 +165,54 @@ class Executive:
 
     # --- helpers -----------------------------------------------------------------
 
-    def _start_motion(self, path: np.ndarray, kind: str) -> bool:
-        """Run `path` from here. A plan starts only if the robot's way onto it is free
-        (`_transition_is_free`); returns whether the motion started."""
-        if kind == "plan":
-            # Corners rounded where still valid; reflex moves run as they are (no time to check).
+    def _timed(self, path: np.ndarray, *, plan: bool) -> Trajectory:
+        """`path` timed from here, keeping the speed the robot already has along its
+        first direction. A plan's corners are rounded where the rounded path is still
+        valid; reflex moves run as they are (no time to check a rounding)."""
+        if plan:
             path = self.planner.rrt.rounded(path, self.config.blend_deviation)
-        # Keep the speed the robot already has along the new path's first direction.
         first = path[1] - path[0] if len(path) > 1 else np.zeros(len(path[0]))
         norm = float(np.linalg.norm(first))
         along = float(self.command @ first) / norm if norm > 0 else 0.0
-        traj = time_parameterize(
+        return time_parameterize(
             path, self.v_max, self.a_max, control_period=self.cell.config.time_step, initial_speed=along,
             straight_share=self.config.straight_acceleration_share,
         )
-        if kind == "plan" and not self._transition_is_free(traj):
+
+    def _way(self, trajectory, t: float = 0.0) -> tuple[np.ndarray, bool]:
+        """The way the robot goes on `trajectory` from its time t, starting where it is
+        at the velocity it has: the follower's states until it is back on the reference
+        (one step when it is on it already; `Follower.rollout`), then the reference's
+        knots after that; and whether it got back on within the roll-out's horizon.
+        While the arm moves across a new path, the follower brakes that velocity first
+        and the arm leaves the path it was planned on (up to 0.6 rad for a fast swing):
+        what is checked and costed has to be this way, not the path."""
+        rollout = self.follower.rollout(
+            trajectory, self.cell.q, self.command, self.cell.config.time_step, self.robot.joint_limits, start=t,
+        )
+        return np.vstack([rollout.states, trajectory.remaining_path(t + rollout.duration)[1:]]), rollout.rejoined
+
+    def _start_plan(self, path: np.ndarray, *, cheaper_than: float | None = None) -> bool:
+        """Run the planned `path` from here if the way the arm will take (`_way`) is free
+        on the map and the keep-out, as the planner checks paths, and, given
+        `cheaper_than`, costs less than that on the danger map. A plan refused for its
+        way is logged. Returns whether the plan started."""
+        trajectory = self._timed(path, plan=True)
+        way, rejoined = self._way(trajectory)
+        if cheaper_than is not None and self.planner.cost(way) >= cheaper_than:
             return False
-        self.motion = _Motion(traj, self.cell.time, kind)
+        if not (rejoined and self.planner.rrt.path_is_valid(way)):
+            self.log.refused_plans.append({"time": self.cell.time, "rejoined": rejoined})
+            return False
+        self.motion = _Motion(trajectory, self.cell.time, "plan")
         return True
 
-    def _transition_is_free(self, traj: Trajectory) -> bool:
-        """Whether the states the follower passes through from the robot's position and
-        velocity until it has rejoined `traj` are free (the map and the keep-out, as
-        the planner checks paths). From rest they are the path's own (it rejoins in a
-        step); while the arm moves they are not, and a switch into a blocked transition
-        would carry the arm off its checked path into what the plan avoided. Refused
-        transitions are counted in the log."""
-        rollout = self.follower.rollout(
-            traj, self.cell.q, self.command, self.cell.config.time_step, self.robot.joint_limits,
-        )
-        if rollout.rejoined and self.planner.rrt.path_is_valid(rollout.states):
-            return True
-        self.log.refused_transitions.append((self.cell.time, rollout.largest_error))
-        return False
-
     def _remaining(self) -> np.ndarray | None:
-        """The way the robot will go on its motion from here: the follower's states until
-        it is back on the reference (one step when it is on it), then the reference's
-        remaining knots. Checked every frame, so a map that changes during a
-        transition is seen on the way the arm really takes."""
+        """The way the robot will go on its motion from here (`_way`): checked every
+        frame, so a map that changes during a transition is seen where the arm goes."""
         if self.motion is None:
             return None
-        t = self.cell.time - self.motion.start
-        rollout = self.follower.rollout(
-            self.motion.trajectory, self.cell.q, self.command, self.cell.config.time_step,
-            self.robot.joint_limits, start=t,
-        )
-        return np.vstack([rollout.states, self.motion.trajectory.remaining_path(t + rollout.duration)[1:]])
+        return self._way(self.motion.trajectory, self.cell.time - self.motion.start)[0]
 
     def _plan(self, q: np.ndarray) -> PlanChoice | None:
         goal = self.goals[self.goal_index]
@@ -240,7 +242,9 @@ class Executive:
             move_away_distance=self.config.move_away_distance, resolution=self.config.motion_resolution,
         )
         if move is not None:
-            self._start_motion(move.path, "reflex")
+            # Its way is not checked: the arm touches the map where it starts, so every
+            # way out begins in collision (the move itself only gains clearance).
+            self.motion = _Motion(self._timed(move.path, plan=False), self.cell.time, "reflex")
             self.log.reflexes.append({"time": self.cell.time, "kind": "recover_" + move.kind})
 
     def _new_trip(self) -> None:
@@ -251,7 +255,7 @@ class Executive:
         self._last_replan = self.cell.time
         choice = self._plan(self.cell.q)
         if choice is not None:
-            self._start_motion(choice.path, "plan")
+            self._start_plan(choice.path)
 
     def _finish_trip(self) -> None:
         trip = self.trip
@@ -331,7 +335,7 @@ class Executive:
             elif self.motion is None and np.abs(self.command).max() < 1e-3:
                 choice = self._plan(q)
                 if choice is not None:
-                    self._start_motion(choice.path, "plan")
+                    self._start_plan(choice.path)
             return report
         # Predictive: re-plan when blocked, when idle, or periodically when the danger
         # map offers a clearly cheaper path.
@@ -342,16 +346,17 @@ class Executive:
                 self.trip.stops += 1
             choice = self._plan(q)
             if choice is None:
-                if blocked:
-                    self.motion = None
+                if blocked and self.motion is not None and self.motion.kind == "plan":
+                    self.motion = None  # (a recovery `_plan` may have started stays)
                 return report
             if blocked or self.motion is None:
-                if not self._start_motion(choice.path, "plan"):
+                if not self._start_plan(choice.path):
                     self.motion = None  # stop: the arm brakes, and the next frame plans from where it is
             else:
+                # Both costed along the way the arm would take; a refused switch keeps
+                # the current motion.
                 current = self.planner.cost(remaining) if len(remaining) > 1 else 0.0
-                if choice.cost < (1 - self.config.replan_gain) * current:
-                    self._start_motion(choice.path, "plan")
+                self._start_plan(choice.path, cheaper_than=(1 - self.config.replan_gain) * current)
         return report
 
     def _reflex_layer(self, cell, q: np.ndarray) -> tuple[RiskReport, bool]:
@@ -383,12 +388,13 @@ class Executive:
                 kind = "backtrack" if move.kind == "backtrack" else "reflex"
                 # The robot is moving and cannot turn on the spot: run the motion it
                 # will really make from here, checked as such; where that is not clear,
-                # the planned move from here as it is (the follower brakes into it).
+                # the planned move timed from here, if the way the follower takes onto
+                # it is clear.
                 motion = self._reflex_motion(q, move, escape=report.clearance <= 0)
+                if motion is None:
+                    motion = self._timed_reflex(move.path, escape=report.clearance <= 0)
                 if motion is not None:
                     self.motion = _Motion(motion, cell.time, kind)
-                elif move.kind == "backtrack" or self._clear(move.path, escape=report.clearance <= 0):
-                    self._start_motion(move.path, kind)
                 else:
                     move, self.motion = None, None  # nothing free: stop where we are
             else:
@@ -426,6 +432,13 @@ class Executive:
         )
         return stop.then(traj)
 
+    def _timed_reflex(self, path: np.ndarray, *, escape: bool) -> Trajectory | None:
+        """A reflex `path` timed from here, if the way the follower takes onto it and
+        along it (`_way`) is clear (`_clear`); else None."""
+        timed = self._timed(path, plan=False)
+        way, rejoined = self._way(timed)
+        return timed if rejoined and self._clear(way, escape=escape) else None
+
     def _clear(self, path: np.ndarray, *, escape: bool, sampled: bool = False) -> bool:
         """A reflex path clear of the static scene and this frame's moving voxels."""
         return path_is_clear(
@@ -449,7 +462,7 @@ class Executive:
             out[key] = (float(values.mean()), float(values.std())) if len(values) else (float("nan"), float("nan"))
         for key in ("collisions", "reflexes", "stops", "plans"):
             out[key] = int(sum(getattr(t, key) for t in trips))
-        out["refused_transitions"] = len(self.log.refused_transitions)
+        out["refused_plans"] = len(self.log.refused_plans)
         clear = [t.min_clearance for t in trips]
         out["min_clearance"] = float(min(clear)) if clear else float("inf")
         lat = np.array(self.reflex_latencies)

@@ -129,7 +129,7 @@ def table2(trips: int = 15, seed: int = 0, camera_scale: float = 0.25, out: Path
             "min_clearance_m": min((m["min_clearance"] for m in moves), default=float("inf")),
             "reflex_compute_ms": summary.get("planning", {}).get("reflex_compute_ms"),
             "reflex_cpu_ms": summary.get("planning", {}).get("reflex_cpu_ms"),
-            "refused_transitions": summary.get("planning", {}).get("refused_transitions", 0),
+            "refused_plans": summary.get("planning", {}).get("refused_plans", 0),
             "wall_s": round(time.perf_counter() - t0, 1),
         }
         print(f"  {name}: {len(pairs)} return trips in {results[name]['wall_s']} s", file=sys.stderr)

@@ -5,9 +5,9 @@ A new plan usually starts while the robot still moves along the old one. The new
 path is timed from the robot's position with only the speed it has along the path's
 first direction; the rest of its velocity the follower brakes away within the
 acceleration limit, and meanwhile the robot is off the path that was checked (up to
-7 cm at the tool in the experiments). The control law is deterministic, so the
-executive rolls it out before it switches and checks the states the robot will
-really pass through (`Follower.rollout`).
+7 cm at the tool in the experiments before the executive checked it). The control
+law is deterministic, so the executive rolls it out (`Follower.rollout`) and checks
+the states the robot will really pass through.
 """
 
 from __future__ import annotations
@@ -43,6 +43,10 @@ class Follower:
     max_acceleration: np.ndarray
     #: Position feedback gain (1/s).
     gain: float = 8.0
+    #: The roll-out follows a transition this long at most (s), and counts the robot
+    #: back on its motion within `tolerance` (rad) of it.
+    horizon: float = 3.0
+    tolerance: float = 1e-3
 
     def command(self, q: np.ndarray, command: np.ndarray, now: np.ndarray | None, ahead: np.ndarray | None, dt: float) -> np.ndarray:
         """The next velocity command from position q and the last `command`, tracking
@@ -65,18 +69,16 @@ class Follower:
         joint_limits: np.ndarray,
         *,
         start: float = 0.0,
-        horizon: float = 3.0,
-        tolerance: float = 1e-3,
     ) -> Rollout:
         """Follow `motion` (anything with `sample(times)`) from its time `start`, with
         the robot at q moving at `command`, as the cell does: q ← clip(q + command·dt,
-        limits).
-        Rejoined: every joint within `tolerance` (rad) of the reference and its command
-        within one step's acceleration of the reference's velocity; from there on the
-        robot runs the motion as planned."""
+        limits). Rejoined: every joint within `tolerance` of the reference and its
+        command within one step's acceleration of the reference's velocity (without the
+        velocity condition an arm crossing the reference at speed counts as back on it);
+        from there on the robot stays within a few milliradians of the motion."""
         q = np.asarray(q, dtype=np.float64).copy()
         command = np.asarray(command, dtype=np.float64).copy()
-        steps = max(1, int(np.ceil(horizon / dt)))
+        steps = max(1, int(np.ceil(self.horizon / dt)))
         # The reference at every step at once (one call), then the loop: the feedback
         # depends on the state, so the steps cannot be batched.
         reference = motion.sample(start + np.arange(steps + 2) * dt)
@@ -91,6 +93,6 @@ class Follower:
             error = np.abs(reference[k + 1] - q)
             largest = max(largest, float(error.max()))
             velocity = (reference[k + 2] - reference[k + 1]) / dt
-            if error.max() < tolerance and np.all(np.abs(command - velocity) <= slack):
+            if error.max() < self.tolerance and np.all(np.abs(command - velocity) <= slack):
                 return Rollout(np.array(states), True, (k + 1) * dt, largest)
         return Rollout(np.array(states), False, steps * dt, largest)
