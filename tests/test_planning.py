@@ -949,6 +949,17 @@ def test_follower_commands_stay_within_the_limits():
     last = np.array([1.0, -0.5, 0.03, 0.0, -0.06, 0.2])
     assert follower.command(np.zeros(6), last, None, None, dt) == pytest.approx(
         np.sign(last) * np.maximum(np.abs(last) - A_MAX * dt, 0.0), abs=1e-15)
+    # Bad input: clear errors from the core, never a panic.
+    with pytest.raises(ValueError, match="limits"):
+        Follower(V_MAX, np.zeros(6)).command(q, last, None, None, dt)
+    with pytest.raises(ValueError, match="finite"):
+        follower.command(q, last * np.nan, None, None, dt)
+    with pytest.raises(ValueError, match="both"):
+        follower.command(q, last, now, None, dt)
+    with pytest.raises(ValueError, match="joints"):
+        follower.command(q[:5], last, None, None, dt)
+    with pytest.raises(ValueError, match="dt"):
+        follower.command(q, last, None, None, 0.0)
 
 
 @pytest.mark.parametrize("pan", [0.0, 2 * np.pi - 0.05])  # the second swings into the pan's limit

@@ -3,6 +3,7 @@
 mod cloud;
 mod convert;
 mod errors;
+mod follower;
 mod icp;
 mod octree;
 mod robot;
@@ -36,6 +37,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<octree::PyFrameReport>()?;
     m.add_class::<surface::PySurfaceMap>()?;
     m.add_class::<robot::PyRobotModel>()?;
+    m.add_class::<follower::PyFollower>()?;
     m.add_function(wrap_pyfunction!(robot::fit_body, m)?)?;
     m.add_class::<icp::PyPlaneTarget>()?;
     m.add_class::<icp::PyIcpResult>()?;

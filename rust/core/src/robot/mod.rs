@@ -6,6 +6,7 @@ pub mod capsule;
 pub mod chain;
 pub mod collision;
 pub mod fit;
+pub mod follower;
 pub mod model;
 pub mod self_filter;
 pub mod voxel_index;
@@ -18,6 +19,7 @@ pub use collision::{
     motion_danger, touches_boxes, CheckParams, Contact,
 };
 pub use fit::{fit_body, fit_capsule, fit_cylinder, FitShape};
+pub use follower::{Follower, Rollout};
 pub use model::{LazyPlacement, PlacedBodies, RobotModel};
 pub use self_filter::self_filter;
 pub use voxel_index::{Clearance, SampleVerdict, UndecidedRuns, VoxelIndex, VoxelSource};
