@@ -35,6 +35,7 @@ __all__ = [
     "rigid_fit_ransac",
     "icp_point_to_plane_raw",
     "RobotModel",
+    "Follower",
     "fit_body",
     "robot_cell_voxels",
 ]
@@ -284,6 +285,21 @@ _BodySpec = tuple[tuple[float, float, float], tuple[float, float, float], float,
 _JointSpec = tuple[
     str, str, int, int, tuple[float, float, float], tuple[float, float, float], tuple[float, float, float], float, float
 ]
+
+@final
+class Follower:
+    def __new__(cls, max_velocity: _ArrayLike, max_acceleration: _ArrayLike, gain: float) -> Follower: ...
+    def command(self, q: _ArrayLike, last: _ArrayLike, now: _ArrayLike | None, ahead: _ArrayLike | None, dt: float) -> _F64: ...
+    def rollout(
+        self,
+        reference: _ArrayLike,
+        q: _ArrayLike,
+        command: _ArrayLike,
+        dt: float,
+        lower: _ArrayLike,
+        upper: _ArrayLike,
+        tolerance: float,
+    ) -> tuple[_F64, bool, int, float]: ...
 
 def fit_body(vertices: _ArrayLike, padding: float = 0.0, shape: str = "auto") -> _BodySpec: ...
 
