@@ -1069,6 +1069,26 @@ def test_a_blocked_plan_stops_when_its_replacement_cannot_start(ur5):
     assert len(executive.log.refused_plans) == 1
 
 
+def test_a_recovery_started_on_a_blocked_frame_runs(ur5):
+    """A blocked frame whose planning call finds the start touching the map starts a
+    recovery (`_recover`): the blocked branch must not cancel it."""
+    from earcore.planning.executive import _Motion
+
+    tree, widest = swing_voxel_tree(ur5)
+    executive = moving_executive(ur5, tree, A, SWING, reflexes=False)
+    executive.motion = _Motion(executive._timed(np.array([A, widest]), plan=False), 0.0, "plan")
+    recovery = executive._timed(np.array([A, A - [0.3, 0, 0, 0, 0, 0]]), plan=False)
+
+    def plan_that_recovers(q):
+        executive.motion = _Motion(recovery, executive.cell.time, "reflex")  # as `_recover` does
+        return None
+
+    executive._plan = plan_that_recovers
+    executive.on_frame()
+    assert executive.trip.stops == 1
+    assert executive.motion is not None and executive.motion.trajectory is recovery
+
+
 def test_a_running_plan_is_checked_along_the_way_the_arm_takes(ur5):
     tree = earcore.OcTree(0.05)
     executive = moving_executive(ur5, tree, A, SWING)
