@@ -147,8 +147,10 @@ def format_table(results: dict) -> str:
     lines = ["| | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
     for label, key, fmt in rows:
         lines.append(f"| {label} | " + " | ".join(fmt.format(*results[n][key]) for n in names) + " |")
-    for label, key in (("return trips", "return_trips"), ("collisions", "collisions"), ("reflexes", "reflexes"), ("stops", "stops")):
-        lines.append(f"| {label} | " + " | ".join(str(results[n][key]) for n in names) + " |")
+    counts = (("return trips", "return_trips"), ("collisions", "collisions"), ("reflexes", "reflexes"), ("stops", "stops"),
+              ("plans refused for their way on", "refused_plans"))
+    for label, key in counts:
+        lines.append(f"| {label} | " + " | ".join(str(results[n].get(key, 0)) for n in names) + " |")
     lines.append("| min. robot-person distance (m) | " + " | ".join(
         f"{results[n]['min_clearance_m']:.3f}" if np.isfinite(results[n]["min_clearance_m"]) else "–" for n in names) + " |")
     return "\n".join(lines)

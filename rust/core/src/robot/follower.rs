@@ -267,22 +267,24 @@ mod tests {
     }
 
     #[test]
-    fn a_moving_arm_brakes_onto_a_still_reference_without_overshoot() {
+    fn a_moving_arm_brakes_onto_a_still_reference_and_comes_back() {
         // One joint at 1 rad/s, the reference resting where it is: the arm runs on
         // v²/2a = 0.28 rad (less the discrete steps' share), comes back and stops.
         let f = Follower::new(vec![2.0], vec![1.8], 8.0).unwrap();
         let reference = vec![0.0; 200];
-        let r = f
-            .rollout(
+        let brake = |upper: f64| {
+            f.rollout(
                 &reference,
                 &[0.0],
                 &[1.0],
                 1.0 / 30.0,
                 &[-1.0],
-                &[1.0],
+                &[upper],
                 1e-3,
             )
-            .unwrap();
+            .unwrap()
+        };
+        let r = brake(1.0);
         assert!(r.rejoined);
         let peak = r.states.iter().cloned().fold(f64::MIN, f64::max);
         assert!(
@@ -294,19 +296,10 @@ mod tests {
             r.states.iter().all(|x| *x >= -0.015),
             "swung past the reference"
         );
-        // A joint limit stops it where the cell would.
-        let r = f
-            .rollout(
-                &reference,
-                &[0.0],
-                &[1.0],
-                1.0 / 30.0,
-                &[-1.0],
-                &[0.1],
-                1e-3,
-            )
-            .unwrap();
+        // A joint limit stops it there, as the cell clamps it.
+        let r = brake(0.1);
         assert!(r.states.iter().all(|x| *x <= 0.1));
+        assert!(r.states.contains(&0.1));
     }
 
     #[test]
