@@ -125,21 +125,26 @@ impl Follower {
         reference: Option<(&[f64], &[f64])>,
         dt: f64,
     ) -> Result<Vec<f64>> {
-        let dof = self.dof();
-        sized(q, dof, "q")?;
-        sized(last, dof, "the last command")?;
+        self.check_state(q, last, dt)?;
         if let Some((now, ahead)) = reference {
-            sized(now, dof, "the reference")?;
-            sized(ahead, dof, "the reference ahead")?;
+            sized(now, self.dof(), "the reference")?;
+            sized(ahead, self.dof(), "the reference ahead")?;
         }
+        let mut out = vec![0.0; self.dof()];
+        self.step(q, last, reference, dt, &mut out);
+        Ok(out)
+    }
+
+    /// The robot's state (position, last command) and the step, as `step` needs them.
+    fn check_state(&self, q: &[f64], last: &[f64], dt: f64) -> Result<()> {
+        sized(q, self.dof(), "q")?;
+        sized(last, self.dof(), "the last command")?;
         if !(dt.is_finite() && dt > 0.0) {
             return Err(Error::InvalidArgument(format!(
                 "dt must be finite and > 0, got {dt}"
             )));
         }
-        let mut out = vec![0.0; dof];
-        self.step(q, last, reference, dt, &mut out);
-        Ok(out)
+        Ok(())
     }
 
     /// Follow the `reference` (row-major, one row per step from the start, at least 3
@@ -167,9 +172,9 @@ impl Follower {
             )));
         }
         finite(reference, "the reference")?;
+        self.check_state(q, command, dt)?;
         let mut q = q.to_vec();
         let mut command = command.to_vec();
-        self.command(&q, &command, None, dt)?; // checks q, command and dt
         sized(lower, dof, "the lower joint limits")?;
         sized(upper, dof, "the upper joint limits")?;
         if tolerance.is_nan() {
