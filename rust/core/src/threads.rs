@@ -12,9 +12,14 @@ static CORES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
 static POOL: std::sync::Mutex<Option<(usize, std::sync::Arc<rayon::ThreadPool>)>> =
     std::sync::Mutex::new(None);
 
-/// Set the number of worker threads (0 = one per core).
+/// Most worker threads that may be asked for: far beyond any machine's cores, far
+/// below the thousands whose spawning took minutes.
+pub const MAX_THREADS: usize = 1024;
+
+/// Set the number of worker threads (0 = one per core; more than [`MAX_THREADS`] is
+/// taken as that many: the bindings reject such values before they get here).
 pub fn set_num_threads(n: usize) {
-    NUM_THREADS.store(n, Ordering::Relaxed);
+    NUM_THREADS.store(n.min(MAX_THREADS), Ordering::Relaxed);
 }
 
 /// Threads that parallel loops will use now.

@@ -14,8 +14,17 @@ use pyo3::prelude::*;
 
 /// Number of threads earcore's parallel loops use (0 = one per core).
 #[pyfunction]
-fn set_num_threads(n: usize) {
-    earcore_core::threads::set_num_threads(n)
+fn set_num_threads(n: i64) -> PyResult<()> {
+    let max = earcore_core::threads::MAX_THREADS;
+    match usize::try_from(n) {
+        Ok(n) if n <= max => {
+            earcore_core::threads::set_num_threads(n);
+            Ok(())
+        }
+        _ => Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "num_threads must be 0 (one per core) to {max}, got {n}"
+        ))),
+    }
 }
 
 #[pyfunction]

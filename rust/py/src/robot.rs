@@ -260,6 +260,11 @@ impl PyRobotModel {
         name: Option<String>,
         padding: f64,
     ) -> PyResult<Self> {
+        if !(padding.is_finite() && padding >= 0.0) {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "padding must be a finite length >= 0, got {padding}"
+            )));
+        }
         let joints = joints
             .into_iter()
             .map(
@@ -749,6 +754,12 @@ impl PyRobotModel {
         py.detach(|| {
             let t = tree.read_detached();
             let model = self.read();
+            // Every configuration is checked, a lone one (no segment) included.
+            for i in 0..k {
+                model
+                    .chain()
+                    .check_configuration(&q[i * dof..(i + 1) * dof], i)?;
+            }
             let mut total = 0.0;
             for i in 1..k {
                 let (a, b) = (&q[(i - 1) * dof..i * dof], &q[i * dof..(i + 1) * dof]);

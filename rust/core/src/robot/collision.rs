@@ -233,8 +233,20 @@ fn interpolate_steps(q0: &[f64], q1: &[f64], resolution: f64) -> Result<usize> {
         .zip(q1)
         .map(|(a, b)| (b - a).abs())
         .fold(0.0, f64::max);
-    Ok((largest / resolution).ceil().max(1.0) as usize)
+    let steps = (largest / resolution).ceil().max(1.0);
+    // A resolution far below any joint's precision would ask for more configurations
+    // than memory holds (and `as usize` saturates, which skipped the middle).
+    if steps.is_nan() || steps > MAX_MOTION_STEPS as f64 {
+        return Err(Error::InvalidArgument(format!(
+            "resolution {resolution} rad splits this motion ({largest} rad) into more than \
+             {MAX_MOTION_STEPS} steps: use a coarser resolution"
+        )));
+    }
+    Ok(steps as usize)
 }
+
+/// Most configurations one straight motion is split into (1 µrad over 2π is 6.3 M).
+pub const MAX_MOTION_STEPS: usize = 1 << 24;
 
 /// 0..=n with both ends first, then midpoints of ever finer halvings (each index once).
 fn bisection_order(n: usize) -> Vec<usize> {
