@@ -223,7 +223,7 @@ def icp_point_to_plane_raw(
 def set_num_threads(n: int) -> None: ...
 def get_num_threads() -> int: ...
 def render_depth_points(
-    base_from_camera: npt.NDArray[np.float64],
+    base_from_camera: _ArrayLike,
     spheres: _ArrayLike,
     boxes: _ArrayLike,
     floor_z: float | None = None,
@@ -238,7 +238,7 @@ def render_depth_points(
 ) -> _F64: ...
 def benchmark_frame() -> tuple[_F64, _F64]: ...
 def render_lidar_scan(
-    base_from_sensor: npt.NDArray[np.float64],
+    base_from_sensor: _ArrayLike,
     spheres: _ArrayLike,
     boxes: _ArrayLike,
     floor_z: float | None = None,

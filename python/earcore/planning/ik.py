@@ -70,6 +70,8 @@ def solve_ik(
     if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
         raise ValueError("target's rotation part is not a rotation matrix")
     link = len(robot.link_names) - 1 if link is None else link
+    if not 0 <= link < len(robot.link_names):
+        raise ValueError(f"link must be 0 to {len(robot.link_names) - 1} (the robot's links), got {link}")
     lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
     # Sample restarts within ±π of the middle of wide (±2π) joints.
     mid = 0.5 * (lo + hi)

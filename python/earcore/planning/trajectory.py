@@ -44,6 +44,8 @@ __all__ = [
 def path_length(path: np.ndarray) -> float:
     """Euclidean joint-space length of a polyline (rad)."""
     path = np.asarray(path, dtype=np.float64)
+    if path.ndim != 2:
+        raise ValueError(f"path must be an (M, dof) array, got shape {path.shape}")
     return float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum()) if len(path) > 1 else 0.0
 
 
@@ -367,8 +369,14 @@ def time_parameterize(
         raise ValueError("path contains NaN or infinite values")
     v_max = np.broadcast_to(np.asarray(max_velocity, dtype=np.float64), path.shape[1:])
     a_max = np.broadcast_to(np.asarray(max_acceleration, dtype=np.float64), path.shape[1:])
-    if not (np.all(v_max > 0) and np.all(a_max > 0)):
-        raise ValueError("velocity and acceleration limits must be > 0")
+    if not (np.all(v_max > 0) and np.all(a_max > 0) and np.isfinite(v_max).all() and np.isfinite(a_max).all()):
+        raise ValueError("velocity and acceleration limits must be finite and > 0")
+    if not (np.isfinite(step) and step > 0):
+        raise ValueError(f"step must be finite and > 0, got {step}")
+    if not (np.isfinite(control_period) and control_period > 0):
+        raise ValueError(f"control_period must be finite and > 0, got {control_period}")
+    if not np.isfinite(initial_speed):  # negative (moving away from the path) counts as 0
+        raise ValueError(f"initial_speed must be finite, got {initial_speed}")
     if not 0.5 <= straight_share <= 1.0:
         raise ValueError(f"straight_share must be in [0.5, 1], got {straight_share}")
     path = without_repeats(path)

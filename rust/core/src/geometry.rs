@@ -29,6 +29,25 @@ pub fn check_rigid(m: &Matrix4<f64>, name: &str) -> Result<()> {
     Ok(())
 }
 
+/// Most cells a grid of `size` may count from the origin along an axis: beyond, the
+/// cell indices of neighbouring points stop being distinct (f64 has 53 bits).
+pub const MAX_CELL_INDEX: f64 = (1u64 << 50) as f64;
+
+/// Check that finite `points` lie within [`MAX_CELL_INDEX`] cells of size `size` of
+/// the origin, so that a grid of such cells tells them apart.
+pub fn check_cell_range(points: &[[f64; 3]], size: f64, what: &str) -> Result<()> {
+    let reach = points
+        .as_flattened()
+        .iter()
+        .fold(0.0f64, |m, c| m.max(c.abs()));
+    if reach / size > MAX_CELL_INDEX {
+        return Err(Error::InvalidArgument(format!(
+            "{what} {size} is too small for coordinates up to {reach}: more than 2^50 cells from the origin"
+        )));
+    }
+    Ok(())
+}
+
 /// Error naming the first point (of what `what` calls them) with a NaN or infinite coordinate.
 pub fn check_finite(points: &[[f64; 3]], what: &str) -> Result<()> {
     // One pass without an early exit vectorises; the search runs only on failure.

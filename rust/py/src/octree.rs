@@ -395,8 +395,17 @@ impl PyOcTree {
         &self,
         py: Python<'_>,
         point: &Bound<'_, PyAny>,
-        depth: u32,
+        depth: i64,
     ) -> PyResult<Option<f32>> {
+        let max = earcore_core::octree::TREE_DEPTH;
+        let depth = u32::try_from(depth)
+            .ok()
+            .filter(|&d| d <= max)
+            .ok_or_else(|| {
+                pyo3::exceptions::PyValueError::new_err(format!(
+                    "depth must be 0 to {max}, got {depth}"
+                ))
+            })?;
         let p = vector3(point, "point")?;
         self.with_read(py, |tree| {
             tree.key_of("point", p).map(|key| tree.search(key, depth))

@@ -10,14 +10,15 @@ use pyo3::prelude::*;
 
 use crate::convert::{rows_to_array, vec_to_array};
 
-fn pose_from(arr: PyReadonlyArray2<'_, f64>) -> PyResult<Matrix4<f64>> {
-    let a = arr.as_array();
-    if a.shape() != [4, 4] || !a.iter().all(|v| v.is_finite()) {
-        return Err(PyValueError::new_err(
-            "the pose must be a finite (4, 4) matrix",
-        ));
+/// A finite (4, 4) pose in any numeric dtype (the shared converter, plus finiteness).
+fn pose_from(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Matrix4<f64>> {
+    let m = crate::convert::pose(obj, name)?;
+    if !m.iter().all(|v| v.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "{name} must be a finite (4, 4) matrix"
+        )));
     }
-    Ok(Matrix4::from_fn(|r, c| a[[r, c]]))
+    Ok(m)
 }
 
 /// Spheres (K, 4: centre, radius), axis-aligned boxes (K, 6: lo, hi) and an optional
@@ -30,26 +31,50 @@ fn shapes_from<'py>(
 ) -> PyResult<Vec<Shape>> {
     let mut shapes: Vec<Shape> = floor_z.map(|z| Shape::Floor { z }).into_iter().collect();
     let np = PyModule::import(py, "numpy")?;
+    // A table of K rows of n finite numbers (one row may come flat; empty is none).
     let rows = |obj: &Bound<'py, PyAny>, n: usize, name: &str| -> PyResult<Vec<Vec<f64>>> {
+        let bad =
+            || PyValueError::new_err(format!("{name} must be a (K, {n}) array of finite numbers"));
         let a = np
-            .call_method1("asarray", (obj, np.getattr("float64")?))?
-            .call_method1("reshape", (-1, n))?;
-        let a: PyReadonlyArray2<f64> = a
-            .extract()
-            .map_err(|_| PyValueError::new_err(format!("{name} must be (K, {n})")))?;
-        Ok(a.as_array()
+            .call_method1("asarray", (obj, np.getattr("float64")?))
+            .map_err(|_| bad())?;
+        let shape: Vec<usize> = a.getattr("shape")?.extract()?;
+        let a = match shape.as_slice() {
+            [0] | [0, _] => return Ok(Vec::new()),
+            [k] if *k == n => a.call_method1("reshape", (1, n))?,
+            [_, k] if *k == n => a,
+            _ => return Err(bad()),
+        };
+        let a: PyReadonlyArray2<f64> = a.extract().map_err(|_| bad())?;
+        let table: Vec<Vec<f64>> = a
+            .as_array()
             .rows()
             .into_iter()
             .map(|r| r.to_vec())
-            .collect())
+            .collect();
+        if !table.iter().flatten().all(|v| v.is_finite()) {
+            return Err(bad());
+        }
+        Ok(table)
     };
     for s in rows(spheres, 4, "spheres")? {
+        if s[3] <= 0.0 {
+            return Err(PyValueError::new_err(format!(
+                "a sphere's radius must be > 0, got {}",
+                s[3]
+            )));
+        }
         shapes.push(Shape::Sphere {
             center: [s[0], s[1], s[2]],
             radius: s[3],
         });
     }
     for b in rows(boxes, 6, "boxes")? {
+        if !(b[0] <= b[3] && b[1] <= b[4] && b[2] <= b[5]) {
+            return Err(PyValueError::new_err(format!(
+                "a box needs lo <= hi on every axis, got {b:?}"
+            )));
+        }
         shapes.push(Shape::Box {
             lo: [b[0], b[1], b[2]],
             hi: [b[3], b[4], b[5]],
@@ -68,7 +93,7 @@ fn shapes_from<'py>(
 #[allow(clippy::too_many_arguments)]
 pub fn render_lidar_scan<'py>(
     py: Python<'py>,
-    base_from_sensor: PyReadonlyArray2<'py, f64>,
+    base_from_sensor: &Bound<'py, PyAny>,
     spheres: &Bound<'py, PyAny>,
     boxes: &Bound<'py, PyAny>,
     floor_z: Option<f64>,
@@ -79,7 +104,7 @@ pub fn render_lidar_scan<'py>(
     noise_sigma: f64,
     seed: u64,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    let pose = pose_from(base_from_sensor)?;
+    let pose = pose_from(base_from_sensor, "base_from_sensor")?;
     if rings == 0
         || azimuth_steps == 0
         || !(max_range > 0.0 && noise_sigma >= 0.0 && vertical_fov_deg.is_finite())
@@ -107,7 +132,7 @@ pub fn render_lidar_scan<'py>(
 #[allow(clippy::too_many_arguments)]
 pub fn render_depth_points<'py>(
     py: Python<'py>,
-    base_from_camera: PyReadonlyArray2<'py, f64>,
+    base_from_camera: &Bound<'py, PyAny>,
     spheres: &Bound<'py, PyAny>,
     boxes: &Bound<'py, PyAny>,
     floor_z: Option<f64>,
@@ -119,7 +144,7 @@ pub fn render_depth_points<'py>(
     cy: f64,
     max_depth: f64,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    let pose = pose_from(base_from_camera)?;
+    let pose = pose_from(base_from_camera, "base_from_camera")?;
     let camera = PinholeCamera {
         width,
         height,

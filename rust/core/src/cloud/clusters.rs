@@ -15,17 +15,14 @@ pub fn cluster_points(points: &[[f64; 3]], cell: f64) -> Result<Vec<u32>> {
             "cell size must be finite and > 0, got {cell}"
         )));
     }
+    crate::geometry::check_finite(points, "point")?;
+    crate::geometry::check_cell_range(points, cell, "cell size")?;
     // Fx hashing: the reflex layer clusters every frame, and SipHash was most of it.
     let mut cells: FxHashMap<[i64; 3], u32> =
         FxHashMap::with_capacity_and_hasher(points.len(), Default::default());
     let mut parent: Vec<u32> = Vec::with_capacity(points.len());
     let mut of_point = Vec::with_capacity(points.len());
-    for (i, p) in points.iter().enumerate() {
-        if !p.iter().all(|v| v.is_finite()) {
-            return Err(Error::InvalidArgument(format!(
-                "point {i} is not finite: {p:?}"
-            )));
-        }
+    for p in points {
         let key = p.map(|v| floor_i64(v / cell));
         let id = *cells.entry(key).or_insert_with(|| {
             parent.push(parent.len() as u32);
@@ -140,5 +137,8 @@ mod tests {
         assert!(cluster_points(&[[0.0; 3]], 0.0).is_err());
         assert!(cluster_points(&[[f64::NAN, 0.0, 0.0]], 0.1).is_err());
         assert!(cluster_points(&[], 0.1).unwrap().is_empty());
+        // Cells too small (or points too far) to tell points apart.
+        assert!(cluster_points(&[[1.0, 0.0, 0.0], [0.5, 0.0, 0.0]], 1e-300).is_err());
+        assert!(cluster_points(&[[1e300, 0.0, 0.0], [-1e300, 0.0, 0.0]], 1.0).is_err());
     }
 }

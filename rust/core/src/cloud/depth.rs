@@ -62,7 +62,7 @@ impl BrownConrady {
     }
 }
 
-/// A depth image (row-major, `width × height`; 0 or NaN = no reading). Depth in
+/// A depth image (row-major, `width × height`; 0, NaN or ∞ = no reading). Depth in
 /// metres is `depth × scale` (e.g. 0.001 for millimetre images).
 pub struct DepthFrame<'a> {
     pub depth: &'a [f32],
@@ -115,6 +115,14 @@ pub fn depth_to_points(
     if let Some(pose) = base_from_camera {
         crate::geometry::check_rigid(pose, "base_from_camera")?;
     }
+    if let Some(d) = distortion {
+        if ![d.k1, d.k2, d.p1, d.p2, d.k3].iter().all(|c| c.is_finite()) {
+            return Err(Error::InvalidArgument(format!(
+                "distortion coefficients must be finite, got k1={} k2={} p1={} p2={} k3={}",
+                d.k1, d.k2, d.p1, d.p2, d.k3
+            )));
+        }
+    }
     // A lens's undistorted rays are the same every frame: inverted once per lens.
     let rays = distortion
         .filter(|d| !d.is_zero())
@@ -126,8 +134,8 @@ pub fn depth_to_points(
         let yd = (v as f64 - k.cy) / k.fy;
         for (u, &z) in row.iter().enumerate() {
             let z = f64::from(z) * frame.scale;
-            if !(z > 0.0 && z >= min_depth && z <= max_depth) {
-                continue; // also drops NaN
+            if !(z > 0.0 && z >= min_depth && z <= max_depth && z.is_finite()) {
+                continue; // also drops NaN and infinite readings (no reading)
             }
             let (x, y) = match &rays {
                 Some(table) => {

@@ -20,6 +20,45 @@ pub struct IcpParams {
     pub huber_delta: Option<f64>,
 }
 
+impl IcpParams {
+    /// Positive distances and tolerances (zero tolerances: run every iteration).
+    pub fn validate(&self) -> Result<()> {
+        let fail = |what: &str, v: f64| {
+            Err(Error::InvalidArgument(format!(
+                "ICP {what} must be {}, got {v}",
+                if what.ends_with("tolerance") {
+                    "finite and >= 0"
+                } else {
+                    "finite and > 0"
+                }
+            )))
+        };
+        if self.max_iterations == 0 {
+            return Err(Error::InvalidArgument(
+                "ICP max_iterations must be at least 1".into(),
+            ));
+        }
+        let d = self.max_correspondence_distance;
+        if !(d.is_finite() && d > 0.0) {
+            return fail("max_correspondence_distance", d);
+        }
+        for (what, v) in [
+            ("translation_tolerance", self.translation_tolerance),
+            ("rotation_tolerance", self.rotation_tolerance),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return fail(what, v);
+            }
+        }
+        if let Some(h) = self.huber_delta {
+            if !(h.is_finite() && h > 0.0) {
+                return fail("huber_delta", h);
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for IcpParams {
     fn default() -> Self {
         IcpParams {
@@ -201,11 +240,7 @@ pub fn icp_point_to_plane(
         )));
     }
     crate::geometry::check_finite(source, "source point")?;
-    if !(params.max_correspondence_distance > 0.0 && params.max_iterations > 0) {
-        return Err(Error::InvalidArgument(format!(
-            "bad ICP parameters {params:?}"
-        )));
-    }
+    params.validate()?;
     // Rotation columns scaled by the source's RMS radius so that the conditioning
     // compares metres with metres.
     let centroid = source

@@ -59,7 +59,7 @@ pub fn rigid_fit_ransac(
     seed: u64,
 ) -> Result<RansacFit> {
     check_pairs(src, dst)?;
-    if !(threshold.is_finite() && threshold > 0.0) {
+    if !(threshold.is_finite() && threshold * threshold > 0.0) {
         return Err(Error::InvalidArgument(format!(
             "threshold must be finite and > 0, got {threshold}"
         )));
@@ -146,7 +146,19 @@ fn check_pairs(src: &[[f64; 3]], dst: &[[f64; 3]]) -> Result<()> {
         )));
     }
     check_finite(src, "source point")?;
-    check_finite(dst, "target point")
+    check_finite(dst, "target point")?;
+    // Squared spreads of larger coordinates overflow to infinity (a NaN fit).
+    let reach = src
+        .iter()
+        .chain(dst)
+        .flatten()
+        .fold(0.0f64, |m, c| m.max(c.abs()));
+    if reach > 1e150 {
+        return Err(Error::InvalidArgument(format!(
+            "coordinates up to {reach} are too large for a rigid fit (at most 1e150)"
+        )));
+    }
+    Ok(())
 }
 
 fn apply(m: &Matrix4<f64>, p: &[f64; 3]) -> [f64; 3] {

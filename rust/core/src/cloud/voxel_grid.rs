@@ -33,6 +33,7 @@ pub fn voxel_downsample(
         }
     }
     crate::geometry::check_finite(points, "point")?;
+    crate::geometry::check_cell_range(points, voxel_size, "voxel_size")?;
     let inv = 1.0 / voxel_size;
     // Most clouds (a cropped camera frame) span a box small enough for a table of
     // bricks of cells: two array reads find a voxel, with no hash and no shortcut
@@ -289,9 +290,11 @@ mod tests {
         let (centroids, means) = voxel_downsample(&points, 0.004, Some((&values, 2))).unwrap();
         let (want, want_means) = reference(&points, 0.004, &values);
         check(&centroids, &means, &want, &want_means, 1.0);
-        // Cells beyond the i64 range saturate into one (as before) without overflowing.
+        // Cells too small to tell the points apart (indices past 2^50) are an error,
+        // not one saturated voxel.
         let huge = [[1e19, 0.0, 0.0], [2e19, 0.0, 0.0], [-3e19, 1.0, 0.0]];
-        assert!(voxel_downsample(&huge, 1.0, None).is_ok());
+        assert!(voxel_downsample(&huge, 1.0, None).is_err());
+        assert!(voxel_downsample(&[[1.0, 0.0, 0.0], [0.5, 0.0, 0.0]], 1e-300, None).is_err());
     }
 
     fn check(

@@ -43,6 +43,14 @@ impl OccupancyParams {
         open("clamping_min", self.clamping_min)?;
         open("clamping_max", self.clamping_max)?;
         open("occupancy_threshold", self.occupancy_threshold)?;
+        // A hit must raise a cell's occupancy and a miss lower it, or scans build a
+        // map upside down without a word.
+        if self.prob_hit <= 0.5 || self.prob_miss >= 0.5 {
+            return Err(Error::InvalidArgument(format!(
+                "prob_hit must be above 0.5 and prob_miss below it, got {} and {}",
+                self.prob_hit, self.prob_miss
+            )));
+        }
         if self.clamping_min >= self.clamping_max {
             return Err(Error::InvalidArgument(format!(
                 "clamping_min ({}) must be below clamping_max ({})",

@@ -208,6 +208,15 @@ impl Chain {
                     link_names[joint.child]
                 )));
             }
+            let origin = &joint.origin;
+            if !(origin.rotation.iter().all(|v| v.is_finite())
+                && origin.translation.iter().all(|v| v.is_finite()))
+            {
+                return Err(Error::InvalidArgument(format!(
+                    "joint '{}' has a non-finite origin (xyz or rpy)",
+                    joint.name
+                )));
+            }
             let norm = joint.axis.norm();
             if joint.is_movable() && !(norm.is_finite() && norm > 1e-12) {
                 return Err(Error::InvalidArgument(format!(

@@ -182,6 +182,14 @@ impl Follower {
                 "the tolerance must be a number".into(),
             ));
         }
+        if let Some(j) =
+            (0..dof).find(|&j| lower[j].is_nan() || upper[j].is_nan() || lower[j] > upper[j])
+        {
+            return Err(Error::InvalidArgument(format!(
+                "joint {j}'s limits are not an interval: [{}, {}]",
+                lower[j], upper[j]
+            )));
+        }
         let row = |k: usize| &reference[k * dof..(k + 1) * dof];
         let steps = reference.len() / dof - 2;
         let mut states = Vec::with_capacity((steps + 1) * dof);
