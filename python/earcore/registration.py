@@ -94,11 +94,11 @@ def refine_camera_poses(
 
     if len(clouds) != len(base_from_cameras) or len(clouds) < 2:
         raise ValueError("give at least two clouds and one base_from_camera pose per cloud")
+    if not 0 <= reference < len(clouds):
+        raise ValueError(f"reference must name one of the {len(clouds)} cameras (0 to {len(clouds) - 1}), got {reference}")
     poses = [np.asarray(p, dtype=np.float64) for p in base_from_cameras]
     local = [voxel_downsample(c, voxel_size) for c in clouds]
     in_base = lambda i: local[i] @ poses[i][:3, :3].T + poses[i][:3, 3]  # noqa: E731
-    if not 0 <= reference < len(clouds):
-        raise ValueError(f"reference must name one of the {len(clouds)} cameras (0 to {len(clouds) - 1}), got {reference}")
     done = [reference]
     order = [i for i in range(len(clouds)) if i != reference]
     for i in order:
