@@ -9,6 +9,9 @@ and the two full serialisations (.ot) must be byte-identical.
 from __future__ import annotations
 
 import io
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -86,6 +89,39 @@ def test_thread_count_does_not_change_the_map(tmp_path):
         maps.append(ot_bytes(tree, tmp_path))
     earcore.set_num_threads(0)
     assert maps[0] == maps[1] == maps[2]
+
+
+#: Builds maps in a child process and writes their .ot files (argv: directory).
+_SCALAR_WALK_SCRIPT = """
+import sys, numpy as np, earcore
+from conftest import scene_scans
+points, origin = earcore.synthetic.benchmark_frame()
+for resolution in (0.05, 0.02):
+    tree = earcore.OcTree(resolution)
+    tree.insert_point_cloud(points, origin)
+    tree.write(f"{sys.argv[1]}/frame-{resolution}.ot")
+    for seed, (max_range, discretize) in enumerate([(None, False), (2.0, False), (1.0, True)]):
+        tree = earcore.OcTree(resolution)
+        for pts, o in scene_scans(seed):
+            tree.insert_point_cloud(pts, o, max_range=max_range, discretize=discretize)
+        tree.write(f"{sys.argv[1]}/scene{seed}-{resolution}.ot")
+"""
+
+
+def test_scalar_walk_fallback_builds_the_same_maps(tmp_path):
+    """The batched (AVX2) ray walk and the scalar walk CPUs without AVX2 use agree byte
+    for byte; `EARCORE_NO_AVX2` forces the scalar walk (read once per process)."""
+    here = os.path.dirname(__file__)
+    for name, extra in (("batched", {}), ("scalar", {"EARCORE_NO_AVX2": "1"})):
+        (tmp_path / name).mkdir()
+        env = {**os.environ, **extra}
+        subprocess.run(
+            [sys.executable, "-c", _SCALAR_WALK_SCRIPT, str(tmp_path / name)], cwd=here, env=env, check=True, timeout=300
+        )
+    files = sorted(p.name for p in (tmp_path / "batched").iterdir())
+    assert len(files) == 8
+    for f in files:
+        assert (tmp_path / "batched" / f).read_bytes() == (tmp_path / "scalar" / f).read_bytes(), f
 
 
 def test_update_node_matches_octomap(octomap, tmp_path):

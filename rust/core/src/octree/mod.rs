@@ -10,6 +10,7 @@ mod ray;
 mod scan;
 mod surface;
 mod volume;
+mod walk_avx2;
 
 pub use danger::{decay_step, DangerMap, DangerParams, DecayMode, FrameReport, DANGER_ON_HIT};
 pub use key::{KeyConverter, OcTreeKey, TREE_DEPTH, TREE_MAX_VAL};

@@ -5,10 +5,9 @@
 use super::key::KeyConverter;
 use super::key::OcTreeKey;
 use super::occupancy::{KeyUpdate, OcTree};
-use super::ray::{
-    compute_ray_keys, norm, normalized, plan_ray, point_at, sub, walk_from, Point3f, RayPlan,
-};
+use super::ray::{compute_ray_keys, norm, normalized, point_at, sub, walk_from, Point3f, RayStart};
 use super::volume::KeyVolume;
+use super::walk_avx2::plan_rays;
 use crate::error::{Error, Result};
 use crate::threads;
 
@@ -172,9 +171,19 @@ impl OcTree {
         let (lo, hi) = key_bounds(conv, origin, points);
         let volumes = threads::map_parts(&parts, |&part| {
             let mut volume = KeyVolume::with_bounds(lo, hi);
+            let mut scratch = TraceScratch::default();
             for chunk in points.chunks(CHUNK).skip(part).step_by(parts.len()) {
-                trace_part(conv, origin, chunk, max_range, hits, &mut volume);
+                trace_part(
+                    conv,
+                    origin,
+                    chunk,
+                    max_range,
+                    hits,
+                    &mut volume,
+                    &mut scratch,
+                );
             }
+            volume.settle();
             volume
         });
         volumes
@@ -208,6 +217,16 @@ fn key_bounds(
     )
 }
 
+/// Buffers `trace_part` reuses from chunk to chunk (fresh ones cost page faults).
+#[derive(Default)]
+struct TraceScratch {
+    /// Where each ray ends (cut at the maximum range).
+    ends: Vec<Point3f>,
+    /// The rays that walk, and their indices in `ends`.
+    starts: Vec<RayStart>,
+    which: Vec<u32>,
+}
+
 /// The rays of one part of a scan (OctoMap's `computeUpdate`, float arithmetic as in
 /// OctoMap): end cells marked occupied (unless `hits` is false), then every ray's
 /// cells marked free.
@@ -218,48 +237,54 @@ fn trace_part(
     max_range: Option<f64>,
     hits: bool,
     volume: &mut KeyVolume,
+    scratch: &mut TraceScratch,
 ) {
-    let mut starts = Vec::with_capacity(points.len());
-    let mut ends = Vec::with_capacity(points.len());
+    let TraceScratch {
+        ends,
+        starts,
+        which,
+    } = scratch;
+    ends.clear();
     for &p in points {
         let within = match max_range {
             None => true,
             Some(r) => norm(sub(p, origin)) <= r,
         };
-        let end = if within {
+        if within {
             if hits {
                 if let Some(k) = conv.coord_to_key_checked(p) {
                     volume.mark_occupied(k);
                 }
             }
-            p
+            ends.push(p);
         } else {
             // Cut at max_range: free cells only, no hit.
             let r = max_range.unwrap_or(f64::INFINITY);
-            point_at(origin, normalized(sub(p, origin)), r as f32)
-        };
-        if let RayPlan::Walk(start) = plan_ray(conv, origin, end) {
-            starts.push(start);
-            ends.push(end);
+            ends.push(point_at(origin, normalized(sub(p, origin)), r as f32));
         }
     }
-    // Rays with a cell outside the dense box (rounding at its edge, or no box at all)
-    // are redone through the general store; marking twice is harmless.
+    plan_rays(conv, origin, ends, starts, which);
+    // The batched walk takes the rays it can; the scalar walk does the rest. Rays with
+    // a cell outside the dense box (rounding at its edge, or no box at all) are redone
+    // through the general store; marking twice is harmless.
+    let rest = volume.walk_rays(starts);
     let mut redo: Vec<usize> = Vec::new();
     match volume.dense_marker() {
         Some(mut dense) => {
-            for (i, start) in starts.iter().enumerate() {
+            for i in rest {
                 dense.outside = false;
-                walk_from(start, &mut dense);
+                walk_from(&starts[i], &mut dense);
                 if dense.outside {
                     redo.push(i);
                 }
             }
         }
-        None => redo.extend(0..starts.len()),
+        None => redo = rest,
     }
     for i in redo {
-        compute_ray_keys(conv, origin, ends[i], |k| volume.mark_free(k));
+        compute_ray_keys(conv, origin, ends[which[i] as usize], |k| {
+            volume.mark_free(k)
+        });
     }
 }
 

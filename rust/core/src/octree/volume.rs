@@ -11,7 +11,8 @@
 use rustc_hash::FxHashMap;
 
 use super::key::OcTreeKey;
-use super::ray::RayCells;
+use super::ray::{RayCells, RayStart};
+use super::walk_avx2::{self, CellBytes};
 
 const BRICK_WORDS: usize = 8; // 512 cells / 64 bits
 /// Most bricks a dense box may hold (8 MiB per kind of mark).
@@ -37,6 +38,8 @@ struct Dense {
     tables: [Vec<u32>; 3],
     free: Vec<u64>,
     occupied: Vec<u64>,
+    /// Free cells marked by the batched walk, not yet folded into `free`.
+    walked: Option<CellBytes>,
 }
 
 impl Dense {
@@ -60,6 +63,7 @@ impl Dense {
             tables,
             free: vec![0; n * BRICK_WORDS],
             occupied: vec![0; n * BRICK_WORDS],
+            walked: None,
         })
     }
 
@@ -72,6 +76,50 @@ impl Dense {
             Some((self.tables[0][x] + self.tables[1][y] + self.tables[2][z]) as usize)
         } else {
             None
+        }
+    }
+
+    /// OR the batched walk's cell bytes into the free bits, brick by brick.
+    fn fold_walked(&mut self) {
+        let Some(walked) = self.walked.take() else {
+            return;
+        };
+        // x's low two bits go to bits 0, 1, 8, 9 of a word, its third bit to the next word.
+        const X4: [u64; 16] = {
+            let mut t = [0u64; 16];
+            let mut v = 0;
+            while v < 16 {
+                t[v] = (v as u64 & 1)
+                    | ((v as u64 >> 1 & 1) << 1)
+                    | ((v as u64 >> 2 & 1) << 8)
+                    | ((v as u64 >> 3 & 1) << 9);
+                v += 1;
+            }
+            t
+        };
+        let [nx, ny, nz] = self.dims;
+        let (bx, by) = (nx / 8, ny / 8);
+        for z in 0..nz {
+            for y in 0..ny {
+                let row = (z * ny + y) * nx;
+                // Morton offset of (y, z) inside the brick: a word and a shift.
+                let off = ((SPREAD3[y % 8] << 1) | (SPREAD3[z % 8] << 2)) as usize;
+                let brick_yz = (y / 8) * bx + (z / 8) * bx * by;
+                for (b, chunk) in walked.bytes[row..row + nx].chunks_exact(8).enumerate() {
+                    let eight = u64::from_le_bytes(chunk.try_into().unwrap_or([0; 8]));
+                    if eight == 0 {
+                        continue;
+                    }
+                    // One bit per non-zero byte, x order.
+                    let mut bits = 0usize;
+                    for (x, &v) in chunk.iter().enumerate() {
+                        bits |= usize::from(v != 0) << x;
+                    }
+                    let word = (brick_yz + b) * BRICK_WORDS + (off >> 6);
+                    self.free[word] |= X4[bits & 15] << (off & 63);
+                    self.free[word + 1] |= X4[bits >> 4] << (off & 63);
+                }
+            }
         }
     }
 
@@ -214,8 +262,35 @@ impl KeyVolume {
         })
     }
 
+    /// Walk `rays` and mark their cells free with the batched walk
+    /// ([`walk_avx2`]) when this CPU and the dense box allow it. Returns the rays left
+    /// for the scalar walk (all of them without AVX2 or a dense box). Call
+    /// [`KeyVolume::settle`] before reading the volume.
+    pub(crate) fn walk_rays(&mut self, rays: &[RayStart]) -> Vec<usize> {
+        match self.dense.as_mut() {
+            Some(d) if walk_avx2::available() => {
+                let (lo, dims) = (d.lo, d.dims);
+                let walked = d.walked.get_or_insert_with(|| CellBytes::new(lo, dims));
+                walk_avx2::walk_rays(rays, walked)
+            }
+            _ => (0..rays.len()).collect(),
+        }
+    }
+
+    /// Fold what the batched walk marked into the volume's bits.
+    pub(crate) fn settle(&mut self) {
+        if let Some(d) = self.dense.as_mut() {
+            d.fold_walked();
+        }
+    }
+
+    fn settled(&self) -> bool {
+        self.dense.as_ref().is_none_or(|d| d.walked.is_none())
+    }
+
     /// Whether `key` is marked free and not occupied.
     pub fn is_free(&self, key: OcTreeKey) -> bool {
+        debug_assert!(self.settled(), "settle() the volume before reading it");
         let test = |free: u64, occ: u64, i: usize| ((free & !occ) >> (i & 63)) & 1 == 1;
         if let Some(d) = &self.dense {
             if let Some(i) = d.bit(key) {
@@ -229,7 +304,9 @@ impl KeyVolume {
     }
 
     /// Union with another volume (the per-thread volumes of a parallel scan).
-    pub fn merge(mut self, other: KeyVolume) -> KeyVolume {
+    pub fn merge(mut self, mut other: KeyVolume) -> KeyVolume {
+        self.settle();
+        other.settle();
         let KeyVolume {
             dense: other_dense,
             sparse: other_sparse,
@@ -274,6 +351,7 @@ impl KeyVolume {
     /// Visit every marked cell in Morton order as (code, occupied); a cell marked both
     /// free and occupied is reported once, as occupied.
     pub fn for_each_sorted(&self, mut f: impl FnMut(u64, bool)) {
+        debug_assert!(self.settled(), "settle() the volume before reading it");
         let mut bricks: Vec<(u64, BrickBits<'_>)> = Vec::new();
         if let Some(d) = &self.dense {
             bricks.extend(d.bricks());
