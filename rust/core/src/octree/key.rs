@@ -175,6 +175,16 @@ impl KeyConverter {
         ]))
     }
 
+    /// Whether a float point has a key (`coord_to_key_checked` is `Some`), without
+    /// branches, so that a pass over many points vectorises.
+    #[inline(always)]
+    pub fn has_key(&self, p: [f32; 3]) -> bool {
+        let f = self.resolution_factor;
+        in_key_range(f * f64::from(p[0]))
+            & in_key_range(f * f64::from(p[1]))
+            & in_key_range(f * f64::from(p[2]))
+    }
+
     /// Same, for double-precision coordinates (queries).
     #[inline]
     pub fn coord_to_key_checked_f64(&self, p: [f64; 3]) -> Option<OcTreeKey> {

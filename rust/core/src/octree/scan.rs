@@ -114,20 +114,23 @@ impl OcTree {
         if self.conv.coord_to_key_checked(origin32).is_none() {
             return Err(self.out_of_bounds("sensor origin", origin));
         }
-        let mut out = Vec::with_capacity(points.len());
+        // One pass that vectorises (no early exit); the loop below only names the
+        // first bad point.
+        let out: Vec<Point3f> = points.iter().map(|&p| to_f32(p)).collect();
+        if out.iter().fold(true, |ok, &p| ok & self.conv.has_key(p)) {
+            return Ok((origin32, out));
+        }
         for (i, &p) in points.iter().enumerate() {
             if !p.iter().all(|c| c.is_finite()) {
                 return Err(Error::InvalidArgument(format!(
                     "point {i} {p:?} is not finite"
                 )));
             }
-            let p32 = to_f32(p);
-            if self.conv.coord_to_key_checked(p32).is_none() {
+            if !self.conv.has_key(to_f32(p)) {
                 return Err(self.out_of_bounds(if i == 0 { "point 0" } else { "a point" }, p));
             }
-            out.push(p32);
         }
-        Ok((origin32, out))
+        unreachable!("a point failed the batch check but none failed alone")
     }
 
     fn out_of_bounds(&self, what: &'static str, point: [f64; 3]) -> Error {
@@ -220,8 +223,9 @@ fn key_bounds(
 /// Buffers `trace_part` reuses from chunk to chunk (fresh ones cost page faults).
 #[derive(Default)]
 struct TraceScratch {
-    /// Where each ray ends (cut at the maximum range).
+    /// Where each ray ends (cut at the maximum range), and the end's key.
     ends: Vec<Point3f>,
+    end_keys: Vec<Option<OcTreeKey>>,
     /// The rays that walk, and their indices in `ends`.
     starts: Vec<RayStart>,
     which: Vec<u32>,
@@ -241,29 +245,34 @@ fn trace_part(
 ) {
     let TraceScratch {
         ends,
+        end_keys,
         starts,
         which,
     } = scratch;
     ends.clear();
+    end_keys.clear();
     for &p in points {
         let within = match max_range {
             None => true,
             Some(r) => norm(sub(p, origin)) <= r,
         };
-        if within {
-            if hits {
-                if let Some(k) = conv.coord_to_key_checked(p) {
-                    volume.mark_occupied(k);
-                }
+        let (end, key) = if within {
+            // The scan was checked: every point has a key.
+            let key = conv.coord_to_key_checked(p);
+            if let (true, Some(k)) = (hits, key) {
+                volume.mark_occupied(k);
             }
-            ends.push(p);
+            (p, key)
         } else {
             // Cut at max_range: free cells only, no hit.
             let r = max_range.unwrap_or(f64::INFINITY);
-            ends.push(point_at(origin, normalized(sub(p, origin)), r as f32));
-        }
+            let end = point_at(origin, normalized(sub(p, origin)), r as f32);
+            (end, conv.coord_to_key_checked(end))
+        };
+        ends.push(end);
+        end_keys.push(key);
     }
-    plan_rays(conv, origin, ends, starts, which);
+    plan_rays(conv, origin, ends, end_keys, starts, which);
     // The batched walk takes the rays it can; the scalar walk does the rest. Rays with
     // a cell outside the dense box (rounding at its edge, or no box at all) are redone
     // through the general store; marking twice is harmless.

@@ -19,7 +19,7 @@
 //!   byte store: no read-modify-write that the next step's store to the same word would
 //!   wait on. The bytes are folded into the octree's bricks of bits once per scan.
 
-use super::key::KeyConverter;
+use super::key::{KeyConverter, OcTreeKey};
 use super::ray::{plan_ray, Point3f, RayPlan, RayStart};
 
 /// One byte per cell of a key box (non-zero: a ray crossed the cell), x fastest, plus
@@ -103,16 +103,22 @@ pub(crate) fn walk_rays(rays: &[RayStart], cells: &mut CellBytes) -> Vec<usize> 
         return (0..rays.len()).collect();
     }
     let mut redo = Vec::new();
-    // Rays by step count (a counting sort), so that a group's lanes finish together.
+    // Rays by step count (a counting sort), so that the lanes of a group finish
+    // together.
     let mut order: Vec<(u32, u32)> = Vec::with_capacity(rays.len());
     let mut count: Vec<u32> = Vec::new();
+    let mut origin = None;
     for (i, r) in rays.iter().enumerate() {
         if !cells.holds(r) {
             redo.push(i);
             continue;
         }
-        let at = cells.index(r.key_origin.0);
-        cells.bytes[at] = 1;
+        // The walk visits its origin cell first (rays of a scan share it).
+        if origin != Some(r.key_origin) {
+            origin = Some(r.key_origin);
+            let at = cells.index(r.key_origin.0);
+            cells.bytes[at] = 1;
+        }
         let n = steps(r);
         if count.len() <= n as usize {
             count.resize(n as usize + 1, 0);
@@ -120,18 +126,18 @@ pub(crate) fn walk_rays(rays: &[RayStart], cells: &mut CellBytes) -> Vec<usize> 
         count[n as usize] += 1;
         order.push((n, i as u32));
     }
-    let mut start: Vec<u32> = Vec::with_capacity(count.len() + 1);
-    start.push(0);
+    let mut ends: Vec<u32> = Vec::with_capacity(count.len() + 1);
+    ends.push(0);
     for c in &count {
-        start.push(start[start.len() - 1] + c);
+        ends.push(ends[ends.len() - 1] + c);
     }
     let mut sorted = vec![0u32; order.len()];
-    let mut next = start.clone();
+    let mut next = ends.clone();
     for &(n, i) in &order {
         sorted[next[n as usize] as usize] = i;
         next[n as usize] += 1;
     }
-    for (n, bounds) in start.windows(2).enumerate() {
+    for (n, bounds) in ends.windows(2).enumerate() {
         let n = n as u32;
         let group = &sorted[bounds[0] as usize..bounds[1] as usize];
         for eight in group.chunks(8) {
@@ -139,7 +145,8 @@ pub(crate) fn walk_rays(rays: &[RayStart], cells: &mut CellBytes) -> Vec<usize> 
             #[cfg(target_arch = "x86_64")]
             {
                 let lanes = pick.map(|i| i.map(|i| &rays[i as usize]));
-                // SAFETY: `available()` checked for AVX2; `holds` checked every lane.
+                // SAFETY: `available()` checked for AVX2; `holds` checked every lane;
+                // the lanes share a step count.
                 let back = unsafe { avx2::walk_group(lanes, n, cells) };
                 for (lane, i) in pick.into_iter().enumerate() {
                     if let (true, Some(i)) = (back[lane], i) {
@@ -155,10 +162,12 @@ pub(crate) fn walk_rays(rays: &[RayStart], cells: &mut CellBytes) -> Vec<usize> 
 /// [`plan_ray`] for many rays from one origin, the float work four rays at a time
 /// (same operations in the same precisions, so the same bits). Returns each walking
 /// ray's start in `starts` and its index in `ends` in `index` (both cleared first).
+/// `end_keys[i]` is `ends[i]`'s key (`None` off the map).
 pub(crate) fn plan_rays(
     conv: &KeyConverter,
     origin: Point3f,
     ends: &[Point3f],
+    end_keys: &[Option<OcTreeKey>],
     starts: &mut Vec<RayStart>,
     index: &mut Vec<u32>,
 ) {
@@ -181,14 +190,15 @@ pub(crate) fn plan_rays(
                 // SAFETY: AVX2 was detected.
                 let float =
                     unsafe { avx2::plan_four(origin, numerators, conv.resolution(), lanes) };
-                for (lane, &end) in chunk.iter().enumerate() {
-                    let Some(key_end) = conv.coord_to_key_checked(end) else {
+                for lane in 0..chunk.len() {
+                    let Some(key_end) = end_keys[4 * four + lane] else {
                         continue;
                     };
                     if key_end == key_origin {
                         continue;
                     }
                     let axes = |v: &[[f64; 4]; 3]| [v[0][lane], v[1][lane], v[2][lane]];
+                    let length = f64::from(float.length[lane]);
                     starts.push(RayStart {
                         key_origin,
                         key_end,
@@ -199,7 +209,7 @@ pub(crate) fn plan_rays(
                         ],
                         t_max: axes(&float.t_max),
                         t_delta: axes(&float.t_delta),
-                        length: f64::from(float.length[lane]),
+                        length,
                     });
                     index.push((4 * four + lane) as u32);
                 }
@@ -244,7 +254,9 @@ mod avx2 {
             // Lane by lane, then loaded as vectors. Idle lanes get a negative length,
             // which stops them at once.
             let (mut t, mut delta, mut moves) = ([[0.0; 4]; 3], [[0.0; 4]; 3], [[0i64; 4]; 3]);
-            let (mut length, mut cell, mut end) = ([-1.0; 4], [0i64; 4], [0i64; 4]);
+            // Idle lanes sit on the spare byte and never move.
+            let spare = cells.spare() as i64;
+            let (mut length, mut cell, mut end) = ([-1.0; 4], [spare; 4], [spare; 4]);
             for (lane, r) in lanes.iter().enumerate().take(4) {
                 let Some(r) = r else { continue };
                 for a in 0..3 {
@@ -321,8 +333,8 @@ mod avx2 {
 
     /// Walk up to eight rays (empty lanes stay idle) that all take `steps` steps to
     /// their end cells, in two interleaved groups of four (one group's step waits on
-    /// its previous one; two keep the core busy). Returns, per lane, whether the
-    /// scalar walk must redo the ray (see [`Four::astray`]).
+    /// its previous one; two keep the core busy). Returns, per lane, whether the scalar
+    /// walk must redo the ray (see [`Four::astray`]).
     ///
     /// # Safety
     /// AVX2 must be available, `cells` must hold every lane's ray
@@ -333,27 +345,30 @@ mod avx2 {
         steps: u32,
         cells: &mut CellBytes,
     ) -> [bool; 8] {
-        let mut groups = [Four::new(&lanes[..4], cells), Four::new(&lanes[4..], cells)];
+        // Two named groups, not an array: LLVM keeps their state in registers then.
+        let (mut a, mut b) = (Four::new(&lanes[..4], cells), Four::new(&lanes[4..], cells));
         let spare = _mm256_castsi256_pd(_mm256_set1_epi64x(cells.spare() as i64));
         let bytes = cells.bytes.as_mut_ptr();
         let mut at = [0u64; 8];
+        macro_rules! targets {
+            ($group:expr) => {{
+                $group.active = _mm256_and_si256($group.active, $group.step());
+                $group.targets(spare)
+            }};
+        }
         // Steps 1 to n − 1 reach the cells before the end cell: mark them.
         for _ in 1..steps {
-            for (g, group) in groups.iter_mut().enumerate() {
-                group.active = _mm256_and_si256(group.active, group.step());
-                _mm256_storeu_pd(at[4 * g..].as_mut_ptr().cast(), group.targets(spare));
-            }
+            let (ta, tb) = (targets!(a), targets!(b));
+            _mm256_storeu_pd(at.as_mut_ptr().cast(), ta);
+            _mm256_storeu_pd(at[4..].as_mut_ptr().cast(), tb);
             for &i in &at {
                 // SAFETY: a cell of the box (`holds`) or the spare byte.
                 *bytes.add(i as usize) = 1;
             }
         }
         // Step n reaches the end cell.
-        let astray = groups.each_mut().map(|group| {
-            let within = group.step();
-            group.astray(within)
-        });
-        let astray = astray[0] | (astray[1] << 4);
+        let (within_a, within_b) = (a.step(), b.step());
+        let astray = a.astray(within_a) | (b.astray(within_b) << 4);
         [0, 1, 2, 3, 4, 5, 6, 7].map(|lane| lanes[lane].is_some() && (astray >> lane) & 1 == 1)
     }
 
@@ -434,7 +449,6 @@ mod avx2 {
 mod tests {
     use super::*;
     use crate::octree::ray::walk_from;
-    use crate::octree::OcTreeKey;
     use std::collections::BTreeSet;
 
     /// xorshift64*: deterministic test data without a dependency.
@@ -490,7 +504,8 @@ mod tests {
                 let origin = [0, 1, 2].map(|_| rng.within(-3.0, 3.0) as f32);
                 let ends = awkward_ends(&mut rng, origin, res, 501);
                 let (mut starts, mut index) = (Vec::new(), Vec::new());
-                plan_rays(&conv, origin, &ends, &mut starts, &mut index);
+                let keys: Vec<_> = ends.iter().map(|&e| conv.coord_to_key_checked(e)).collect();
+                plan_rays(&conv, origin, &ends, &keys, &mut starts, &mut index);
                 let expected: Vec<(u32, RayStart)> = ends
                     .iter()
                     .enumerate()
@@ -532,7 +547,8 @@ mod tests {
                 let origin = [0, 1, 2].map(|_| rng.within(-3.0, 3.0) as f32);
                 let ends = awkward_ends(&mut rng, origin, res, 2000);
                 let (mut starts, mut index) = (Vec::new(), Vec::new());
-                plan_rays(&conv, origin, &ends, &mut starts, &mut index);
+                let keys: Vec<_> = ends.iter().map(|&e| conv.coord_to_key_checked(e)).collect();
+                plan_rays(&conv, origin, &ends, &keys, &mut starts, &mut index);
                 // A box around everything, one cell wider, as `trace` builds it.
                 let keys: Vec<OcTreeKey> = starts
                     .iter()
