@@ -5,9 +5,10 @@
 use super::key::KeyConverter;
 use super::key::OcTreeKey;
 use super::occupancy::{KeyUpdate, OcTree};
-use super::ray::{compute_ray_keys, norm, normalized, point_at, sub, walk_from, Point3f, RayStart};
+use super::ray::{
+    compute_ray_keys, norm, normalized, plan_ray, point_at, sub, walk_from, Point3f, RayPlan,
+};
 use super::volume::KeyVolume;
-use super::walk_avx2::plan_rays;
 use crate::error::{Error, Result};
 use crate::threads;
 
@@ -226,9 +227,6 @@ struct TraceScratch {
     /// Where each ray ends (cut at the maximum range), and the end's key.
     ends: Vec<Point3f>,
     end_keys: Vec<Option<OcTreeKey>>,
-    /// The rays that walk, and their indices in `ends`.
-    starts: Vec<RayStart>,
-    which: Vec<u32>,
 }
 
 /// The rays of one part of a scan (OctoMap's `computeUpdate`, float arithmetic as in
@@ -243,12 +241,7 @@ fn trace_part(
     volume: &mut KeyVolume,
     scratch: &mut TraceScratch,
 ) {
-    let TraceScratch {
-        ends,
-        end_keys,
-        starts,
-        which,
-    } = scratch;
+    let TraceScratch { ends, end_keys } = scratch;
     ends.clear();
     end_keys.clear();
     for &p in points {
@@ -272,28 +265,27 @@ fn trace_part(
         ends.push(end);
         end_keys.push(key);
     }
-    plan_rays(conv, origin, ends, end_keys, starts, which);
     // The batched walk takes the rays it can; the scalar walk does the rest. Rays with
     // a cell outside the dense box (rounding at its edge, or no box at all) are redone
     // through the general store; marking twice is harmless.
-    let rest = volume.walk_rays(starts);
+    let rest = volume.walk_rays(conv, origin, ends, end_keys);
     let mut redo: Vec<usize> = Vec::new();
     match volume.dense_marker() {
         Some(mut dense) => {
             for i in rest {
-                dense.outside = false;
-                walk_from(&starts[i], &mut dense);
-                if dense.outside {
-                    redo.push(i);
+                if let RayPlan::Walk(start) = plan_ray(conv, origin, ends[i]) {
+                    dense.outside = false;
+                    walk_from(&start, &mut dense);
+                    if dense.outside {
+                        redo.push(i);
+                    }
                 }
             }
         }
         None => redo = rest,
     }
     for i in redo {
-        compute_ray_keys(conv, origin, ends[which[i] as usize], |k| {
-            volume.mark_free(k)
-        });
+        compute_ray_keys(conv, origin, ends[i], |k| volume.mark_free(k));
     }
 }
 

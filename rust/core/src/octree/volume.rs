@@ -11,7 +11,7 @@
 use rustc_hash::FxHashMap;
 
 use super::key::OcTreeKey;
-use super::ray::{RayCells, RayStart};
+use super::ray::RayCells;
 use super::walk_avx2::{self, CellBytes};
 
 const BRICK_WORDS: usize = 8; // 512 cells / 64 bits
@@ -262,18 +262,25 @@ impl KeyVolume {
         })
     }
 
-    /// Walk `rays` and mark their cells free with the batched walk
-    /// ([`walk_avx2`]) when this CPU and the dense box allow it. Returns the rays left
-    /// for the scalar walk (all of them without AVX2 or a dense box). Call
-    /// [`KeyVolume::settle`] before reading the volume.
-    pub(crate) fn walk_rays(&mut self, rays: &[RayStart]) -> Vec<usize> {
+    /// Walk the rays from `origin` to `ends` (keys in `end_keys`) and mark their cells
+    /// free with the batched walk ([`walk_avx2`]) when this CPU and the dense box allow
+    /// it. Returns the indices of the rays left for the scalar walk (all of them
+    /// without AVX2 or a dense box). Call [`KeyVolume::settle`] before reading the
+    /// volume.
+    pub(crate) fn walk_rays(
+        &mut self,
+        conv: &super::key::KeyConverter,
+        origin: super::ray::Point3f,
+        ends: &[super::ray::Point3f],
+        end_keys: &[Option<OcTreeKey>],
+    ) -> Vec<usize> {
         match self.dense.as_mut() {
             Some(d) if walk_avx2::available() => {
                 let (lo, dims) = (d.lo, d.dims);
                 let walked = d.walked.get_or_insert_with(|| CellBytes::new(lo, dims));
-                walk_avx2::walk_rays(rays, walked)
+                walk_avx2::walk_rays(conv, origin, ends, end_keys, walked)
             }
-            _ => (0..rays.len()).collect(),
+            _ => (0..ends.len()).collect(),
         }
     }
 

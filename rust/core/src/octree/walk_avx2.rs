@@ -1,15 +1,16 @@
-//! The exact ray walk of [`super::ray::walk_from`], four rays at a time in AVX2 lanes.
+//! The exact ray walk of [`super::ray::walk_from`] (OctoMap's `computeRayKeys`), eight
+//! rays at a time in AVX2 lanes, planned and walked in one go.
 //!
 //! The scalar walk spends most of its time on mispredicted branches: which axis to step
 //! next is as unpredictable as the ray's slope. Here every lane takes its axis by masks,
 //! so nothing is predicted, and four rays share each instruction. The arithmetic is the
-//! scalar walk's, in the same double-precision operations (no fused multiply-add), so
-//! the cells are the same bit for bit.
+//! scalar code's, in the same precisions and operations (no fused multiply-add), so the
+//! cells are the same bit for bit.
 //!
 //! What keeps the loop short:
 //! - A ray reaches its end cell after exactly `n = Σ|end − origin|` steps (each step moves
-//!   one axis one cell towards the end), so rays are grouped by `n` and a group runs
-//!   until its longest ray is done; there is no key comparison in the loop.
+//!   one axis one cell towards the end), so rays are grouped by `n` and a group's lanes
+//!   finish together; there is no key comparison in the loop.
 //! - A walk that rounding carries one cell past its end on some axis (possible when the
 //!   end point lies on a cell border) never meets the end cell; the scalar walk then goes
 //!   on until it passes the end's distance. Such rays are rare and are handed back to the
@@ -18,9 +19,13 @@
 //!   its cell's index instead of its key (a step adds ±1, ±X or ±XY) and marks it with a
 //!   byte store: no read-modify-write that the next step's store to the same word would
 //!   wait on. The bytes are folded into the octree's bricks of bits once per scan.
+//! - Two groups of four lanes are interleaved: one group's step waits on its previous
+//!   one (compare, mask, add), two keep the core busy.
+//! - Rays are planned (direction, length, first crossings) four at a time right before
+//!   they are walked, straight into the lanes.
 
 use super::key::{KeyConverter, OcTreeKey};
-use super::ray::{plan_ray, Point3f, RayPlan, RayStart};
+use super::ray::Point3f;
 
 /// One byte per cell of a key box (non-zero: a ray crossed the cell), x fastest, plus
 /// a spare byte at the end that idle lanes write to.
@@ -52,30 +57,23 @@ impl CellBytes {
 
     /// Index of a key in the box (the caller checked it is inside).
     #[inline]
-    fn index(&self, key: [u16; 3]) -> usize {
-        let k = [0, 1, 2].map(|a| usize::from(key[a] - self.lo[a]));
+    fn index(&self, key: OcTreeKey) -> usize {
+        let k = [0, 1, 2].map(|a| usize::from(key.0[a] - self.lo[a]));
         k[0] + self.dims[0] * (k[1] + self.dims[1] * k[2])
     }
 
-    /// Whether every cell the ray can visit lies in the box: its two end cells' box,
-    /// one cell wider on every side, since rounding can carry a walk one cell past its
-    /// end on an axis but never two (the next border is a whole cell beyond the end).
+    /// Whether every cell a walk from `origin` to `end` can visit lies in the box: the
+    /// two end cells' box, one cell wider on every side, since rounding can carry a walk
+    /// one cell past its end on an axis but never two (the next border is a whole cell
+    /// beyond the end).
     #[inline]
-    fn holds(&self, r: &RayStart) -> bool {
+    fn holds(&self, origin: OcTreeKey, end: OcTreeKey) -> bool {
         (0..3).all(|a| {
-            let (o, e) = (r.key_origin.0[a], r.key_end.0[a]);
+            let (o, e) = (origin.0[a], end.0[a]);
             let (lo, hi) = (i64::from(o.min(e)) - 1, i64::from(o.max(e)) + 1);
             lo >= i64::from(self.lo[a]) && hi < i64::from(self.lo[a]) + self.dims[a] as i64
         })
     }
-}
-
-/// Steps from the origin cell to the end cell.
-#[inline]
-fn steps(r: &RayStart) -> u32 {
-    (0..3)
-        .map(|a| u32::from(r.key_origin.0[a].abs_diff(r.key_end.0[a])))
-        .sum()
 }
 
 /// Whether this CPU runs the batched walk.
@@ -94,142 +92,190 @@ pub(crate) fn available() -> bool {
     }
 }
 
-/// Walk `rays` (the origin cell included, the end cell excluded, as the scalar walk)
-/// and mark their cells in `cells`. Returns the indices of the rays the scalar walk
-/// must (re)do: those whose cells may leave the box, and those rounding carried past
-/// their end. Without AVX2 ([`available`] is false) every ray is returned.
-pub(crate) fn walk_rays(rays: &[RayStart], cells: &mut CellBytes) -> Vec<usize> {
-    if !available() {
-        return (0..rays.len()).collect();
-    }
-    let mut redo = Vec::new();
+/// Walk the rays from `origin` to every point of `ends` (`end_keys[i]` is the key of
+/// `ends[i]`, `None` off the map) and mark their cells in `cells`: the origin cell
+/// included, the end cell excluded, as OctoMap's `computeRayKeys`. Rays that visit
+/// nothing (an end off the map, or in the origin's cell) are skipped. Returns the
+/// indices of the rays left to the scalar walk: those whose cells may leave the box,
+/// and those rounding carried past their end. Without AVX2 ([`available`] is false)
+/// every ray is left.
+pub(crate) fn walk_rays(
+    conv: &KeyConverter,
+    origin: Point3f,
+    ends: &[Point3f],
+    end_keys: &[Option<OcTreeKey>],
+    cells: &mut CellBytes,
+) -> Vec<usize> {
+    let key_origin = conv.coord_to_key_checked(origin);
+    let (true, Some(key_origin)) = (available(), key_origin) else {
+        return (0..ends.len()).collect();
+    };
+    let mut rest = Vec::new();
     // Rays by step count (a counting sort), so that the lanes of a group finish
     // together.
-    let mut order: Vec<(u32, u32)> = Vec::with_capacity(rays.len());
+    let mut order: Vec<(u32, u32)> = Vec::with_capacity(ends.len());
     let mut count: Vec<u32> = Vec::new();
-    let mut origin = None;
-    for (i, r) in rays.iter().enumerate() {
-        if !cells.holds(r) {
-            redo.push(i);
+    for (i, key) in end_keys.iter().enumerate() {
+        let Some(key) = *key else { continue };
+        if key == key_origin {
             continue;
         }
-        // The walk visits its origin cell first (rays of a scan share it).
-        if origin != Some(r.key_origin) {
-            origin = Some(r.key_origin);
-            let at = cells.index(r.key_origin.0);
-            cells.bytes[at] = 1;
+        if !cells.holds(key_origin, key) {
+            rest.push(i);
+            continue;
         }
-        let n = steps(r);
+        let n: u32 = (0..3)
+            .map(|a| u32::from(key_origin.0[a].abs_diff(key.0[a])))
+            .sum();
         if count.len() <= n as usize {
             count.resize(n as usize + 1, 0);
         }
         count[n as usize] += 1;
         order.push((n, i as u32));
     }
-    let mut ends: Vec<u32> = Vec::with_capacity(count.len() + 1);
-    ends.push(0);
+    if order.is_empty() {
+        return rest;
+    }
+    let mut bounds: Vec<u32> = Vec::with_capacity(count.len() + 1);
+    bounds.push(0);
     for c in &count {
-        ends.push(ends[ends.len() - 1] + c);
+        bounds.push(bounds[bounds.len() - 1] + c);
     }
     let mut sorted = vec![0u32; order.len()];
-    let mut next = ends.clone();
+    let mut next = bounds.clone();
     for &(n, i) in &order {
         sorted[next[n as usize] as usize] = i;
         next[n as usize] += 1;
     }
-    for (n, bounds) in ends.windows(2).enumerate() {
-        let n = n as u32;
-        let group = &sorted[bounds[0] as usize..bounds[1] as usize];
-        for eight in group.chunks(8) {
-            let pick = [0, 1, 2, 3, 4, 5, 6, 7].map(|lane| eight.get(lane).copied());
-            #[cfg(target_arch = "x86_64")]
-            {
-                let lanes = pick.map(|i| i.map(|i| &rays[i as usize]));
-                // SAFETY: `available()` checked for AVX2; `holds` checked every lane;
-                // the lanes share a step count.
-                let back = unsafe { avx2::walk_group(lanes, n, cells) };
-                for (lane, i) in pick.into_iter().enumerate() {
-                    if let (true, Some(i)) = (back[lane], i) {
-                        redo.push(i as usize);
-                    }
-                }
-            }
-        }
-    }
-    redo
-}
-
-/// [`plan_ray`] for many rays from one origin, the float work four rays at a time
-/// (same operations in the same precisions, so the same bits). Returns each walking
-/// ray's start in `starts` and its index in `ends` in `index` (both cleared first).
-/// `end_keys[i]` is `ends[i]`'s key (`None` off the map).
-pub(crate) fn plan_rays(
-    conv: &KeyConverter,
-    origin: Point3f,
-    ends: &[Point3f],
-    end_keys: &[Option<OcTreeKey>],
-    starts: &mut Vec<RayStart>,
-    index: &mut Vec<u32>,
-) {
-    starts.clear();
-    index.clear();
+    // Every walk visits the origin cell first.
+    let origin_cell = cells.index(key_origin);
+    cells.bytes[origin_cell] = 1;
     #[cfg(target_arch = "x86_64")]
-    if available() {
-        if let Some(key_origin) = conv.coord_to_key_checked(origin) {
-            // OctoMap's numerator of t_max, (cell border − origin), for a step of +1
-            // and of −1 on each axis: the border is the origin cell's centre plus half
-            // a cell cast to float.
-            let half = f64::from((conv.resolution() * 0.5) as f32);
-            let centre = key_origin.0.map(|k| conv.key_to_coord_axis(k));
-            let towards =
-                |sign: f64| [0, 1, 2].map(|a| (centre[a] + sign * half) - f64::from(origin[a]));
-            let numerators = [towards(1.0), towards(-1.0)];
-            for (four, chunk) in ends.chunks(4).enumerate() {
-                let mut lanes = [origin; 4];
-                lanes[..chunk.len()].copy_from_slice(chunk);
-                // SAFETY: AVX2 was detected.
-                let float =
-                    unsafe { avx2::plan_four(origin, numerators, conv.resolution(), lanes) };
-                for lane in 0..chunk.len() {
-                    let Some(key_end) = end_keys[4 * four + lane] else {
-                        continue;
-                    };
-                    if key_end == key_origin {
-                        continue;
+    {
+        let plan = avx2::Plan::new(conv, origin, key_origin, cells);
+        for (n, span) in bounds.windows(2).enumerate() {
+            for eight in sorted[span[0] as usize..span[1] as usize].chunks(8) {
+                // SAFETY: `available()` checked for AVX2; `holds` checked every ray (so
+                // each has a key); the rays share their step count `n`.
+                let astray =
+                    unsafe { avx2::walk_eight(&plan, ends, end_keys, eight, n as u32, cells) };
+                for (lane, &i) in eight.iter().enumerate() {
+                    if (astray >> lane) & 1 == 1 {
+                        rest.push(i as usize);
                     }
-                    let axes = |v: &[[f64; 4]; 3]| [v[0][lane], v[1][lane], v[2][lane]];
-                    let length = f64::from(float.length[lane]);
-                    starts.push(RayStart {
-                        key_origin,
-                        key_end,
-                        step: [
-                            float.step[0][lane],
-                            float.step[1][lane],
-                            float.step[2][lane],
-                        ],
-                        t_max: axes(&float.t_max),
-                        t_delta: axes(&float.t_delta),
-                        length,
-                    });
-                    index.push((4 * four + lane) as u32);
                 }
             }
-            return;
         }
     }
-    for (i, &end) in ends.iter().enumerate() {
-        if let RayPlan::Walk(start) = plan_ray(conv, origin, end) {
-            starts.push(start);
-            index.push(i as u32);
-        }
-    }
+    rest
 }
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use super::CellBytes;
-    use crate::octree::ray::{Point3f, RayStart};
+    use crate::octree::key::{KeyConverter, OcTreeKey};
+    use crate::octree::ray::Point3f;
     use std::arch::x86_64::*;
+
+    /// What every ray of a scan shares: its origin and what OctoMap's planning derives
+    /// from it.
+    pub(super) struct Plan {
+        origin: Point3f,
+        resolution: f64,
+        /// (cell border − origin) for a step of +1 (`[0]`) and of −1 (`[1]`) on each
+        /// axis: the border is the origin cell's centre plus half a cell cast to float.
+        numerators: [[f64; 3]; 2],
+        /// What a step of +1 on each axis adds to a cell's index.
+        strides: [i64; 3],
+        origin_cell: i64,
+        spare: i64,
+    }
+
+    impl Plan {
+        pub(super) fn new(
+            conv: &KeyConverter,
+            origin: Point3f,
+            key_origin: OcTreeKey,
+            cells: &CellBytes,
+        ) -> Self {
+            let half = f64::from((conv.resolution() * 0.5) as f32);
+            let centre = key_origin.0.map(|k| conv.key_to_coord_axis(k));
+            let towards =
+                |sign: f64| [0, 1, 2].map(|a| (centre[a] + sign * half) - f64::from(origin[a]));
+            let [nx, ny, _] = cells.dims.map(|d| d as i64);
+            Plan {
+                origin,
+                resolution: conv.resolution(),
+                numerators: [towards(1.0), towards(-1.0)],
+                strides: [1, nx, nx * ny],
+                origin_cell: cells.index(key_origin) as i64,
+                spare: cells.spare() as i64,
+            }
+        }
+    }
+
+    /// The first crossings of four rays, as OctoMap's `computeRayKeys` sets them up.
+    pub(super) struct Planned {
+        /// Distance to the first cell border on each axis (f64::MAX if the ray does
+        /// not move on the axis).
+        pub t_max: [__m256d; 3],
+        /// Distance between borders on each axis (f64::MAX likewise).
+        pub t_delta: [__m256d; 3],
+        /// Lanes moving up (all ones) and down on each axis.
+        pub up: [__m256d; 3],
+        pub down: [__m256d; 3],
+        /// Ray length (float, widened).
+        pub length: __m256d,
+    }
+
+    /// Plan four rays from `plan`'s origin to `ends`: OctoMap's arithmetic, float
+    /// direction and length (`Vector3::norm`: squares summed in float left to right,
+    /// root in double), double crossings.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(super) fn plan_four(plan: &Plan, ends: [Point3f; 4]) -> Planned {
+        let origin = plan.origin;
+        let axis = |a: usize| {
+            let v = _mm_setr_ps(ends[0][a], ends[1][a], ends[2][a], ends[3][a]);
+            _mm_sub_ps(v, _mm_set1_ps(origin[a]))
+        };
+        let v = [axis(0), axis(1), axis(2)];
+        let squares = _mm_add_ps(
+            _mm_add_ps(_mm_mul_ps(v[0], v[0]), _mm_mul_ps(v[1], v[1])),
+            _mm_mul_ps(v[2], v[2]),
+        );
+        let length = _mm256_cvtpd_ps(_mm256_sqrt_pd(_mm256_cvtps_pd(squares)));
+        let zero = _mm256_setzero_pd();
+        let most = _mm256_set1_pd(f64::MAX);
+        let magnitude = _mm256_castsi256_pd(_mm256_set1_epi64x(i64::MAX));
+        let resolution = _mm256_set1_pd(plan.resolution);
+        let per_axis = |a: usize| {
+            let d = _mm256_cvtps_pd(_mm_div_ps(v[a], length));
+            let up = _mm256_cmp_pd::<_CMP_GT_OQ>(d, zero);
+            let down = _mm256_cmp_pd::<_CMP_LT_OQ>(d, zero);
+            let moving = _mm256_or_pd(up, down);
+            let numerator = _mm256_blendv_pd(
+                _mm256_set1_pd(plan.numerators[1][a]),
+                _mm256_set1_pd(plan.numerators[0][a]),
+                up,
+            );
+            let t_max = _mm256_blendv_pd(most, _mm256_div_pd(numerator, d), moving);
+            let t_delta = _mm256_blendv_pd(
+                most,
+                _mm256_div_pd(resolution, _mm256_and_pd(d, magnitude)),
+                moving,
+            );
+            (t_max, t_delta, up, down)
+        };
+        let (x, y, z) = (per_axis(0), per_axis(1), per_axis(2));
+        Planned {
+            t_max: [x.0, y.0, z.0],
+            t_delta: [x.1, y.1, z.1],
+            up: [x.2, y.2, z.2],
+            down: [x.3, y.3, z.3],
+            length: _mm256_cvtps_pd(length),
+        }
+    }
 
     /// Four rays' walks, one per lane.
     struct Four {
@@ -245,43 +291,54 @@ mod avx2 {
     }
 
     impl Four {
-        /// The lanes' walks at their origin cells; idle lanes (`None`) never walk.
+        /// The rays to `ends[i]` for `i` in `rays` (up to four; keys in `end_keys`) at
+        /// their origin cell, planned; idle lanes sit on the spare byte and never walk.
         #[target_feature(enable = "avx2")]
         #[inline]
-        fn new(lanes: &[Option<&RayStart>], cells: &CellBytes) -> Self {
-            let [nx, ny, _] = cells.dims.map(|d| d as i64);
-            let stride = [1, nx, nx * ny];
-            // Lane by lane, then loaded as vectors. Idle lanes get a negative length,
-            // which stops them at once.
-            let (mut t, mut delta, mut moves) = ([[0.0; 4]; 3], [[0.0; 4]; 3], [[0i64; 4]; 3]);
-            // Idle lanes sit on the spare byte and never move.
-            let spare = cells.spare() as i64;
-            let (mut length, mut cell, mut end) = ([-1.0; 4], [spare; 4], [spare; 4]);
-            for (lane, r) in lanes.iter().enumerate().take(4) {
-                let Some(r) = r else { continue };
-                for a in 0..3 {
-                    t[a][lane] = r.t_max[a];
-                    delta[a][lane] = r.t_delta[a];
-                    moves[a][lane] = i64::from(r.step[a]) * stride[a];
+        fn new(
+            plan: &Plan,
+            ends: &[Point3f],
+            end_keys: &[Option<OcTreeKey>],
+            rays: &[u32],
+            cells: &CellBytes,
+        ) -> Self {
+            let mut points = [plan.origin; 4];
+            let (mut end, mut present) = ([plan.spare; 4], [0i64; 4]);
+            for (lane, &i) in rays.iter().enumerate().take(4) {
+                points[lane] = ends[i as usize];
+                if let Some(key) = end_keys[i as usize] {
+                    end[lane] = cells.index(key) as i64;
+                    present[lane] = -1;
                 }
-                length[lane] = r.length;
-                cell[lane] = cells.index(r.key_origin.0) as i64;
-                end[lane] = cells.index(r.key_end.0) as i64;
             }
-            let pd = |v: [f64; 4]| _mm256_setr_pd(v[0], v[1], v[2], v[3]);
-            let epi = |v: [i64; 4]| _mm256_setr_epi64x(v[0], v[1], v[2], v[3]);
-            let length = pd(length);
+            let present = _mm256_setr_epi64x(present[0], present[1], present[2], present[3]);
+            let live = _mm256_castsi256_pd(present);
+            let planned = plan_four(plan, points);
+            let moves = [0, 1, 2].map(|a| {
+                let stride = plan.strides[a];
+                let up = _mm256_and_pd(
+                    planned.up[a],
+                    _mm256_castsi256_pd(_mm256_set1_epi64x(stride)),
+                );
+                let down = _mm256_and_pd(
+                    planned.down[a],
+                    _mm256_castsi256_pd(_mm256_set1_epi64x(-stride)),
+                );
+                _mm256_and_pd(_mm256_or_pd(up, down), live)
+            });
             Four {
-                t: t.map(pd),
-                delta: delta.map(pd),
-                moves: moves.map(|m| _mm256_castsi256_pd(epi(m))),
-                length,
-                cell: epi(cell),
-                end: epi(end),
-                active: _mm256_castpd_si256(_mm256_cmp_pd::<_CMP_GE_OQ>(
-                    length,
-                    _mm256_setzero_pd(),
-                )),
+                t: planned.t_max,
+                delta: planned.t_delta,
+                moves,
+                // A negative length stops idle lanes at once.
+                length: _mm256_blendv_pd(_mm256_set1_pd(-1.0), planned.length, live),
+                cell: _mm256_blendv_epi8(
+                    _mm256_set1_epi64x(plan.spare),
+                    _mm256_set1_epi64x(plan.origin_cell),
+                    present,
+                ),
+                end: _mm256_setr_epi64x(end[0], end[1], end[2], end[3]),
+                active: present,
             }
         }
 
@@ -331,23 +388,27 @@ mod avx2 {
         }
     }
 
-    /// Walk up to eight rays (empty lanes stay idle) that all take `steps` steps to
-    /// their end cells, in two interleaved groups of four (one group's step waits on
-    /// its previous one; two keep the core busy). Returns, per lane, whether the scalar
-    /// walk must redo the ray (see [`Four::astray`]).
+    /// Plan and walk the rays to `ends[i]` for `i` in `rays` (up to eight; keys in
+    /// `end_keys`), that all take `steps` steps to their end cells. Returns the rays
+    /// the scalar walk must redo, as bits (see [`Four::astray`]).
     ///
     /// # Safety
     /// AVX2 must be available, `cells` must hold every lane's ray
     /// ([`CellBytes::holds`]), and every lane's ray must take `steps` steps.
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn walk_group(
-        lanes: [Option<&RayStart>; 8],
+    pub(super) unsafe fn walk_eight(
+        plan: &Plan,
+        ends: &[Point3f],
+        end_keys: &[Option<OcTreeKey>],
+        rays: &[u32],
         steps: u32,
         cells: &mut CellBytes,
-    ) -> [bool; 8] {
+    ) -> u32 {
         // Two named groups, not an array: LLVM keeps their state in registers then.
-        let (mut a, mut b) = (Four::new(&lanes[..4], cells), Four::new(&lanes[4..], cells));
-        let spare = _mm256_castsi256_pd(_mm256_set1_epi64x(cells.spare() as i64));
+        let (first, second) = rays.split_at(rays.len().min(4));
+        let mut a = Four::new(plan, ends, end_keys, first, cells);
+        let mut b = Four::new(plan, ends, end_keys, second, cells);
+        let spare = _mm256_castsi256_pd(_mm256_set1_epi64x(plan.spare));
         let bytes = cells.bytes.as_mut_ptr();
         let mut at = [0u64; 8];
         macro_rules! targets {
@@ -368,79 +429,39 @@ mod avx2 {
         }
         // Step n reaches the end cell.
         let (within_a, within_b) = (a.step(), b.step());
-        let astray = a.astray(within_a) | (b.astray(within_b) << 4);
-        [0, 1, 2, 3, 4, 5, 6, 7].map(|lane| lanes[lane].is_some() && (astray >> lane) & 1 == 1)
+        (a.astray(within_a) | (b.astray(within_b) << 4)) as u32
     }
 
-    /// What `plan_four` computes, axis by axis for four lanes (`step[axis][lane]`).
-    pub(super) struct FourStarts {
-        pub step: [[i32; 4]; 3],
-        pub t_max: [[f64; 4]; 3],
-        pub t_delta: [[f64; 4]; 3],
-        pub length: [f32; 4],
-    }
+    #[cfg(test)]
+    pub(super) mod tests {
+        use super::*;
 
-    /// The float part of `plan_ray` for four rays from `origin`: per ray its steps,
-    /// t_max, t_delta and length. `numerators[0]` and `[1]` are (border − origin) for
-    /// steps of +1 and −1.
-    #[target_feature(enable = "avx2")]
-    pub(super) fn plan_four(
-        origin: Point3f,
-        numerators: [[f64; 3]; 2],
-        resolution: f64,
-        ends: [Point3f; 4],
-    ) -> FourStarts {
-        let axis = |a: usize| {
-            let v = _mm_setr_ps(ends[0][a], ends[1][a], ends[2][a], ends[3][a]);
-            _mm_sub_ps(v, _mm_set1_ps(origin[a]))
-        };
-        let v = [axis(0), axis(1), axis(2)];
-        // `Vector3::norm`: squares summed in float, left to right, root in double.
-        let squares = _mm_add_ps(
-            _mm_add_ps(_mm_mul_ps(v[0], v[0]), _mm_mul_ps(v[1], v[1])),
-            _mm_mul_ps(v[2], v[2]),
-        );
-        let length = _mm256_cvtpd_ps(_mm256_sqrt_pd(_mm256_cvtps_pd(squares)));
-        let zero = _mm256_setzero_pd();
-        let most = _mm256_set1_pd(f64::MAX);
-        let magnitude = _mm256_castsi256_pd(_mm256_set1_epi64x(i64::MAX));
-        let mut t_max = [[0.0; 4]; 3];
-        let mut t_delta = [[0.0; 4]; 3];
-        let mut step = [[0i32; 4]; 3];
-        for a in 0..3 {
-            let d = _mm256_cvtps_pd(_mm_div_ps(v[a], length));
-            let up = _mm256_cmp_pd::<_CMP_GT_OQ>(d, zero);
-            let down = _mm256_cmp_pd::<_CMP_LT_OQ>(d, zero);
-            let moving = _mm256_or_pd(up, down);
-            let numerator = _mm256_blendv_pd(
-                _mm256_set1_pd(numerators[1][a]),
-                _mm256_set1_pd(numerators[0][a]),
-                up,
-            );
-            let tm = _mm256_blendv_pd(most, _mm256_div_pd(numerator, d), moving);
-            let td = _mm256_blendv_pd(
-                most,
-                _mm256_div_pd(_mm256_set1_pd(resolution), _mm256_and_pd(d, magnitude)),
-                moving,
-            );
-            // SAFETY: four doubles into arrays of four.
-            unsafe {
-                _mm256_storeu_pd(t_max[a].as_mut_ptr(), tm);
-                _mm256_storeu_pd(t_delta[a].as_mut_ptr(), td);
-            }
-            let (up, down) = (_mm256_movemask_pd(up), _mm256_movemask_pd(down));
-            for (lane, s) in step[a].iter_mut().enumerate() {
-                *s = ((up >> lane) & 1) - ((down >> lane) & 1);
-            }
-        }
-        let mut lengths = [0f32; 4];
-        // SAFETY: four floats into an array of four.
-        unsafe { _mm_storeu_ps(lengths.as_mut_ptr(), length) };
-        FourStarts {
-            step,
-            t_max,
-            t_delta,
-            length: lengths,
+        /// A planned lane as `plan_ray` reports it: step, t_max, t_delta, length.
+        pub(in crate::octree::walk_avx2) type Lane = ([i32; 3], [f64; 3], [f64; 3], f64);
+
+        /// `plan_four`'s lanes.
+        #[target_feature(enable = "avx2")]
+        pub(in crate::octree::walk_avx2) fn lanes(plan: &Plan, ends: [Point3f; 4]) -> [Lane; 4] {
+            let p = plan_four(plan, ends);
+            let get = |v: __m256d| {
+                let mut out = [0.0; 4];
+                // SAFETY: four doubles into an array of four.
+                unsafe { _mm256_storeu_pd(out.as_mut_ptr(), v) };
+                out
+            };
+            let (t_max, t_delta, length) = (p.t_max.map(get), p.t_delta.map(get), get(p.length));
+            let (up, down) = (p.up.map(get), p.down.map(get));
+            [0, 1, 2, 3].map(|l| {
+                let step = [0, 1, 2].map(|a| {
+                    i32::from(up[a][l].to_bits() != 0) - i32::from(down[a][l].to_bits() != 0)
+                });
+                (
+                    step,
+                    [0, 1, 2].map(|a| t_max[a][l]),
+                    [0, 1, 2].map(|a| t_delta[a][l]),
+                    length[l],
+                )
+            })
         }
     }
 }
@@ -448,7 +469,7 @@ mod avx2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::octree::ray::walk_from;
+    use crate::octree::ray::{plan_ray, walk_from, RayPlan, RayStart};
     use std::collections::BTreeSet;
 
     /// xorshift64*: deterministic test data without a dependency.
@@ -466,14 +487,14 @@ mod tests {
     }
 
     /// Ray ends of every awkward kind around `origin`: anywhere, on cell borders, on
-    /// the origin's axes and planes, and in the origin's own cell.
+    /// the origin's axes and planes, and near or in the origin's own cell.
     fn awkward_ends(rng: &mut Rng, origin: Point3f, res: f64, count: usize) -> Vec<Point3f> {
         (0..count)
             .map(|i| {
                 let mut p = [0f32; 3];
-                for a in 0..3 {
+                for (a, c) in p.iter_mut().enumerate() {
                     let off = rng.within(-2.0, 2.0);
-                    p[a] = match i % 5 {
+                    *c = match i % 5 {
                         // On a cell border (an exact multiple of the resolution).
                         0 => ((f64::from(origin[a]) + off) / res).round() as f32 * res as f32,
                         // Level with the origin on some axes.
@@ -496,41 +517,43 @@ mod tests {
     }
 
     #[test]
-    fn planned_rays_are_plan_rays_bit_for_bit() {
+    fn planned_lanes_are_plan_ray_bit_for_bit() {
+        if !available() {
+            return;
+        }
         let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
         for &res in &[0.05, 0.02, 0.1, 0.013] {
             let conv = KeyConverter::new(res);
             for _ in 0..20 {
                 let origin = [0, 1, 2].map(|_| rng.within(-3.0, 3.0) as f32);
-                let ends = awkward_ends(&mut rng, origin, res, 501);
-                let (mut starts, mut index) = (Vec::new(), Vec::new());
-                let keys: Vec<_> = ends.iter().map(|&e| conv.coord_to_key_checked(e)).collect();
-                plan_rays(&conv, origin, &ends, &keys, &mut starts, &mut index);
-                let expected: Vec<(u32, RayStart)> = ends
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, &e)| match plan_ray(&conv, origin, e) {
-                        RayPlan::Walk(s) => Some((i as u32, s)),
-                        _ => None,
-                    })
-                    .collect();
-                assert_eq!(index, expected.iter().map(|e| e.0).collect::<Vec<_>>());
-                for (got, (_, want)) in starts.iter().zip(&expected) {
-                    assert_eq!(got.key_origin, want.key_origin);
-                    assert_eq!(got.key_end, want.key_end);
-                    assert_eq!(got.step, want.step);
-                    assert_eq!(got.length.to_bits(), want.length.to_bits());
-                    for a in 0..3 {
-                        assert_eq!(
-                            got.t_max[a].to_bits(),
-                            want.t_max[a].to_bits(),
-                            "t_max {a} of {got:?}"
-                        );
-                        assert_eq!(
-                            got.t_delta[a].to_bits(),
-                            want.t_delta[a].to_bits(),
-                            "t_delta {a}"
-                        );
+                let Some(key_origin) = conv.coord_to_key_checked(origin) else {
+                    continue;
+                };
+                let cells = CellBytes::new(key_origin.0, [1, 1, 1]);
+                let plan = avx2::Plan::new(&conv, origin, key_origin, &cells);
+                for four in awkward_ends(&mut rng, origin, res, 500).chunks_exact(4) {
+                    let ends: [Point3f; 4] = [four[0], four[1], four[2], four[3]];
+                    // SAFETY: AVX2 is available (checked above).
+                    let lanes = unsafe { avx2::tests::lanes(&plan, ends) };
+                    for (lane, &end) in ends.iter().enumerate() {
+                        let RayPlan::Walk(want) = plan_ray(&conv, origin, end) else {
+                            continue;
+                        };
+                        let (step, t_max, t_delta, length) = lanes[lane];
+                        assert_eq!(step, want.step, "{end:?}");
+                        assert_eq!(length.to_bits(), want.length.to_bits());
+                        for a in 0..3 {
+                            assert_eq!(
+                                t_max[a].to_bits(),
+                                want.t_max[a].to_bits(),
+                                "t_max {a} of {end:?}"
+                            );
+                            assert_eq!(
+                                t_delta[a].to_bits(),
+                                want.t_delta[a].to_bits(),
+                                "t_delta {a} of {end:?}"
+                            );
+                        }
                     }
                 }
             }
@@ -539,6 +562,9 @@ mod tests {
 
     #[test]
     fn batched_walk_marks_the_scalar_walks_cells() {
+        if !available() {
+            return;
+        }
         let mut rng = Rng(0x0123_4567_89AB_CDEF);
         let mut astray = 0;
         for &res in &[0.05, 0.02, 0.1] {
@@ -546,37 +572,45 @@ mod tests {
             for _ in 0..10 {
                 let origin = [0, 1, 2].map(|_| rng.within(-3.0, 3.0) as f32);
                 let ends = awkward_ends(&mut rng, origin, res, 2000);
-                let (mut starts, mut index) = (Vec::new(), Vec::new());
                 let keys: Vec<_> = ends.iter().map(|&e| conv.coord_to_key_checked(e)).collect();
-                plan_rays(&conv, origin, &ends, &keys, &mut starts, &mut index);
-                // A box around everything, one cell wider, as `trace` builds it.
-                let keys: Vec<OcTreeKey> = starts
+                let starts: Vec<(usize, RayStart)> = ends
                     .iter()
-                    .flat_map(|s| [s.key_origin, s.key_end])
+                    .enumerate()
+                    .filter_map(|(i, &e)| match plan_ray(&conv, origin, e) {
+                        RayPlan::Walk(s) => Some((i, s)),
+                        _ => None,
+                    })
                     .collect();
-                let lo = [0, 1, 2].map(|a| keys.iter().map(|k| k.0[a]).min().unwrap_or(0) - 1);
-                let hi = [0, 1, 2].map(|a| keys.iter().map(|k| k.0[a]).max().unwrap_or(0) + 1);
+                // A box around everything, one cell wider, as `trace` builds it.
+                let all: Vec<OcTreeKey> = starts
+                    .iter()
+                    .flat_map(|(_, s)| [s.key_origin, s.key_end])
+                    .collect();
+                let lo = [0, 1, 2].map(|a| all.iter().map(|k| k.0[a]).min().unwrap_or(0) - 1);
+                let hi = [0, 1, 2].map(|a| all.iter().map(|k| k.0[a]).max().unwrap_or(0) + 1);
                 let dims = [0, 1, 2].map(|a| usize::from(hi[a] - lo[a]) + 1);
                 let mut cells = CellBytes::new(lo, dims);
-                let redo = walk_rays(&starts, &mut cells);
-                assert!(cells.bytes[cells.spare()] <= 1);
+                let rest = walk_rays(&conv, origin, &ends, &keys, &mut cells);
                 let mut got = BTreeSet::new();
                 for x in 0..dims[0] {
                     for y in 0..dims[1] {
                         for z in 0..dims[2] {
-                            let key = [x, y, z].map(|c| c as u16);
-                            let key = [0, 1, 2].map(|a| key[a] + lo[a]);
+                            let key = OcTreeKey([x, y, z].map(|c| c as u16)).0;
+                            let key = OcTreeKey([0, 1, 2].map(|a| key[a] + lo[a]));
                             if cells.bytes[cells.index(key)] != 0 {
-                                got.insert(OcTreeKey(key));
+                                got.insert(key);
                             }
                         }
                     }
                 }
-                for &i in &redo {
-                    got.extend(scalar_cells(&starts[i]));
+                for &i in &rest {
+                    if let RayPlan::Walk(s) = plan_ray(&conv, origin, ends[i]) {
+                        got.extend(scalar_cells(&s));
+                    }
                 }
-                astray += redo.len();
-                let want: BTreeSet<OcTreeKey> = starts.iter().flat_map(scalar_cells).collect();
+                astray += rest.len();
+                let want: BTreeSet<OcTreeKey> =
+                    starts.iter().flat_map(|(_, s)| scalar_cells(s)).collect();
                 assert_eq!(got.len(), want.len(), "res {res}, origin {origin:?}");
                 assert!(got == want, "res {res}, origin {origin:?}");
             }
