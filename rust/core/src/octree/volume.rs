@@ -18,6 +18,9 @@ const BRICK_WORDS: usize = 8; // 512 cells / 64 bits
 /// Most bricks a dense box may hold (8 MiB per kind of mark).
 const MAX_DENSE_BRICKS: usize = 1 << 17;
 
+/// Most cells of a dense box that the batched walk marks as bytes.
+const MAX_WALKED_CELLS: usize = 1 << 24;
+
 /// Morton code of three bits, x lowest.
 const SPREAD3: [u32; 8] = [0o0, 0o1, 0o10, 0o11, 0o100, 0o101, 0o110, 0o111];
 
@@ -275,7 +278,12 @@ impl KeyVolume {
         end_keys: &[Option<OcTreeKey>],
     ) -> Vec<usize> {
         match self.dense.as_mut() {
-            Some(d) if walk_avx2::available() => {
+            // A byte per cell: boxes beyond 16 Mi cells (16 MiB a thread, and as much
+            // to fold) go to the scalar walk, which marks the bits directly.
+            Some(d)
+                if walk_avx2::available()
+                    && d.dims.iter().product::<usize>() <= MAX_WALKED_CELLS =>
+            {
                 let (lo, dims) = (d.lo, d.dims);
                 let walked = d.walked.get_or_insert_with(|| CellBytes::new(lo, dims));
                 walk_avx2::walk_rays(conv, origin, ends, end_keys, walked)

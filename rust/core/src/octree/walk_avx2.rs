@@ -408,7 +408,9 @@ mod avx2 {
         let (first, second) = rays.split_at(rays.len().min(4));
         let mut a = Four::new(plan, ends, end_keys, first, cells);
         let mut b = Four::new(plan, ends, end_keys, second, cells);
-        let spare = _mm256_castsi256_pd(_mm256_set1_epi64x(plan.spare));
+        let last = _mm256_set1_epi64x(plan.spare);
+        let spare = _mm256_castsi256_pd(last);
+        debug_assert_eq!(plan.spare as usize, cells.spare());
         let bytes = cells.bytes.as_mut_ptr();
         let mut at = [0u64; 8];
         macro_rules! targets {
@@ -419,11 +421,20 @@ mod avx2 {
         }
         // Steps 1 to n − 1 reach the cells before the end cell: mark them.
         for _ in 1..steps {
+            // Indices are cells of the box (`holds`) or the spare byte; clamping them to
+            // the spare byte (each 32-bit half: valid ones fit in the low half) keeps
+            // the stores in the buffer whatever happens.
             let (ta, tb) = (targets!(a), targets!(b));
-            _mm256_storeu_pd(at.as_mut_ptr().cast(), ta);
-            _mm256_storeu_pd(at[4..].as_mut_ptr().cast(), tb);
+            _mm256_storeu_si256(
+                at.as_mut_ptr().cast(),
+                _mm256_min_epu32(_mm256_castpd_si256(ta), last),
+            );
+            _mm256_storeu_si256(
+                at[4..].as_mut_ptr().cast(),
+                _mm256_min_epu32(_mm256_castpd_si256(tb), last),
+            );
             for &i in &at {
-                // SAFETY: a cell of the box (`holds`) or the spare byte.
+                // SAFETY: at most the spare byte's index, by the clamp.
                 *bytes.add(i as usize) = 1;
             }
         }
