@@ -131,7 +131,8 @@ impl OcTree {
                 return Err(self.out_of_bounds(if i == 0 { "point 0" } else { "a point" }, p));
             }
         }
-        unreachable!("a point failed the batch check but none failed alone")
+        // Not reached: the loop repeats the batch's test point by point.
+        Err(Error::InvalidArgument("a point is outside the map".into()))
     }
 
     fn out_of_bounds(&self, what: &'static str, point: [f64; 3]) -> Error {
