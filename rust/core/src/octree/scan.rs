@@ -168,8 +168,10 @@ impl OcTree {
     ) -> KeyVolume {
         // One volume per thread (each covers the whole scan's box, so fewer is
         // cheaper to zero and merge); threads take interleaved chunks of the image
-        // rows, which balances long and short rays between them.
-        const CHUNK: usize = 2048;
+        // rows, which balances long and short rays between them. Chunks are large
+        // enough that the batched walk finds full groups of rays with equal step
+        // counts (with 2048, more groups ran half empty: ~1 ms slower at 5 cm).
+        const CHUNK: usize = 8192;
         let parts: Vec<usize> =
             (0..threads::num_threads().clamp(1, points.len().div_ceil(CHUNK).max(1))).collect();
         let conv = &self.conv;
