@@ -282,3 +282,25 @@ def test_follower_limits_must_be_intervals_and_odometry_poses_rigid():
         Follower(np.ones(1), np.ones(1)).rollout(motion, np.zeros(1), np.zeros(1), 1 / 30, np.array([[1.0, -1.0]]))
     with pytest.raises(ValueError, match="rigid"):
         LidarOdometry(initial_pose=np.diag([2.0, 2.0, 2.0, 1.0]))
+
+
+def test_a_point_closer_than_float_can_measure_but_across_a_border_does_not_hang():
+    """An end 3e-45 m from an origin on a cell border: its float length is 0 and its
+    direction infinite, and OctoMap's ray walk never ends on it. earcore visits the
+    origin cell alone (the end cell is hit as usual). Run in a child process, so that a
+    regression fails instead of hanging the suite."""
+    import subprocess
+    import sys
+
+    script = (
+        "import numpy as np, earcore\n"
+        "t = earcore.OcTree(0.05)\n"
+        "pts = np.array([[0.0, -3e-45, 3e-45], [-3e-45, -3e-45, 3e-45]])\n"
+        "r = t.insert_point_cloud(pts, [0.0, 0.0, 0.0])\n"
+        "print(r.free_cells, r.occupied_cells)\n"
+        "print(*t.is_occupied(np.array([[0.01, 0.01, 0.01], [0.01, -0.01, 0.01], [-0.01, -0.01, 0.01]])))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True)
+    counts, occupancy = out.stdout.split("\n")[:2]
+    assert counts == "1 2"  # the origin cell free, both end cells hit
+    assert occupancy == "0 1 1"

@@ -179,9 +179,23 @@ pub(crate) fn plan_ray(conv: &KeyConverter, origin: Point3f, end: Point3f) -> Ra
         step: dda.step,
         t_max: dda.t_max,
         t_delta: dda.t_delta,
-        length: f64::from(length),
+        length: walk_length(length),
     }
     .into()
+}
+
+/// The length a walk tests against. An end within ~1e-22 of the origin (the squares
+/// underflow) but across a cell border gives a zero length and an infinite or NaN
+/// direction, all of whose crossings lie at 0: OctoMap's walk then never ends. Such a
+/// ray visits the origin cell alone here: a negative length stops its walk after that
+/// cell.
+#[inline(always)]
+pub(crate) fn walk_length(length: f32) -> f64 {
+    if length > 0.0 {
+        f64::from(length)
+    } else {
+        -1.0
+    }
 }
 
 impl From<RayStart> for RayPlan {

@@ -330,8 +330,16 @@ mod avx2 {
                 t: planned.t_max,
                 delta: planned.t_delta,
                 moves,
-                // A negative length stops idle lanes at once.
-                length: _mm256_blendv_pd(_mm256_set1_pd(-1.0), planned.length, live),
+                // A negative length stops idle lanes at once, and rays of zero length
+                // after their origin cell (`ray::walk_length`).
+                length: _mm256_blendv_pd(
+                    _mm256_set1_pd(-1.0),
+                    planned.length,
+                    _mm256_and_pd(
+                        live,
+                        _mm256_cmp_pd::<_CMP_GT_OQ>(planned.length, _mm256_setzero_pd()),
+                    ),
+                ),
                 cell: _mm256_blendv_epi8(
                     _mm256_set1_epi64x(plan.spare),
                     _mm256_set1_epi64x(plan.origin_cell),
@@ -480,7 +488,7 @@ mod avx2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::octree::ray::{plan_ray, walk_from, RayPlan, RayStart};
+    use crate::octree::ray::{compute_ray_keys, plan_ray, walk_from, RayPlan, RayStart};
     use std::collections::BTreeSet;
 
     /// xorshift64*: deterministic test data without a dependency.
@@ -569,6 +577,36 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_ray_too_short_for_float_visits_its_origin_cell_alone() {
+        // The end is 3e-45 from an origin on a cell border, across the border: the
+        // squares underflow, the length is 0 and OctoMap's walk would never end.
+        let conv = KeyConverter::new(0.05);
+        let origin = [0.0f32, 0.0, 0.0];
+        let ends = [[0.0f32, -3e-45, 3e-45], [-3e-45, -3e-45, 3e-45]];
+        let key_origin = conv.coord_to_key_checked(origin).unwrap_or_default();
+        for end in ends {
+            let mut cells = Vec::new();
+            // (A walk that never ends fails here instead of hanging the tests.)
+            let visit = |k| {
+                cells.push(k);
+                assert!(cells.len() < 1000, "the walk of {end:?} does not end");
+            };
+            assert!(compute_ray_keys(&conv, origin, end, visit));
+            assert_eq!(cells, vec![key_origin], "scalar walk of {end:?}");
+        }
+        if !available() {
+            return;
+        }
+        let keys: Vec<_> = ends.iter().map(|&e| conv.coord_to_key_checked(e)).collect();
+        let lo = key_origin.0.map(|k| k - 4);
+        let mut box_ = CellBytes::new(lo, [8, 8, 8]);
+        let rest = walk_rays(&conv, origin, &ends, &keys, &mut box_);
+        assert!(rest.is_empty());
+        let marked: Vec<usize> = (0..box_.spare()).filter(|&i| box_.bytes[i] != 0).collect();
+        assert_eq!(marked, vec![box_.index(key_origin)]);
     }
 
     #[test]
