@@ -40,6 +40,26 @@ pub fn point_at(origin: Point3f, direction: Point3f, range: f32) -> Point3f {
     ]
 }
 
+/// OctoMap's numerator of a ray's first crossing on one axis: (the border of the
+/// origin's cell in the direction of `step`) − origin, the border being the cell's
+/// centre plus half a cell, that half cast to float when `half_step_as_float`.
+#[inline]
+pub(crate) fn to_first_border(
+    conv: &KeyConverter,
+    key: u16,
+    origin: f32,
+    step: i32,
+    half_step_as_float: bool,
+) -> f64 {
+    let half = f64::from(step) * conv.resolution() * 0.5;
+    let half = if half_step_as_float {
+        f64::from(half as f32)
+    } else {
+        half
+    };
+    (conv.key_to_coord_axis(key) + half) - f64::from(origin)
+}
+
 /// DDA state shared by both traversals.
 struct Dda {
     step: [i32; 3],
@@ -74,14 +94,9 @@ impl Dda {
                 0
             };
             if dda.step[i] != 0 {
-                let half = f64::from(dda.step[i]) * res * 0.5;
-                let half = if half_step_as_float {
-                    f64::from(half as f32)
-                } else {
-                    half
-                };
-                let border = conv.key_to_coord_axis(key.0[i]) + half;
-                dda.t_max[i] = (border - f64::from(origin[i])) / f64::from(d);
+                let to_border =
+                    to_first_border(conv, key.0[i], origin[i], dda.step[i], half_step_as_float);
+                dda.t_max[i] = to_border / f64::from(d);
                 dda.t_delta[i] = res / f64::from(d.abs());
             }
         }

@@ -174,7 +174,7 @@ pub(crate) fn walk_rays(
 mod avx2 {
     use super::CellBytes;
     use crate::octree::key::{KeyConverter, OcTreeKey};
-    use crate::octree::ray::Point3f;
+    use crate::octree::ray::{to_first_border, Point3f};
     use std::arch::x86_64::*;
 
     /// What every ray of a scan shares: its origin and what OctoMap's planning derives
@@ -183,7 +183,7 @@ mod avx2 {
         origin: Point3f,
         resolution: f64,
         /// (cell border − origin) for a step of +1 (`[0]`) and of −1 (`[1]`) on each
-        /// axis: the border is the origin cell's centre plus half a cell cast to float.
+        /// axis, as `computeRayKeys` computes it (`ray::to_first_border`).
         numerators: [[f64; 3]; 2],
         /// What a step of +1 on each axis adds to a cell's index.
         strides: [i64; 3],
@@ -198,15 +198,14 @@ mod avx2 {
             key_origin: OcTreeKey,
             cells: &CellBytes,
         ) -> Self {
-            let half = f64::from((conv.resolution() * 0.5) as f32);
-            let centre = key_origin.0.map(|k| conv.key_to_coord_axis(k));
-            let towards =
-                |sign: f64| [0, 1, 2].map(|a| (centre[a] + sign * half) - f64::from(origin[a]));
+            let towards = |step: i32| {
+                [0, 1, 2].map(|a| to_first_border(conv, key_origin.0[a], origin[a], step, true))
+            };
             let [nx, ny, _] = cells.dims.map(|d| d as i64);
             Plan {
                 origin,
                 resolution: conv.resolution(),
-                numerators: [towards(1.0), towards(-1.0)],
+                numerators: [towards(1), towards(-1)],
                 strides: [1, nx, nx * ny],
                 origin_cell: cells.index(key_origin) as i64,
                 spare: cells.spare() as i64,
