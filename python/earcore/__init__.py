@@ -29,7 +29,15 @@ except ImportError as exc:  # pragma: no cover - exercised by `earcore --version
     ) from exc
 
 from earcore import robots, synthetic  # noqa: E402  (light: numpy and the extension only)
-from earcore.robots import RobotModel  # noqa: E402
+from earcore.cloud import (  # noqa: E402
+    cluster_points,
+    crop,
+    depth_to_points,
+    estimate_normals,
+    remove_statistical_outliers,
+    voxel_downsample,
+)
+from earcore.lidar_odometry import LidarOdometry, OdometrySettings  # noqa: E402
 from earcore.registration import (  # noqa: E402
     DegenerateAlignmentWarning,
     IcpResult,
@@ -39,15 +47,7 @@ from earcore.registration import (  # noqa: E402
     rigid_fit,
     rigid_fit_ransac,
 )
-from earcore.lidar_odometry import LidarOdometry, OdometrySettings  # noqa: E402
-from earcore.cloud import (  # noqa: E402
-    cluster_points,
-    crop,
-    depth_to_points,
-    estimate_normals,
-    remove_statistical_outliers,
-    voxel_downsample,
-)
+from earcore.robots import RobotModel  # noqa: E402
 
 __all__ = [
     "DANGER_ON_HIT",

@@ -1,5 +1,5 @@
 import sys
 
-from earcore.cli import main
+from earcore.app.cli import main
 
 sys.exit(main())

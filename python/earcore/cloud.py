@@ -42,7 +42,7 @@ def depth_to_points(
     points, pixels = _earcore.depth_to_points_raw(
         depth, fx, fy, cx, cy, distortion, depth_scale, min_depth, max_depth, base_from_camera
     )
-    out = [points]
+    out: list[np.ndarray] = [points]
     if colour is not None:
         colour = np.asarray(colour)
         shape = np.shape(depth)
@@ -89,7 +89,7 @@ def voxel_downsample(points: npt.ArrayLike, voxel_size: float, values: npt.Array
     by their centroid. With `values` (N,) or (N, C) (colours, normals...), also return
     their per-voxel means. Voxels come in the order of their first point."""
     centroids, means = _earcore.voxel_downsample_raw(points, voxel_size, values)
-    if values is None:
+    if values is None or means is None:
         return centroids
     return centroids, (means[:, 0] if np.ndim(values) == 1 else means)
 

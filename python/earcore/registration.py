@@ -4,6 +4,7 @@ and rigid 3D-3D fits of paired points (plain and RANSAC; calibration's eye-to-ha
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -74,8 +75,8 @@ def icp_point_to_plane(
 
 
 def refine_camera_poses(
-    clouds: list[npt.ArrayLike],
-    base_from_cameras: list[npt.ArrayLike],
+    clouds: Sequence[npt.ArrayLike],
+    base_from_cameras: Sequence[npt.ArrayLike],
     *,
     reference: int = 0,
     voxel_size: float = 0.01,

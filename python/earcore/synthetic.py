@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from earcore._earcore import benchmark_frame, render_depth_points, render_lidar_scan, robot_cell_voxels
+from earcore.transforms import look_at, rotation_xyz
 
 __all__ = [
     "benchmark_frame",
@@ -17,20 +18,6 @@ __all__ = [
     "render_lidar_scan",
     "robot_cell_voxels",
 ]
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """`base_from_camera` (4×4) of a camera at `eye` looking at `target` (z forward, y down)."""
-    eye, target, up = (np.asarray(a, dtype=float) for a in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-9:  # looking along `up`: any perpendicular will do
-        x = np.cross(z, [1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, np.cross(z, x), z, eye
-    return pose
 
 
 def random_scene(rng: np.random.Generator, n_shapes: int = 8, extent: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
@@ -51,14 +38,6 @@ def lidar_room(rng: np.random.Generator, n_boxes: int = 12) -> np.ndarray:
     corner = rng.uniform([-3.9, -3.9], [3.9, 3.9], size=(n_boxes, 2)) - size[:, :2] / 2
     furniture = np.column_stack([corner, np.zeros(n_boxes), corner + size[:, :2], size[:, 2]])
     return np.vstack([room, furniture])
-
-
-def _rotation_xyz(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
-    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    return rz @ ry @ rx
 
 
 def handheld_trajectory(
@@ -89,7 +68,7 @@ def handheld_trajectory(
     poses = []
     for k in range(n):
         m = np.eye(4)
-        m[:3, :3] = _rotation_xyz(roll[k], pitch[k], yaw[k])
+        m[:3, :3] = rotation_xyz(roll[k], pitch[k], yaw[k])
         m[:3, 3] = positions[k]
         poses.append(m)
     return poses

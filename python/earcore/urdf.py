@@ -16,13 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from earcore._earcore import EarcoreError
+from earcore.errors import UrdfError
+from earcore.transforms import axis_angle_matrix, rotation_xyz
 
 __all__ = ["UrdfError", "UrdfJoint", "UrdfRobot", "collision_as_visual", "parse_urdf", "read_mesh_vertices"]
-
-
-class UrdfError(EarcoreError, ValueError):
-    """A URDF file or one of its meshes is malformed, unsupported or missing."""
 
 
 @dataclass(frozen=True)
@@ -70,15 +67,6 @@ def _origin(element: ET.Element | None, what: str) -> tuple[tuple[float, ...], t
     xyz = _floats(element.get("xyz"), 3, (0.0, 0.0, 0.0), f"{what} origin xyz")
     rpy = _floats(element.get("rpy"), 3, (0.0, 0.0, 0.0), f"{what} origin rpy")
     return xyz, rpy
-
-
-def _rpy_matrix(rpy: tuple[float, ...]) -> np.ndarray:
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    return rz @ ry @ rx
 
 
 def resolve_mesh_path(filename: str, urdf_path: Path) -> Path:
@@ -230,7 +218,7 @@ def _collada_vertices(data: bytes, path: Path) -> np.ndarray:
                 array = source.find("float_array") if source is not None else None
                 if array is None or not (array.text or "").strip():
                     raise UrdfError(f"mesh {path}: a POSITION source has no float_array")
-                clouds.append(np.array(array.text.split(), dtype=np.float64).reshape(-1, 3))
+                clouds.append(np.array(str(array.text).split(), dtype=np.float64).reshape(-1, 3))
         return np.concatenate(clouds) if clouds else np.empty((0, 3))
 
     def local(node: ET.Element) -> np.ndarray:
@@ -246,8 +234,7 @@ def _collada_vertices(data: bytes, path: Path) -> np.ndarray:
                 t[:3, :3] = np.diag(values)
             elif child.tag == "rotate" and values.size == 4:
                 axis, angle = values[:3] / np.linalg.norm(values[:3]), np.radians(values[3])
-                k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-                t[:3, :3] = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+                t[:3, :3] = axis_angle_matrix(axis, angle)
             m = m @ t
         return m
 
@@ -391,6 +378,6 @@ def parse_urdf(path: str | Path, *, geometry: str = "collision") -> UrdfRobot:
             else:
                 vertices = _primitive_vertices(geom, what)
             xyz, rpy = _origin(part.find("origin"), what)
-            clouds.append(vertices @ _rpy_matrix(rpy).T + np.array(xyz))
+            clouds.append(vertices @ rotation_xyz(*rpy).T + np.array(xyz))
         robot.vertices[name] = np.concatenate(clouds) if clouds else None
     return robot

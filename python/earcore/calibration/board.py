@@ -13,9 +13,58 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from earcore.sim.tools import Checkerboard
+__all__ = ["Checkerboard", "Detection", "corner_points", "detect_board", "undistort_pixels"]
 
-__all__ = ["Detection", "corner_points", "detect_board", "undistort_pixels"]
+
+@dataclass(frozen=True)
+class Checkerboard:
+    """Squares in a `cols` × `rows` grid on a white plate with a `margin` border. The
+    board frame: origin at the board's centre, x along the columns, y along the rows,
+    z out of the printed face. The square at column 0, row 0 is hollow (an outline)."""
+
+    cols: int = 7
+    rows: int = 5
+    square: float = 0.03
+    margin: float = 0.015
+    #: Pixels per square in the texture.
+    resolution: int = 64
+
+    @property
+    def size(self) -> tuple[float, float]:
+        return self.cols * self.square + 2 * self.margin, self.rows * self.square + 2 * self.margin
+
+    def inner_corners(self) -> np.ndarray:
+        """The (cols-1)·(rows-1) inner corners in the board frame, row by row (OpenCV's order)."""
+        xs = (np.arange(1, self.cols) - self.cols / 2) * self.square
+        ys = (np.arange(1, self.rows) - self.rows / 2) * self.square
+        return np.array([[x, y, 0.0] for y in ys for x in xs])
+
+    def is_dark(self, col: int, row: int) -> bool:
+        return (col + row) % 2 == 0
+
+    def square_centres(self) -> list[tuple[int, int, np.ndarray]]:
+        return [
+            (c, r, np.array([(c + 0.5 - self.cols / 2) * self.square, (r + 0.5 - self.rows / 2) * self.square, 0.0]))
+            for r in range(self.rows)
+            for c in range(self.cols)
+        ]
+
+    def texture(self) -> np.ndarray:
+        """RGB image of the printed face; image x = board x, image rows = board y."""
+        px = self.resolution
+        m = round(self.margin / self.square * px)
+        h, w = self.rows * px + 2 * m, self.cols * px + 2 * m
+        img = np.full((h, w, 3), 255, np.uint8)
+        for c in range(self.cols):
+            for r in range(self.rows):
+                if not self.is_dark(c, r):
+                    continue
+                y0, x0 = m + r * px, m + c * px
+                img[y0 : y0 + px, x0 : x0 + px] = 0
+                if c == 0 and r == 0:  # the hollow square: a thick outline only
+                    t = px // 5
+                    img[y0 + t : y0 + px - t, x0 + t : x0 + px - t] = 255
+        return img
 
 
 def _cv2():

@@ -37,15 +37,15 @@ def check_camera(calibrator: Calibrator, calibration: CameraCalibration, *, thre
     if calibration.start_q is None or calibration.flange_from_board is None:
         raise ValueError(f"camera {name!r}: the calibration has no start pose or board mount to check against")
     q = np.asarray(calibration.start_q, dtype=np.float64)
-    if not calibrator.go_to(q):
+    if not calibrator.motion.go_to(q):
         raise RuntimeError(f"camera {name!r}: its start pose cannot be reached from here")
     obs = calibrator.observe(name, colour=False)
     if obs is None:
         return PoseCheck(name, False, float("nan"), True)
     if calibration.depth_K is not None:
-        measured = calibrator.corners_3d(obs, calibration.depth_K, calibration.depth_distortion, calibration.depth_bias)
+        measured = calibrator.estimator.corners_3d(obs, calibration.depth_K, calibration.depth_distortion, calibration.depth_bias)
     elif calibration.colour_K is not None:  # a colour-only camera: where the board's pose from its image puts them
-        pose = calibrator.board_poses([obs], calibration.colour_K, calibration.colour_distortion)[0]
+        pose = calibrator.estimator.board_poses([obs], calibration.colour_K, calibration.colour_distortion)[0]
         measured = apply_pose(pose, calibrator.board_points)
     else:
         raise ValueError(f"camera {name!r}: the calibration has no lens to measure the board with")

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
-__all__ = ["BoardNotSeen", "CalibrationError", "DegeneratePoses", "TooFewFrames"]
+from earcore.errors import EarcoreError
+
+__all__ = ["BoardNotSeen", "CalibrationError", "CalibrationFileError", "DegeneratePoses", "TooFewFrames"]
 
 
-class CalibrationError(RuntimeError):
+class CalibrationError(EarcoreError, RuntimeError):
+    """Calibration of one camera failed; `camera` names it."""
+
     def __init__(self, camera: str, message: str) -> None:
         super().__init__(f"camera {camera!r}: {message}")
         self.camera = camera
@@ -26,3 +30,7 @@ class TooFewFrames(CalibrationError):
 
 class DegeneratePoses(CalibrationError):
     """The frames lack the variety (rotation, field-of-view coverage) a quantity needs."""
+
+
+class CalibrationFileError(EarcoreError, ValueError):
+    """The calibration file is missing, not YAML, or lacks what a camera entry needs."""

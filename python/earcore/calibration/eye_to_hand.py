@@ -21,13 +21,13 @@ import numpy as np
 
 from earcore.calibration.errors import DegeneratePoses, TooFewFrames
 from earcore.registration import rigid_fit, rigid_fit_ransac
+from earcore.transforms import pose_from_vector, rotation_angle
 
 __all__ = [
     "EyeToHand",
     "apply_pose",
     "fit_eye_to_hand",
     "fit_eye_to_hand_from_poses",
-    "mean_pose",
     "refine_by_reprojection",
     "rotation_spread_deg",
 ]
@@ -46,9 +46,7 @@ class EyeToHand:
 
 def rotation_spread_deg(poses: np.ndarray) -> float:
     """Largest angle (degrees) between the rotation of any pose (K, 4, 4) and the first."""
-    r0 = poses[0, :3, :3]
-    cos = (np.trace(np.einsum("ij,kjl->kil", r0.T, poses[:, :3, :3]), axis1=1, axis2=2) - 1) / 2
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max())
+    return float(np.degrees(rotation_angle(poses, poses[0])).max())
 
 
 def apply_pose(m: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -183,29 +181,6 @@ def fit_eye_to_hand_from_poses(
     return EyeToHand(x, z, rmse, len(A), len(seen))
 
 
-def mean_pose(poses: np.ndarray) -> np.ndarray:
-    """The pose (4, 4) closest to all of `poses` (K, 4, 4): mean translation and the
-    rotation nearest the mean rotation matrix (the chordal L2 mean)."""
-    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-    u, _, vt = np.linalg.svd(poses[:, :3, :3].mean(axis=0))
-    r = u @ vt
-    if np.linalg.det(r) < 0:
-        r = u @ np.diag([1.0, 1.0, -1.0]) @ vt
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = r, poses[:, :3, 3].mean(axis=0)
-    return out
-
-
-def _small_pose(v: np.ndarray) -> np.ndarray:
-    """The pose of a 6-vector (translation, rotation vector)."""
-    from earcore.calibration.board import _cv2
-
-    m = np.eye(4)
-    m[:3, :3] = _cv2().Rodrigues(np.asarray(v[3:], dtype=np.float64))[0]
-    m[:3, 3] = v[:3]
-    return m
-
-
 def refine_by_reprojection(
     pixels: list[np.ndarray],
     base_from_flange: np.ndarray,
@@ -239,7 +214,7 @@ def refine_by_reprojection(
         return projected.reshape(-1) - observed
 
     def at(x0, z0, d):
-        return x0 @ _small_pose(d[:6]), z0 @ _small_pose(d[6:])
+        return x0 @ pose_from_vector(d[:6]), z0 @ pose_from_vector(d[6:])
 
     x, z = np.asarray(base_from_camera, dtype=np.float64), np.asarray(flange_from_board, dtype=np.float64)
     r = residual(x, z)

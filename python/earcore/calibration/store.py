@@ -13,11 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from earcore.calibration.errors import CalibrationFileError
+
 __all__ = ["Calibration", "CameraCalibration", "CalibrationFileError"]
-
-
-class CalibrationFileError(ValueError):
-    """The file is missing, not YAML, or lacks what a camera entry needs."""
 
 
 def _yaml():

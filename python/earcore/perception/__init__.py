@@ -1,6 +1,7 @@
 """The live perception loop: camera frames in, the workspace map (occupancy, danger,
 current obstacles) out. See `PerceptionPipeline`."""
 
-from earcore.perception.pipeline import FrameReport, PerceptionPipeline, perturb_pose
+from earcore.perception.config import PerceptionConfig
+from earcore.perception.pipeline import PerceptionPipeline, PerceptionReport
 
-__all__ = ["FrameReport", "PerceptionPipeline", "perturb_pose"]
+__all__ = ["PerceptionConfig", "PerceptionPipeline", "PerceptionReport"]

@@ -19,17 +19,20 @@ import numpy as np
 import earcore
 from earcore.cloud import box_voxel_centres, voxel_codes
 from earcore.depth_error import DepthBias, radius2_grid
+from earcore.interfaces import Frame
+from earcore.perception.config import PerceptionConfig
 from earcore.robots import RobotModel
-from earcore.sim.camera import Frame
-from earcore.sim.config import PerceptionConfig
+from earcore.transforms import perturb_pose
 
-__all__ = ["FrameReport", "PerceptionPipeline", "perturb_pose"]
+__all__ = ["PerceptionPipeline", "PerceptionReport"]
 
 STAGES = ("points", "crop", "voxel_grid", "outliers", "self_filter", "insert", "end_frame")
 
 
 @dataclass
-class FrameReport:
+class PerceptionReport:
+    """What one map frame did: per-stage timings and point counts."""
+
     time: float
     #: Seconds per stage (summed over cameras).
     timings: dict[str, float] = field(default_factory=dict)
@@ -46,6 +49,31 @@ class FrameReport:
     @property
     def total(self) -> float:
         return sum(self.timings.values())
+
+
+@dataclass
+class CameraPoints:
+    """One camera's contribution to a map frame, in the base frame."""
+
+    #: Points to insert (cropped, above the table, voxel-grid centroids).
+    points: np.ndarray
+    #: The camera's position: where the points' rays start.
+    origin: np.ndarray
+    #: Per point, the fraction of it that was the tracked body (simulation; else 0).
+    robot: np.ndarray
+    #: The table's points and where far points' rays leave the crop sphere: free rays only.
+    low: np.ndarray
+    far: np.ndarray
+
+
+@dataclass
+class MergedCloud:
+    """The cameras' points merged: per point, the camera whose ray it takes and the
+    tracked body's fraction."""
+
+    points: np.ndarray
+    camera: np.ndarray
+    robot: np.ndarray
 
 
 #: Far points (beyond the crop) whose rays clear space: about this many per image row
@@ -88,20 +116,6 @@ def _cut_at_sphere(points: np.ndarray, sensor: np.ndarray, center: np.ndarray, r
     t_in, t_out = (-b - root) / safe, (-b + root) / safe
     ok &= (t_out > 0) & (t_in < 1)  # the segment meets the sphere
     return sensor + np.minimum(t_out[ok], 1.0)[:, None] * d[ok]
-
-
-def perturb_pose(pose: np.ndarray, translation: float, rotation: float, rng: np.random.Generator) -> np.ndarray:
-    """A pose moved by `translation` metres and turned by `rotation` radians in random
-    directions (to stand in for calibration error)."""
-    axis = rng.normal(size=3)
-    axis /= np.linalg.norm(axis)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    r = np.eye(3) + np.sin(rotation) * k + (1 - np.cos(rotation)) * k @ k
-    shift = rng.normal(size=3)
-    out = pose.copy()
-    out[:3, :3] = r @ pose[:3, :3]
-    out[:3, 3] = pose[:3, 3] + translation * shift / np.linalg.norm(shift)
-    return out
 
 
 class PerceptionPipeline:
@@ -208,111 +222,129 @@ class PerceptionPipeline:
         for f, pose in zip(fixed, refined):
             self.poses[f.camera] = pose
 
-    def process(self, frames: list[Frame], q: np.ndarray, time_s: float) -> FrameReport:
-        """Integrate the frames captured at `time_s` with the robot at joint state `q`."""
-        c = self.config
-        report = FrameReport(time_s, {s: 0.0 for s in STAGES})
+    def process(self, frames: list[Frame], q: np.ndarray, time_s: float) -> PerceptionReport:
+        """Integrate the frames captured at `time_s` with the robot at joint state `q`:
+        Paper II's Fig. 1, one method per stage."""
+        report = PerceptionReport(time_s, {s: 0.0 for s in STAGES})
         if not self._refined and frames:
             self.refine(frames)
             self._refined = True
-        origin = self.robot.base[:3, 3]
-        # Per camera: points in the base frame, cropped (Paper II merges the cameras'
-        # clouds, then pre-processes the merged cloud once).
-        clouds, origins, columns, lows, far = [], [], [], [], []
-        tracking = self.track_body is not None
+        views = [self.camera_points(frame, report) for frame in frames]
+        if not sum(len(v.points) for v in views):
+            self.insert(None, views, report)
+            return self.end_frame(report, time_s)
+        cloud = self.merge(views, report)
+        cloud = self.remove_outliers(cloud, report)
+        cloud = self.remove_robot(cloud, q, report)
+        self.insert(cloud, views, report)
+        report = self.end_frame(report, time_s)
         t0 = time.perf_counter()
-        for frame in frames:
-            pose = self._pose_of(frame)
-            pts, pixels = self._points_of(frame, base_from_camera=pose, return_pixels=True)
-            report.points_in += len(pts)
-            t1 = time.perf_counter()
-            all_pts = pts
-            pts, idx = earcore.crop(pts, center=origin, radius=c.crop_radius, return_index=True)
-            if c.clear_beyond_crop and len(idx) < len(all_pts):
-                # About FAR_RAYS_ACROSS rays across the image are plenty (they are thinned to
-                # one per map cell where they leave the sphere anyway) and keep this cheap:
-                # at full resolution the far points are most of a Kinect's frame.
-                on_grid = np.flatnonzero(_pixel_grid(frame.depth.shape)[pixels])
-                beyond = on_grid[~_in_sorted(idx, on_grid)]
-                far.append(_cut_at_sphere(all_pts.take(beyond, axis=0), pose[:3, 3], origin, c.crop_radius))
+        self._clear_robot_volume(q)
+        report.timings["self_filter"] += time.perf_counter() - t0
+        return report
+
+    def camera_points(self, frame: Frame, report: PerceptionReport) -> CameraPoints:
+        """One camera's frame as points in the base frame (stage "points"), cropped
+        around the robot, the table's points and the far points' rays set aside to
+        clear space (stage "crop"), and a first voxel grid that shrinks the merge
+        (stage "voxel_grid")."""
+        c = self.config
+        origin = self.robot.base[:3, 3]
+        t0 = time.perf_counter()
+        pose = self._pose_of(frame)
+        pts, pixels = self._points_of(frame, base_from_camera=pose, return_pixels=True)
+        report.points_in += len(pts)
+        t1 = time.perf_counter()
+        all_pts = pts
+        pts, idx = earcore.crop(pts, center=origin, radius=c.crop_radius, return_index=True)
+        far = np.zeros((0, 3))
+        if c.clear_beyond_crop and len(idx) < len(all_pts):
+            # About FAR_RAYS_ACROSS rays across the image are plenty (they are thinned to
+            # one per map cell where they leave the sphere anyway) and keep this cheap:
+            # at full resolution the far points are most of a Kinect's frame.
+            on_grid = np.flatnonzero(_pixel_grid(frame.depth.shape)[pixels])
+            beyond = on_grid[~_in_sorted(idx, on_grid)]
+            far = _cut_at_sphere(all_pts.take(beyond, axis=0), pose[:3, 3], origin, c.crop_radius)
+        low = np.zeros((0, 3))
+        if c.min_height is not None:
+            # Low points (the table) only clear the space in front of them.
+            above = pts[:, 2] >= c.min_height
+            low = np.compress(~above, pts, axis=0)
+            pts, idx = np.compress(above, pts, axis=0), idx[above]
+        robot = np.zeros(len(pts))
+        tracking = self.track_body is not None
+        if tracking and frame.segmentation is not None:
+            robot = (frame.segmentation.reshape(-1)[pixels[idx]] == self.track_body).astype(np.float64)
+        t2 = time.perf_counter()
+        if c.voxel_size > 0 and len(pts):
+            if tracking:
+                pts, robot = earcore.voxel_downsample(pts, c.voxel_size, robot)
             else:
-                far.append(np.zeros((0, 3)))
-            if c.min_height is not None:
-                # Low points (the table) only clear the space in front of them.
-                above = pts[:, 2] >= c.min_height
-                lows.append(np.compress(~above, pts, axis=0))
-                pts, idx = np.compress(above, pts, axis=0), idx[above]
-            else:
-                lows.append(np.zeros((0, 3)))
-            robot = np.zeros(len(pts))
-            if tracking and frame.segmentation is not None:
-                robot = (frame.segmentation.reshape(-1)[pixels[idx]] == self.track_body).astype(np.float64)
-            t2 = time.perf_counter()
-            # A first voxel grid per camera shrinks the merge (and keeps labels cheap).
-            if c.voxel_size > 0 and len(pts):
-                if tracking:
-                    pts, robot = earcore.voxel_downsample(pts, c.voxel_size, robot)
-                else:
-                    pts = earcore.voxel_downsample(pts, c.voxel_size)
-                    robot = np.zeros(len(pts))
-            t3 = time.perf_counter()
-            report.timings["points"] += t1 - t0
-            report.timings["crop"] += t2 - t1
-            report.timings["voxel_grid"] += t3 - t2
-            t0 = t3
-            clouds.append(pts)
-            origins.append(pose[:3, 3])
-            columns.append(robot)
-        if not clouds or not sum(len(p) for p in clouds):
-            t5 = time.perf_counter()
-            self._insert_free_rays(origins, lows, far)
-            report.timings["insert"] += time.perf_counter() - t5
-            return self._close_frame(report, time_s)
-        # One voxel grid over the merged cloud; each centroid remembers which camera
-        # contributed most of its points (its ray is cast from there) and, in
-        # simulation, the fraction of its points that were the tracked body's.
-        n_cam = len(clouds)
-        merged = np.vstack(clouds)
+                pts = earcore.voxel_downsample(pts, c.voxel_size)
+                robot = np.zeros(len(pts))
+        t3 = time.perf_counter()
+        report.timings["points"] += t1 - t0
+        report.timings["crop"] += t2 - t1
+        report.timings["voxel_grid"] += t3 - t2
+        return CameraPoints(pts, pose[:3, 3], robot, low, far)
+
+    def merge(self, views: list[CameraPoints], report: PerceptionReport) -> MergedCloud:
+        """The cameras' clouds merged by one voxel grid (stage "voxel_grid"); each
+        centroid remembers which camera contributed most of its points (its ray is cast
+        from there) and, in simulation, the fraction of them that were the tracked body's."""
+        c = self.config
+        n_cam = len(views)
+        merged = np.vstack([v.points for v in views])
         values = np.zeros((len(merged), n_cam + 1))
         start = 0
-        for i, (pts, robot) in enumerate(zip(clouds, columns)):
-            values[start : start + len(pts), i] = 1.0
-            values[start : start + len(pts), n_cam] = robot
-            start += len(pts)
-        t2 = time.perf_counter()
+        for i, v in enumerate(views):
+            values[start : start + len(v.points), i] = 1.0
+            values[start : start + len(v.points), n_cam] = v.robot
+            start += len(v.points)
+        t0 = time.perf_counter()
         if c.voxel_size > 0:
             pts, means = earcore.voxel_downsample(merged, c.voxel_size, values)
         else:
             pts, means = merged, values
-        camera = np.argmax(means[:, :n_cam], axis=1)
-        label = means[:, n_cam]
-        t3 = time.perf_counter()
-        if len(pts) > c.outlier_k:
-            pts, idx = earcore.remove_statistical_outliers(pts, c.outlier_k, c.outlier_std_ratio, return_index=True)
-            camera, label = camera[idx], label[idx]
-        t4 = time.perf_counter()
-        keep = self.robot.self_filter(pts, q, c.self_filter_margin)
+        report.timings["voxel_grid"] += time.perf_counter() - t0
+        return MergedCloud(pts, np.argmax(means[:, :n_cam], axis=1), means[:, n_cam])
+
+    def remove_outliers(self, cloud: MergedCloud, report: PerceptionReport) -> MergedCloud:
+        """Statistical outlier removal (stage "outliers")."""
+        c = self.config
+        t0 = time.perf_counter()
+        if len(cloud.points) > c.outlier_k:
+            pts, idx = earcore.remove_statistical_outliers(cloud.points, c.outlier_k, c.outlier_std_ratio, return_index=True)
+            cloud = MergedCloud(pts, cloud.camera[idx], cloud.robot[idx])
+        report.timings["outliers"] += time.perf_counter() - t0
+        return cloud
+
+    def remove_robot(self, cloud: MergedCloud, q: np.ndarray, report: PerceptionReport) -> MergedCloud:
+        """The self-filter at joint state `q` (stage "self_filter"): points inside the
+        robot's padded bodies, grown by `self_filter_margin`, are dropped."""
+        t0 = time.perf_counter()
+        keep = self.robot.self_filter(cloud.points, q, self.config.self_filter_margin)
         report.removed_as_robot += int((~keep).sum())
-        if tracking:
-            tracked = label > 0.5
+        if self.track_body is not None:
+            tracked = cloud.robot > 0.5
             report.tracked_points += int(tracked.sum())
             report.tracked_inserted += int((tracked & keep).sum())
-        pts, camera = np.compress(keep, pts, axis=0), camera[keep]
-        t5 = time.perf_counter()
-        self._insert_free_rays(origins, lows, far)
-        for i, sensor_origin in enumerate(origins):
-            mine = np.compress(camera == i, pts, axis=0)
-            if len(mine):
-                self.tree.insert_point_cloud(mine, sensor_origin, max_range=c.max_range)
-                report.points_inserted += len(mine)
-        t6 = time.perf_counter()
-        for stage, dt in zip(STAGES[2:], (t3 - t2, t4 - t3, t5 - t4, t6 - t5)):
-            report.timings[stage] += dt
-        report = self._close_frame(report, time_s)
-        t7 = time.perf_counter()
-        self._clear_robot_volume(q)
-        report.timings["self_filter"] += time.perf_counter() - t7
-        return report
+        out = MergedCloud(np.compress(keep, cloud.points, axis=0), cloud.camera[keep], cloud.robot[keep])
+        report.timings["self_filter"] += time.perf_counter() - t0
+        return out
+
+    def insert(self, cloud: MergedCloud | None, views: list[CameraPoints], report: PerceptionReport) -> None:
+        """Octree insertion (stage "insert"): the free rays first (to the table's points
+        and out of the crop sphere), then each point's ray from the camera that saw it."""
+        t0 = time.perf_counter()
+        self._insert_free_rays([v.origin for v in views], [v.low for v in views], [v.far for v in views])
+        if cloud is not None:
+            for i, view in enumerate(views):
+                mine = np.compress(cloud.camera == i, cloud.points, axis=0)
+                if len(mine):
+                    self.tree.insert_point_cloud(mine, view.origin, max_range=self.config.max_range)
+                    report.points_inserted += len(mine)
+        report.timings["insert"] += time.perf_counter() - t0
 
     def _insert_free_rays(self, origins, lows, far) -> None:
         """Per camera, rays that only clear space: to the table's points and to where far
@@ -351,7 +383,9 @@ class PerceptionPipeline:
             self.tree.update_nodes(touching, occupied=False)
         return len(touching)
 
-    def _close_frame(self, report: FrameReport, time_s: float) -> FrameReport:
+    def end_frame(self, report: PerceptionReport, time_s: float) -> PerceptionReport:
+        """End of frame (stage "end_frame"): the danger of every voxel not hit decays
+        by the time since the last frame (Eq. 1)."""
         t7 = time.perf_counter()
         dt_frame = 1.0 / 15.0 if self._last_time is None else max(time_s - self._last_time, 1e-6)
         frame_report = self.tree.end_frame(dt_frame)

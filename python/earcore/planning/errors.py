@@ -3,7 +3,7 @@ between a recovery move, a new goal or giving up."""
 
 from __future__ import annotations
 
-from earcore import EarcoreError
+from earcore.errors import EarcoreError
 
 __all__ = ["GoalInCollision", "NoPathFound", "PlanningError", "StartInCollision"]
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import gc
 import time
 import warnings
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 
@@ -103,7 +104,9 @@ class ExecutiveLog:
 
 
 class Executive:
-    def __init__(self, cell, pipeline, config, goals: list[np.ndarray], *, seed: int = 0) -> None:
+    def __init__(
+        self, cell, pipeline, config, goals: list[np.ndarray], *, seed: int = 0, person_distance: Callable[[], float] | None = None
+    ) -> None:
         if config.mode not in ("predictive", "reactive"):
             raise ValueError(f"planning mode must be 'predictive' or 'reactive', got {config.mode!r}")
         self.cell = cell
@@ -112,17 +115,20 @@ class Executive:
         self.robot = cell.model
         self.tree = pipeline.tree
         self.goals = [np.asarray(g, dtype=np.float64) for g in goals]
+        #: Ground truth for the trips' contact figures (simulation): the true distance
+        #: between the robot and the person now; None leaves them unscored.
+        self.person_distance = person_distance
         kind = PredictivePlanner if config.mode == "predictive" else ReactivePlanner
         self.planner = kind(
             self.robot,
             self.tree,
             time_limit=config.time_limit,
             attempts=config.attempts,
-            resolution=config.motion_resolution,
+            resolution=config.resolution,
             seed=seed,
         )
         self.reflexes_on = config.mode == "predictive" and config.reflexes
-        self.tracker = ObstacleTracker(self.robot, self.tree.resolution, beta=config.risk_beta)
+        self.tracker = ObstacleTracker(self.robot, self.tree.resolution, beta=config.beta)
         #: The robot grown by `person_margin`, kept that far from the tracked obstacles.
         self.grown_robot = None
         margin = config.person_margin
@@ -165,7 +171,7 @@ class Executive:
 
     # --- helpers -----------------------------------------------------------------
 
-    def _timed(self, path: np.ndarray, *, plan: bool) -> Trajectory:
+    def timed(self, path: np.ndarray, *, plan: bool) -> Trajectory:
         """`path` timed from here, keeping the speed the robot already has along its
         first direction. A plan's corners are rounded where the rounded path is still
         valid; reflex moves run as they are (no time to check a rounding)."""
@@ -176,10 +182,10 @@ class Executive:
         along = float(self.command @ first) / norm if norm > 0 else 0.0
         return time_parameterize(
             path, self.v_max, self.a_max, control_period=self.cell.config.time_step, initial_speed=along,
-            straight_share=self.config.straight_acceleration_share,
+            straight_share=self.config.straight_share,
         )
 
-    def _way(self, trajectory, t: float = 0.0) -> tuple[np.ndarray, bool]:
+    def way_onto(self, trajectory, t: float = 0.0) -> tuple[np.ndarray, bool]:
         """The way the robot goes on `trajectory` from its time t, starting where it is
         at the velocity it has: the follower's states until it is back on the reference
         (one step when it is on it already; `Follower.rollout`), then the reference's
@@ -192,13 +198,13 @@ class Executive:
         )
         return np.vstack([rollout.states, trajectory.remaining_path(t + rollout.duration)[1:]]), rollout.rejoined
 
-    def _start_plan(self, path: np.ndarray, *, cheaper_than: float | None = None) -> bool:
-        """Run the planned `path` from here if the way the arm will take (`_way`) is free
+    def start_plan(self, path: np.ndarray, *, cheaper_than: float | None = None) -> bool:
+        """Run the planned `path` from here if the way the arm will take (`way_onto`) is free
         on the map and the keep-out, as the planner checks paths, and, given
         `cheaper_than`, costs less than that on the danger map. A plan refused for its
         way is logged. Returns whether the plan started."""
-        trajectory = self._timed(path, plan=True)
-        way, rejoined = self._way(trajectory)
+        trajectory = self.timed(path, plan=True)
+        way, rejoined = self.way_onto(trajectory)
         if cheaper_than is not None and self.planner.cost(way) >= cheaper_than:
             return False
         if not (rejoined and self.planner.rrt.path_is_valid(way)):
@@ -207,12 +213,12 @@ class Executive:
         self.motion = _Motion(trajectory, self.cell.time, "plan")
         return True
 
-    def _remaining(self) -> np.ndarray | None:
-        """The way the robot will go on its motion from here (`_way`): checked every
+    def remaining_way(self) -> np.ndarray | None:
+        """The way the robot will go on its motion from here (`way_onto`): checked every
         frame, so a map that changes during a transition is seen where the arm goes."""
         if self.motion is None:
             return None
-        return self._way(self.motion.trajectory, self.cell.time - self.motion.start)[0]
+        return self.way_onto(self.motion.trajectory, self.cell.time - self.motion.start)[0]
 
     def _plan(self, q: np.ndarray) -> PlanChoice | None:
         goal = self.goals[self.goal_index]
@@ -228,8 +234,9 @@ class Executive:
         finally:
             if self.trip is not None:
                 self.trip.plans += 1
-        self.trip.planning_time += choice.planning_time
-        self.trip.optimisation_time += choice.optimisation_time
+        if self.trip is not None:
+            self.trip.planning_time += choice.planning_time
+            self.trip.optimisation_time += choice.optimisation_time
         self.log.plans.append((self.cell.time, choice.path))
         return choice
 
@@ -239,12 +246,12 @@ class Executive:
         into nothing else of the map (`plan_recovery`)."""
         move = plan_recovery(
             self.robot, self.tree, q,
-            move_away_distance=self.config.move_away_distance, resolution=self.config.motion_resolution,
+            move_away_distance=self.config.move_away_distance, resolution=self.config.resolution,
         )
         if move is not None:
             # Its way is not checked: the arm touches the map where it starts, so every
             # way out begins in collision (the move itself only gains clearance).
-            self.motion = _Motion(self._timed(move.path, plan=False), self.cell.time, "reflex")
+            self.motion = _Motion(self.timed(move.path, plan=False), self.cell.time, "reflex")
             self.log.reflexes.append({"time": self.cell.time, "kind": "recover_" + move.kind})
 
     def _new_trip(self) -> None:
@@ -255,10 +262,11 @@ class Executive:
         self._last_replan = self.cell.time
         choice = self._plan(self.cell.q)
         if choice is not None:
-            self._start_plan(choice.path)
+            self.start_plan(choice.path)
 
     def _finish_trip(self) -> None:
         trip = self.trip
+        assert trip is not None, "a trip is finished only while one runs"
         trip.execution_time = self.cell.time - trip.start_time
         path = np.asarray(self.executed)
         trip.path_length = path_length(path)
@@ -311,12 +319,7 @@ class Executive:
         if self.static_tree is None:
             self.static_tree = copy_map(self.tree)
             self.robot.check_configurations(self.static_tree, q)  # builds its index now, not in a reflex
-        distance = cell.robot_person_distance()
-        self.trip.min_clearance = min(self.trip.min_clearance, distance)
-        contact = distance <= 0.0
-        if contact and not self._in_contact:
-            self.trip.collisions += 1
-        self._in_contact = contact
+        self._score_contact()
         report = None
         if self.reflexes_on:
             with _collector_paused(), _on_this_thread():
@@ -326,7 +329,7 @@ class Executive:
                 return report
         if self.motion is not None and self.motion.kind in ("reflex", "backtrack"):
             return report
-        remaining = self._remaining()
+        remaining = self.remaining_way()
         blocked = remaining is not None and len(remaining) > 1 and not self.planner.rrt.path_is_valid(remaining)
         if self.config.mode == "reactive":
             if blocked:
@@ -335,12 +338,11 @@ class Executive:
             elif self.motion is None and np.abs(self.command).max() < 1e-3:
                 choice = self._plan(q)
                 if choice is not None:
-                    self._start_plan(choice.path)
+                    self.start_plan(choice.path)
             return report
         # Predictive: re-plan when blocked, when idle, or periodically when the danger
         # map offers a clearly cheaper path.
-        due = self.config.replan_period > 0 and cell.time - self._last_replan >= self.config.replan_period
-        if blocked or self.motion is None or due:
+        if self.replan_due(blocked):
             self._last_replan = cell.time
             if blocked:
                 self.trip.stops += 1
@@ -350,14 +352,31 @@ class Executive:
                     self.motion = None  # (a recovery `_plan` may have started stays)
                 return report
             if blocked or self.motion is None:
-                if not self._start_plan(choice.path):
+                if not self.start_plan(choice.path):
                     self.motion = None  # stop: the arm brakes, and the next frame plans from where it is
             else:
                 # Both costed along the way the arm would take; a refused switch keeps
                 # the current motion.
-                current = self.planner.cost(remaining) if len(remaining) > 1 else 0.0
-                self._start_plan(choice.path, cheaper_than=(1 - self.config.replan_gain) * current)
+                current = self.planner.cost(remaining) if remaining is not None and len(remaining) > 1 else 0.0
+                self.start_plan(choice.path, cheaper_than=(1 - self.config.replan_gain) * current)
         return report
+
+    def _score_contact(self) -> None:
+        """Table II's contacts and closest distance, from the ground truth if given."""
+        if self.person_distance is None or self.trip is None:
+            return
+        distance = self.person_distance()
+        self.trip.min_clearance = min(self.trip.min_clearance, distance)
+        contact = distance <= 0.0
+        if contact and not self._in_contact:
+            self.trip.collisions += 1
+        self._in_contact = contact
+
+    def replan_due(self, blocked: bool) -> bool:
+        """The predictive planner's re-plan gate: when the path is blocked, when the robot
+        has no motion, or every `replan_period` seconds (to look for a cheaper path)."""
+        due = self.config.replan_period > 0 and self.cell.time - self._last_replan >= self.config.replan_period
+        return blocked or self.motion is None or due
 
     def _reflex_layer(self, cell, q: np.ndarray) -> tuple[RiskReport, bool]:
         """Track the obstacles, rate the risk (Eq. 2) and fire a reflex if it is due;
@@ -372,18 +391,19 @@ class Executive:
         # A running reflex is not restarted, except a backtrack the obstacle still
         # closes in on: then it becomes a move away.
         backtracking = self.motion is not None and self.motion.kind == "backtrack"
-        if report.fires(self.config.risk_threshold, self.config.min_separation) and (not in_reflex or (close and backtracking)):
+        if report.fires(self.config.threshold, self.config.min_separation) and (not in_reflex or (close and backtracking)):
             # The static scene (index cached) plus this frame's moving voxels
             # (exact): no rebuild of the live map's index before the reflex.
             move = plan_reflex(
                 self.robot, self.static_tree, q, np.asarray(self.progress), report,
                 backtrack_fraction=self.config.backtrack_fraction,
                 move_away_distance=self.config.move_away_distance,
-                resolution=self.config.motion_resolution,
+                resolution=self.config.resolution,
                 dynamic=self.tracker.last_dynamic, voxel_size=self.tree.resolution,
                 prefer_move_away=close, escape=report.clearance <= 0, check_move_away=False,
             )
-            self.trip.reflexes += 1
+            if self.trip is not None:
+                self.trip.reflexes += 1
             if move is not None:
                 kind = "backtrack" if move.kind == "backtrack" else "reflex"
                 # The robot is moving and cannot turn on the spot: run the motion it
@@ -392,7 +412,7 @@ class Executive:
                 # it is clear.
                 motion = self._reflex_motion(q, move, escape=report.clearance <= 0)
                 if motion is None:
-                    motion = self._timed_reflex(move.path, escape=report.clearance <= 0)
+                    motion = self.timed_reflex(move.path, escape=report.clearance <= 0)
                 if motion is not None:
                     self.motion = _Motion(motion, cell.time, kind)
                 else:
@@ -417,7 +437,7 @@ class Executive:
         lo, hi = self.robot.joint_limits.T
         if move.kind == "move_away":
             curve = transfer(q, self.command, move.path[-1], self.v_max, self.a_max)
-            samples = curve.path(self.config.motion_resolution)
+            samples = curve.path(self.config.resolution)
             inside = bool(np.all((lo <= samples) & (samples <= hi)))
             return curve if inside and self._clear(samples, escape=escape, sampled=True) else None
         stop = braking(q, self.command, self.a_max)
@@ -428,21 +448,21 @@ class Executive:
             return None
         traj = time_parameterize(
             path, self.v_max, self.a_max, control_period=self.cell.config.time_step,
-            straight_share=self.config.straight_acceleration_share,
+            straight_share=self.config.straight_share,
         )
         return stop.then(traj)
 
-    def _timed_reflex(self, path: np.ndarray, *, escape: bool) -> Trajectory | None:
+    def timed_reflex(self, path: np.ndarray, *, escape: bool) -> Trajectory | None:
         """A reflex `path` timed from here, if the way the follower takes onto it and
-        along it (`_way`) is clear (`_clear`); else None."""
-        timed = self._timed(path, plan=False)
-        way, rejoined = self._way(timed)
+        along it (`way_onto`) is clear (`_clear`); else None."""
+        timed = self.timed(path, plan=False)
+        way, rejoined = self.way_onto(timed)
         return timed if rejoined and self._clear(way, escape=escape) else None
 
     def _clear(self, path: np.ndarray, *, escape: bool, sampled: bool = False) -> bool:
         """A reflex path clear of the static scene and this frame's moving voxels."""
         return path_is_clear(
-            self.robot, self.static_tree, path, self.config.motion_resolution,
+            self.robot, self.static_tree, path, self.config.resolution,
             self.tracker.last_dynamic, self.tree.resolution, escape, sampled=sampled,
         )
 

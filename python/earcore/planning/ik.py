@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from earcore.planning.errors import PlanningError
+from earcore.transforms import rotation_vector
 
 __all__ = ["IkResult", "UnreachablePose", "solve_ik"]
 
@@ -25,21 +26,6 @@ class IkResult:
     position_error: float
     orientation_error: float
     iterations: int
-
-
-def rotation_vector(r: np.ndarray) -> np.ndarray:
-    """Axis × angle of a rotation matrix."""
-    cos = np.clip((np.trace(r) - 1) / 2, -1.0, 1.0)
-    angle = np.arccos(cos)
-    w = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    if angle < 1e-9:
-        return 0.5 * w
-    if np.pi - angle < 1e-6:
-        # Near π: the axis is the column of R + I with the largest norm.
-        m = r + np.eye(3)
-        axis = m[:, np.argmax(np.linalg.norm(m, axis=0))]
-        return angle * axis / np.linalg.norm(axis)
-    return angle * w / (2 * np.sin(angle))
 
 
 def _pose_error(current: np.ndarray, target: np.ndarray) -> np.ndarray:

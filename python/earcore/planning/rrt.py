@@ -138,6 +138,7 @@ class JointSpacePlanner:
     def _active_keep_out(self) -> tuple | None:
         if self._keep_out is _UNFILTERED:
             self._keep_out = self._keep_out_away_from()
+        assert self._keep_out is None or isinstance(self._keep_out, tuple)
         return self._keep_out
 
     def _kept_out(self, q) -> bool:
@@ -229,7 +230,7 @@ class JointSpacePlanner:
         # edge-checking time in the planning benchmark); the map is fixed for the call.
         known_edges: dict[tuple, bool] = {}
 
-        class EdgeValidator(ob.MotionValidator):
+        class EdgeValidator(ob.MotionValidator):  # type: ignore[name-defined]  # OMPL has no stubs
             def checkMotion(self, s1, s2) -> bool:  # noqa: N802 (OMPL's name)
                 t0 = clock()
                 q0, q1 = s1[0:dof], s2[0:dof]

@@ -6,42 +6,12 @@ Real cameras or recorded frames plug in by implementing `Camera`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
-
 import numpy as np
 
+from earcore.interfaces import Camera, Frame
 from earcore.sim.sensors import SensorModel
 
 __all__ = ["Camera", "Frame", "SimulatedCamera", "opengl_projection", "opengl_view"]
-
-
-@dataclass
-class Frame:
-    """One RGB-D frame. `depth` in metres (0 = no return); `segmentation` is ground
-    truth from the simulator (pybullet body id per pixel, -1 background) and None for
-    real cameras."""
-
-    camera: str
-    time: float
-    colour: np.ndarray  # (H, W, 3) uint8
-    depth: np.ndarray  # (H, W) float64
-    K: np.ndarray  # (3, 3)
-    base_from_camera: np.ndarray  # (4, 4), the pose the frame was taken from (as far as known)
-    segmentation: np.ndarray | None = None
-    #: Lens distortion of the depth image (OpenCV's k1, k2, p1, p2, k3); None = none.
-    distortion: np.ndarray | None = None
-
-
-@runtime_checkable
-class Camera(Protocol):
-    name: str
-    sensor: SensorModel
-
-    @property
-    def base_from_camera(self) -> np.ndarray: ...
-
-    def capture(self, time: float) -> Frame: ...
 
 
 def opengl_projection(K: np.ndarray, width: int, height: int, near: float = 0.05, far: float = 10.0) -> list[float]:
@@ -100,6 +70,7 @@ class _Lens:
 
     def _prepare(self) -> None:
         """The map's sample indices and weights, computed once (every frame reuses them)."""
+        assert self.map is not None
         u = np.clip(np.rint(self.map[0]).astype(np.intp), 0, self.width - 1)
         v = np.clip(np.rint(self.map[1]).astype(np.intp), 0, self.height - 1)
         self._nearest = (v * self.width + u).ravel()

@@ -17,22 +17,12 @@ from earcore.sim.config import CellConfig
 from earcore.sim.controller import JointTrajectoryController
 from earcore.sim.person import HumanArm, Reach
 from earcore.sim.sensors import SENSORS
-from earcore.synthetic import look_at
+from earcore.sim.tools import visual_shape
+from earcore.transforms import look_at, quaternion
 from earcore.urdf import parse_urdf
 
 __all__ = ["SimulatedCell", "default_waypoints"]
 
-
-def _quaternion(r: np.ndarray) -> tuple[float, float, float, float]:
-    """(w, x, y, z) of a rotation matrix."""
-    w = np.sqrt(max(0.0, 1 + r[0, 0] + r[1, 1] + r[2, 2])) / 2
-    x = np.sqrt(max(0.0, 1 + r[0, 0] - r[1, 1] - r[2, 2])) / 2
-    y = np.sqrt(max(0.0, 1 - r[0, 0] + r[1, 1] - r[2, 2])) / 2
-    z = np.sqrt(max(0.0, 1 - r[0, 0] - r[1, 1] + r[2, 2])) / 2
-    x = np.copysign(x, r[2, 1] - r[1, 2])
-    y = np.copysign(y, r[0, 2] - r[2, 0])
-    z = np.copysign(z, r[1, 0] - r[0, 1])
-    return float(w), float(x), float(y), float(z)
 
 #: A-B-A joint targets per built-in robot (arm up in front, then swung to the side).
 _WAYPOINTS = {
@@ -200,12 +190,12 @@ class SimulatedCell:
             if len(pc.reach_starts) != len(pc.reach_targets):
                 raise ValueError("person.reach_starts and person.reach_targets must have the same length")
             n = len(pc.reach_starts)
-            speeds = list(pc.reach_speeds) or [None] * n
+            speeds: list[float | None] = list(pc.reach_speeds) or [None] * n
             holds = list(pc.reach_holds) or [pc.hold_s] * n
             if len(speeds) != n or len(holds) != n:
                 raise ValueError("person.reach_speeds and reach_holds must be empty or as long as person.reach_starts")
             reaches = [
-                Reach(s, tuple(t), h, v, pc.wander)
+                Reach(s, (float(t[0]), float(t[1]), float(t[2])), h, v, pc.wander)
                 for s, t, h, v in zip(pc.reach_starts, pc.reach_targets, holds, speeds)
             ]
         else:
@@ -217,7 +207,7 @@ class SimulatedCell:
     def attach_tool(self, tool, flange_from_tool: np.ndarray) -> int:
         """Mount a tool (`earcore.sim.tools.Checkerboard`, `ObstaclePlate`) rigidly on the
         flange (the tool link) at `flange_from_tool`; returns its pybullet body."""
-        shape, texture = tool.visual_shape(self.p)
+        shape, texture = visual_shape(tool, self.p)
         body = self.p.createMultiBody(0, -1, shape, [0, 0, -10])
         if texture >= 0:
             self.p.changeVisualShape(body, -1, textureUniqueId=texture)
@@ -238,7 +228,7 @@ class SimulatedCell:
     def _place_tools(self) -> None:
         for i, (body, _, _) in enumerate(self.tools):
             pose = self.world_from_tool(i)
-            w, x, y, z = _quaternion(pose[:3, :3])
+            x, y, z, w = quaternion(pose[:3, :3])
             self.p.resetBasePositionAndOrientation(body, pose[:3, 3].tolist(), [x, y, z, w])
 
     # --- the robot interface (what a real driver would provide) ----------------
@@ -290,8 +280,9 @@ class SimulatedCell:
     # --- ground truth ---------------------------------------------------------
 
     def person_segments(self) -> list[tuple[np.ndarray, np.ndarray, float]]:
-        present = self.person is not None and self.person.present(self.time)
-        return self.person.segments(self.time) if present else []
+        if self.person is None or not self.person.present(self.time):
+            return []
+        return self.person.segments(self.time)
 
     def robot_person_distance(self) -> float:
         """Closest distance between the robot's links and the person's arm (m)."""

@@ -5,24 +5,11 @@ Table I: 50 % of the maximum joint speed, 60 % of the maximum acceleration).
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
-
 import numpy as np
 
+from earcore.interfaces import RobotInterface
+
 __all__ = ["JointTrajectoryController", "RobotInterface"]
-
-
-@runtime_checkable
-class RobotInterface(Protocol):
-    """What the perception and planning loops need from a robot, real or simulated."""
-
-    @property
-    def joint_positions(self) -> np.ndarray: ...
-
-    @property
-    def joint_velocities(self) -> np.ndarray: ...
-
-    def command_velocities(self, qd: np.ndarray) -> None: ...
 
 
 class JointTrajectoryController:

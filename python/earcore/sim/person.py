@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from earcore.transforms import turn_from_z
+
 __all__ = ["ArmGeometry", "HumanArm", "Reach", "minimum_jerk", "reach_duration"]
 
 
@@ -167,15 +169,7 @@ class HumanArm:
                 p.resetBasePositionAndOrientation(body, [0, 0, -10], [0, 0, 0, 1])
             return
         for body, (a, b, _) in zip(self.bodies, self.segments(t)):
-            axis = b - a
-            z = np.array([0.0, 0.0, 1.0])
-            v = np.cross(z, axis)
-            c = float(z @ axis) / np.linalg.norm(axis)
-            if np.linalg.norm(v) < 1e-12:
-                quat = [0, 0, 0, 1] if c > 0 else [1, 0, 0, 0]
-            else:
-                angle = np.arccos(np.clip(c, -1, 1))
-                quat = p.getQuaternionFromAxisAngle(v / np.linalg.norm(v), angle)
+            quat = p.getQuaternionFromAxisAngle(*turn_from_z(b - a))
             p.resetBasePositionAndOrientation(body, ((a + b) / 2).tolist(), quat)
 
     def speed(self, t: float, dt: float = 1e-3) -> float:

@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Checkerboard", "ObstaclePlate", "write_png"]
+from earcore.calibration.board import Checkerboard
+
+__all__ = ["Checkerboard", "ObstaclePlate", "visual_shape", "write_png"]
 
 
 def write_png(path: Path, rgb: np.ndarray) -> None:
@@ -34,69 +36,6 @@ def write_png(path: Path, rgb: np.ndarray) -> None:
 
 
 @dataclass(frozen=True)
-class Checkerboard:
-    """Squares in a `cols` × `rows` grid on a white plate with a `margin` border. The
-    board frame: origin at the board's centre, x along the columns, y along the rows,
-    z out of the printed face. The square at column 0, row 0 is hollow (an outline)."""
-
-    cols: int = 7
-    rows: int = 5
-    square: float = 0.03
-    margin: float = 0.015
-    #: Pixels per square in the texture.
-    resolution: int = 64
-
-    @property
-    def size(self) -> tuple[float, float]:
-        return self.cols * self.square + 2 * self.margin, self.rows * self.square + 2 * self.margin
-
-    def inner_corners(self) -> np.ndarray:
-        """The (cols-1)·(rows-1) inner corners in the board frame, row by row (OpenCV's order)."""
-        xs = (np.arange(1, self.cols) - self.cols / 2) * self.square
-        ys = (np.arange(1, self.rows) - self.rows / 2) * self.square
-        return np.array([[x, y, 0.0] for y in ys for x in xs])
-
-    def is_dark(self, col: int, row: int) -> bool:
-        return (col + row) % 2 == 0
-
-    def square_centres(self) -> list[tuple[int, int, np.ndarray]]:
-        return [
-            (c, r, np.array([(c + 0.5 - self.cols / 2) * self.square, (r + 0.5 - self.rows / 2) * self.square, 0.0]))
-            for r in range(self.rows)
-            for c in range(self.cols)
-        ]
-
-    def texture(self) -> np.ndarray:
-        """RGB image of the printed face; image x = board x, image rows = board y."""
-        px = self.resolution
-        m = round(self.margin / self.square * px)
-        h, w = self.rows * px + 2 * m, self.cols * px + 2 * m
-        img = np.full((h, w, 3), 255, np.uint8)
-        for c in range(self.cols):
-            for r in range(self.rows):
-                if not self.is_dark(c, r):
-                    continue
-                y0, x0 = m + r * px, m + c * px
-                img[y0 : y0 + px, x0 : x0 + px] = 0
-                if c == 0 and r == 0:  # the hollow square: a thick outline only
-                    t = px // 5
-                    img[y0 + t : y0 + px - t, x0 + t : x0 + px - t] = 255
-        return img
-
-    def visual_shape(self, client) -> tuple[int, int]:
-        """A textured quad (OBJ with texture coordinates) facing +z: (shape, texture)."""
-        folder = Path(tempfile.mkdtemp(prefix="earcore_board_"))
-        write_png(folder / "board.png", self.texture())
-        w, h = self.size
-        (folder / "board.obj").write_text(
-            "v {0} {1} 0\nv {2} {1} 0\nv {2} {3} 0\nv {0} {3} 0\n".format(-w / 2, -h / 2, w / 2, h / 2)
-            + "vt 0 1\nvt 1 1\nvt 1 0\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n"
-        )
-        shape = client.createVisualShape(client.GEOM_MESH, fileName=str(folder / "board.obj"))
-        return shape, client.loadTexture(str(folder / "board.png"))
-
-
-@dataclass(frozen=True)
 class ObstaclePlate:
     """Paper II's obstacle plate: 10 × 20 cm, 5 mm thick."""
 
@@ -107,3 +46,23 @@ class ObstaclePlate:
     def visual_shape(self, client) -> tuple[int, int]:
         half = [self.width / 2, self.length / 2, self.thickness / 2]
         return client.createVisualShape(client.GEOM_BOX, halfExtents=half, rgbaColor=(0.9, 0.5, 0.1, 1)), -1
+
+
+def board_visual_shape(board: Checkerboard, client) -> tuple[int, int]:
+    """A textured quad (OBJ with texture coordinates) facing +z: (shape, texture)."""
+    folder = Path(tempfile.mkdtemp(prefix="earcore_board_"))
+    write_png(folder / "board.png", board.texture())
+    w, h = board.size
+    (folder / "board.obj").write_text(
+        "v {0} {1} 0\nv {2} {1} 0\nv {2} {3} 0\nv {0} {3} 0\n".format(-w / 2, -h / 2, w / 2, h / 2)
+        + "vt 0 1\nvt 1 1\nvt 1 0\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n"
+    )
+    shape = client.createVisualShape(client.GEOM_MESH, fileName=str(folder / "board.obj"))
+    return shape, client.loadTexture(str(folder / "board.png"))
+
+
+def visual_shape(tool, client) -> tuple[int, int]:
+    """The pybullet visual shape and texture (-1: none) of a tool the cell can mount."""
+    if isinstance(tool, Checkerboard):
+        return board_visual_shape(tool, client)
+    return tool.visual_shape(client)

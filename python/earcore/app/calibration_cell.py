@@ -8,14 +8,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from earcore.calibration.board import Checkerboard
+from earcore.calibration.config import nominal_mount
 from earcore.calibration.eye_to_hand import apply_pose, rotation_spread_deg
 from earcore.calibration.intrinsics import lens_displacement
-from earcore.calibration.procedure import nominal_mount
 from earcore.calibration.store import CameraCalibration
 from earcore.depth_error import radius2_of
-from earcore.perception.pipeline import perturb_pose
 from earcore.sim.config import CellConfig, calibration_cameras
-from earcore.sim.tools import Checkerboard
+from earcore.transforms import perturb_pose
 
 __all__ = ["CalibrationErrors", "calibration_cell", "calibration_cell_config", "evaluate"]
 

@@ -14,14 +14,14 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from earcore.sim.config import RunConfig, dump_toml, load_config
+from earcore.app.config import RunConfig, dump_toml, load_config
 
-__all__ = ["main", "run"]
+__all__ = ["GroundTruthScore", "main", "run", "summarize"]
 
 
 _last_progress = [0.0]
@@ -44,26 +44,41 @@ def _progress(done: float, total: float, extra: str = "", *, final: bool = False
     sys.stderr.flush()
 
 
-def run(
-    config: RunConfig,
-    out: Path,
-    *,
-    progress: bool = True,
-    record: bool = True,
-    trips: int | None = None,
-    driver=None,
-) -> dict:
-    """Run the cell for `config.duration` simulated seconds (or until `trips` A-B moves
-    are done, if given) and write the outputs to `out`; returns the summary.
+@dataclass
+class GroundTruthScore:
+    """What the simulation's ground truth says of a run, frame by frame: how many of the
+    robot's own points reached the map, whether the person's arm was in the map
+    whenever a camera saw it, and how close the robot came to the person."""
 
-    The robot is driven by the planning executive (`config.planning.mode`), by a plain
-    A-B-A shuttle (mode "none"), or by `driver(cell, pipeline)`: an object with
-    `control(dt)`, `after_step()`, `on_frame()`, `summary()` and `finished` (e.g. the
-    Fig. 7 circles in `earcore.planning.experiments`)."""
+    #: The robot's points (voxel-grid centroids its pixels dominate) that passed every
+    #: stage and were inserted, out of those that reached the self-filter.
+    robot_points_inserted: int = 0
+    robot_points_seen: int = 0
+    frames_arm_seen: int = 0
+    frames_arm_in_map: int = 0
+    min_robot_person_distance: float = float("inf")
+
+    def add_frame(self, cell, pipeline, frames: list, report) -> None:
+        self.robot_points_inserted += report.tracked_inserted
+        self.robot_points_seen += report.tracked_points
+        if cell.person is None:
+            return
+        seen = any(f.segmentation is not None and np.isin(f.segmentation, cell.person.bodies).sum() > 50 for f in frames)
+        if seen:
+            self.frames_arm_seen += 1
+            hand = cell.person.segments(cell.time)[1][1]  # the wrist
+            in_map = pipeline.tree.danger(hand[None])[0] > 0.99 or _near_occupied(pipeline.tree, cell.person.segments(cell.time))
+            self.frames_arm_in_map += bool(in_map)
+        self.min_robot_person_distance = min(self.min_robot_person_distance, cell.robot_person_distance())
+
+
+def _build(config: RunConfig, driver):
+    """The cell, its perception loop (calibration and the table loaded) and what drives
+    the robot: `driver(cell, pipeline)`, the planning executive, or None (a plain A-B-A
+    shuttle, planning mode "none")."""
     from earcore.perception import PerceptionPipeline
     from earcore.sim.cell import SimulatedCell, default_waypoints
 
-    out.mkdir(parents=True, exist_ok=True)
     cell = SimulatedCell(config.cell)
     fixed = {c.name for c in config.cell.cameras if c.mount == "world"}
     pipeline = PerceptionPipeline(config.perception, cell.model, seed=config.cell.seed, fixed_cameras=fixed)
@@ -79,23 +94,44 @@ def run(
     if config.perception.min_height is not None:
         pipeline.add_support(*cell.table_box())
     waypoints = [np.asarray(w, float) for w in config.waypoints] or default_waypoints(config.cell.robot)
-    path = waypoints[1:] + waypoints[::-1][1:]
     executive = None
     if driver is not None:
         executive = driver(cell, pipeline)
     elif config.planning.mode != "none":
         from earcore.planning.executive import Executive
 
-        executive = Executive(cell, pipeline, config.planning, waypoints, seed=config.cell.seed)
+        executive = Executive(
+            cell, pipeline, config.planning, waypoints, seed=config.cell.seed, person_distance=cell.robot_person_distance
+        )
+    return cell, pipeline, executive, waypoints
+
+
+def run(
+    config: RunConfig,
+    out: Path,
+    *,
+    progress: bool = True,
+    record: bool = True,
+    trips: int | None = None,
+    driver=None,
+) -> dict:
+    """Run the cell for `config.duration` simulated seconds (or until `trips` A-B moves
+    are done, if given) and write the outputs to `out`; returns the summary.
+
+    The robot is driven by the planning executive (`config.planning.mode`), by a plain
+    A-B-A shuttle (mode "none"), or by `driver(cell, pipeline)`: an object with
+    `control(dt)`, `after_step()`, `on_frame()`, `summary()` and `finished` (e.g. the
+    Fig. 7 circles in `earcore.app.experiments.planning`)."""
+    out.mkdir(parents=True, exist_ok=True)
+    cell, pipeline, executive, waypoints = _build(config, driver)
+    path = waypoints[1:] + waypoints[::-1][1:]
     reports = []
-    leaked = robot_total = 0
-    arm_seen = arm_frames = 0
+    score = GroundTruthScore()
     snapshots = sorted(config.snapshots)
     written = []
-    min_distance = float("inf")
     recorder = None
     if record:
-        from earcore.recording import Recorder
+        from earcore.app.recording import Recorder
 
         recorder = Recorder(out / "cell.rrd")
     started = time.perf_counter()
@@ -128,15 +164,7 @@ def run(
             executive.on_frame()
         if recorder is not None:
             recorder.log_frame(cell.time, cell, pipeline, frames, report, executive)
-        leaked, robot_total = leaked + report.tracked_inserted, robot_total + report.tracked_points
-        # Is the person's arm in the map when a camera sees it?
-        if cell.person is not None:
-            seen = any(f.segmentation is not None and np.isin(f.segmentation, cell.person.bodies).sum() > 50 for f in frames)
-            if seen:
-                arm_frames += 1
-                hand = cell.person.segments(cell.time)[1][1]  # the wrist
-                arm_seen += bool(pipeline.tree.danger(hand[None])[0] > 0.99 or _near_occupied(pipeline.tree, cell.person.segments(cell.time)))
-            min_distance = min(min_distance, cell.robot_person_distance())
+        score.add_frame(cell, pipeline, frames, report)
         while snapshots and cell.time >= snapshots[0]:
             written.append(str(draw_snapshot(out / f"danger_{snapshots.pop(0):05.1f}s.png", pipeline, cell)))
         if progress:
@@ -146,34 +174,10 @@ def run(
         _progress(cell.time, config.duration, "", final=True)
         if sys.stderr.isatty():
             sys.stderr.write("\n")
-    wall = time.perf_counter() - started
-    timings = {s: [r.timings.get(s, 0.0) for r in reports] for s in reports[0].timings} if reports else {}
-    danger = pipeline.tree.danger_voxels()[2]
-    summary = {
-        "config": asdict(config),
-        "frames": len(reports),
-        "simulated_s": cell.time,
-        "wall_s": round(wall, 2),
-        "render_s": round(render_s, 2),
-        "perception_ms_per_frame": {
-            s: {"mean": round(1e3 * float(np.mean(v)), 3), "p95": round(1e3 * float(np.percentile(v, 95)), 3)}
-            for s, v in timings.items()
-        },
-        "perception_ms_total_mean": round(1e3 * float(np.mean([r.total for r in reports])), 3) if reports else 0.0,
-        "points_in_per_frame": int(np.mean([r.points_in for r in reports])) if reports else 0,
-        "occupied_voxels": int(len(pipeline.tree.occupied_voxels()[1])),
-        "danger_voxels": int(len(danger)),
-        "danger_mean": float(danger.mean()) if len(danger) else 0.0,
-        # The robot's own points (voxel-grid centroids its pixels dominate) that passed
-        # every stage and were inserted, out of those that reached the self-filter.
-        "robot_points_reaching_map": leaked,
-        "robot_points_seen": robot_total,
-        "robot_points_leak_fraction": leaked / robot_total if robot_total else 0.0,
-        "frames_arm_seen": arm_frames,
-        "frames_arm_in_map": arm_seen,
-        "min_robot_person_distance_m": min_distance,
-        "snapshots": written,
-    }
+    summary = summarize(config, cell, pipeline, reports, score)
+    summary["wall_s"] = round(time.perf_counter() - started, 2)
+    summary["render_s"] = round(render_s, 2)
+    summary["snapshots"] = written
     if executive is not None:
         summary["planning"] = executive.summary()
         summary["trips"] = [t.as_dict() for t in getattr(executive, "trips", [])]
@@ -185,10 +189,37 @@ def run(
     return summary
 
 
+def summarize(config: RunConfig, cell, pipeline, reports: list, score: GroundTruthScore) -> dict:
+    """The run's summary: frames, per-stage perception timings, the map, the ground truth's verdicts."""
+    timings = {s: [r.timings.get(s, 0.0) for r in reports] for s in reports[0].timings} if reports else {}
+    danger = pipeline.tree.danger_voxels()[2]
+    seen = score.robot_points_seen
+    return {
+        "config": asdict(config),
+        "frames": len(reports),
+        "simulated_s": cell.time,
+        "perception_ms_per_frame": {
+            s: {"mean": round(1e3 * float(np.mean(v)), 3), "p95": round(1e3 * float(np.percentile(v, 95)), 3)}
+            for s, v in timings.items()
+        },
+        "perception_ms_total_mean": round(1e3 * float(np.mean([r.total for r in reports])), 3) if reports else 0.0,
+        "points_in_per_frame": int(np.mean([r.points_in for r in reports])) if reports else 0,
+        "occupied_voxels": int(len(pipeline.tree.occupied_voxels()[1])),
+        "danger_voxels": int(len(danger)),
+        "danger_mean": float(danger.mean()) if len(danger) else 0.0,
+        "robot_points_reaching_map": score.robot_points_inserted,
+        "robot_points_seen": seen,
+        "robot_points_leak_fraction": score.robot_points_inserted / seen if seen else 0.0,
+        "frames_arm_seen": score.frames_arm_seen,
+        "frames_arm_in_map": score.frames_arm_in_map,
+        "min_robot_person_distance_m": score.min_robot_person_distance,
+    }
+
+
 def _near_occupied(tree, segments) -> bool:
     """Whether the map holds an occupied voxel within 5 cm of the arm's capsules."""
     points = []
-    for a, b, r in segments:
+    for a, b, _ in segments:
         for t in np.linspace(0, 1, 6):
             points.append(a + t * (b - a))
     occupied = tree.is_occupied(np.array(points))

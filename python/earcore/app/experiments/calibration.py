@@ -26,9 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
+from earcore.app.calibration_cell import calibration_cell, calibration_cell_config, evaluate
+from earcore.calibration.config import CalibrationConfig, full_trajectory
 from earcore.calibration.errors import CalibrationError
-from earcore.calibration.procedure import CalibrationSettings, Calibrator, Observation, full_trajectory
-from earcore.calibration.simulate import calibration_cell, calibration_cell_config, evaluate
+from earcore.calibration.estimate import Observation
+from earcore.calibration.procedure import Calibrator
 
 __all__ = ["ROWS", "Row", "calibration_table", "format_table", "select"]
 
@@ -85,7 +87,7 @@ def calibration_table(seed: int = 0, camera_scale: float = 1.0, out: Path | None
     """Run the experiment; returns {"rows": [...], "run": {...}}."""
     config = calibration_cell_config(seed, camera_scale)
     cell, mount = calibration_cell(config, seed=seed)
-    calibrator = Calibrator(cell, full_trajectory(CalibrationSettings(seed=seed)), progress=progress)
+    calibrator = Calibrator(cell, full_trajectory(CalibrationConfig(seed=seed)), progress=progress)
     started = time.perf_counter()
     full = calibrator.run()
     run = {
@@ -95,12 +97,12 @@ def calibration_table(seed: int = 0, camera_scale: float = 1.0, out: Path | None
         "frames": {name: cal.frames for name, cal in full.items()},
     }
     rows = []
-    terms = calibrator.settings.depth_error_terms
+    terms = calibrator.config.depth_error_terms
     for row in ROWS:
         entry = {"row": asdict(row), "cameras": {}}
         for name in full:
             subset = select(calibrator.observations[name], row)
-            calibrator.settings.depth_error_terms = terms if row.depth_correction else ()
+            calibrator.config.depth_error_terms = terms if row.depth_correction else ()
             try:
                 cal = calibrator.finish(name, subset)
             except CalibrationError as exc:
@@ -120,7 +122,7 @@ def calibration_table(seed: int = 0, camera_scale: float = 1.0, out: Path | None
                 "depth_mm": 1000 * err.depth_error_rms,
             }
         rows.append(entry)
-    calibrator.settings.depth_error_terms = terms
+    calibrator.config.depth_error_terms = terms
     cell.close()
     result = {"rows": rows, "run": run, "seed": seed}
     if out is not None:

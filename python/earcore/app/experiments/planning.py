@@ -33,11 +33,12 @@ import time
 from copy import deepcopy
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from earcore import DANGER_ON_HIT
-from earcore.sim.config import RunConfig
+from earcore.app.config import RunConfig
 
 __all__ = ["CirclesDriver", "experiment_configs", "fig7", "main", "table2"]
 
@@ -104,7 +105,7 @@ def experiment_configs(seed: int = 0, camera_scale: float = 0.25, duration: floa
 
 def table2(trips: int = 15, seed: int = 0, camera_scale: float = 0.25, out: Path = Path("out/table2"), only=None) -> dict:
     """Run the experiments; returns {experiment: figures per return trip}."""
-    from earcore.run import run
+    from earcore.app.run import run
 
     results = {}
     for name, config in experiment_configs(seed, camera_scale).items():
@@ -187,7 +188,7 @@ class CirclesDriver:
             q = solve_ik(robot, target, seed_q=q, position_tolerance=0.005).q
             postures.append(q)
         # The schedule: (start time, kind, data) segments, one after another.
-        self.segments = []
+        self.segments: list[tuple[float, str, Any]] = []
         t, q, direction = 0.0, cell.q.copy(), 1.0
         for _ in range(repetitions):
             for posture, duration in zip(postures, durations):
@@ -231,7 +232,7 @@ class CirclesDriver:
         return self.cell.time >= self.end_time
 
     def reference(self, t: float) -> np.ndarray:
-        for start, kind, data in reversed(self.segments):
+        for start, kind, data in reversed(self.segments):  # noqa: B007  (the segment at t, used below)
             if t >= start:
                 break
         if kind == "move":
@@ -302,7 +303,7 @@ class CirclesDriver:
 
 def fig7(repetitions: int = 20, camera_scale: float = 0.25, out: Path = Path("out/fig7"), seed: int = 0) -> dict:
     """Run the danger-map construction test; writes fig7.png and fig7.json to `out`."""
-    from earcore.run import run
+    from earcore.app.run import run
 
     config = RunConfig(duration=1e9, snapshots=[])
     config.cell.seed = seed
@@ -374,7 +375,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", nargs="*", help="run only these experiments, e.g. 'Exp. 3' Direct")
     parser.add_argument("--out", type=Path, default=Path("out/table2"), help="output folder (fig7: out/fig7)")
     if argv and argv[0] == "calibration":
-        from earcore.calibration.experiments import main as calibration_main
+        from earcore.app.experiments.calibration import main as calibration_main
 
         return calibration_main(argv[1:])
     args = parser.parse_args(argv)

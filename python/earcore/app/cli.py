@@ -30,23 +30,23 @@ def main(argv: list[str] | None = None) -> int:
     if args.version:
         return _version()
     if args.command == "run":
-        from earcore.run import main as run_main
+        from earcore.app.run import main as run_main
 
         return run_main(rest)
     if args.command == "config":
-        from earcore.run import config_main
+        from earcore.app.run import config_main
 
         return config_main(rest)
     if args.command == "calibrate":
-        from earcore.calibration.cli import main as calibrate_main
+        from earcore.app.calibrate import main as calibrate_main
 
         return calibrate_main(rest)
     if args.command == "experiment":
-        from earcore.planning.experiments import main as experiment_main
+        from earcore.app.experiments.planning import main as experiment_main
 
         return experiment_main(rest)
     if args.command == "demo":
-        from earcore.demo import main as demo_main
+        from earcore.app.demo import main as demo_main
 
         return demo_main(rest)
     parser.print_help()

@@ -11,12 +11,13 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from earcore import DANGER_ON_HIT, OcTree
 from earcore._earcore import render_depth_points
-from earcore.synthetic import look_at
+from earcore.transforms import look_at
 
 
 @dataclass(frozen=True)
@@ -86,7 +87,7 @@ def run(config: DemoConfig = DemoConfig(), progress: bool = True) -> dict:
     snapshots: dict[float, tuple[np.ndarray, np.ndarray]] = {}
     history: list[tuple[float, int]] = []
     # Decimated 2×2 (256×212) Kinect V2-like depth, to keep the demo quick.
-    camera = dict(width=256, height=212, fx=182.5, fy=182.5, cx=128.0, cy=106.0, max_depth=4.0)
+    camera: dict[str, Any] = dict(width=256, height=212, fx=182.5, fy=182.5, cx=128.0, cy=106.0, max_depth=4.0)
     for i in range(n_frames):
         t = i * dt
         centre = obstacle_centre(t, config.sweep_s)

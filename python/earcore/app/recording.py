@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from earcore.transforms import turn_from_z
+
 __all__ = ["Recorder"]
 
 
@@ -100,16 +102,9 @@ class Recorder:
         axis = b - a
         lengths = np.linalg.norm(axis, axis=1)
         quats = []
-        z = np.array([0.0, 0.0, 1.0])
         for d, n in zip(axis, lengths):
-            u = d / n if n > 0 else z
-            v = np.cross(z, u)
-            c = float(z @ u)
-            if np.linalg.norm(v) < 1e-12:
-                quats.append([0, 0, 0, 1] if c > 0 else [1, 0, 0, 0])
-                continue
-            half = np.arccos(np.clip(c, -1, 1)) / 2
-            quats.append([*(np.sin(half) * v / np.linalg.norm(v)), np.cos(half)])
+            turn, angle = turn_from_z(d if n > 0 else (0.0, 0.0, 1.0))
+            quats.append([*(np.sin(angle / 2) * turn), np.cos(angle / 2)])
         self.stream.log(
             path,
             rr.Capsules3D(lengths=lengths, radii=radii, translations=a, quaternions=[rr.Quaternion(xyzw=q) for q in quats], colors=colour),

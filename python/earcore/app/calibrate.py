@@ -27,12 +27,13 @@ def _say(message: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from earcore.app.calibration_cell import calibration_cell, calibration_cell_config, evaluate
     from earcore.calibration.check import check_camera
-    from earcore.calibration.errors import CalibrationError
-    from earcore.calibration.procedure import CalibrationSettings, Calibrator, full_trajectory
-    from earcore.calibration.simulate import calibration_cell, calibration_cell_config, evaluate
-    from earcore.calibration.store import Calibration, CalibrationFileError
-    from earcore.perception.pipeline import perturb_pose
+    from earcore.calibration.config import CalibrationConfig, full_trajectory
+    from earcore.calibration.errors import CalibrationError, CalibrationFileError
+    from earcore.calibration.procedure import Calibrator
+    from earcore.calibration.store import Calibration
+    from earcore.transforms import perturb_pose
 
     parser = argparse.ArgumentParser(prog="earcore calibrate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=Path("calibration.yaml"), help="the calibration file (default calibration.yaml)")
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         cam.place(perturb_pose(cam.base_from_camera, 0.10, np.radians(10.0), bump_rng))
         _say(f"simulation: {name} bumped by 10 cm / 10°")
-    settings = CalibrationSettings(max_frames=args.max_frames, tilt_fraction=0.0 if args.no_tilt else 0.7, seed=args.seed)
+    settings = CalibrationConfig(max_frames=args.max_frames, tilt_fraction=0.0 if args.no_tilt else 0.7, seed=args.seed)
     if args.full:
         settings = full_trajectory(settings)
     calibrator = Calibrator(cell, settings, progress=_say)

@@ -1,0 +1,25 @@
+"""earcore's errors: one hierarchy under `EarcoreError`, so `except earcore.EarcoreError`
+catches every domain failure the toolkit reports. Shape and dtype mistakes are
+`ValueError` / `TypeError`, file-system failures `OSError`, as in numpy.
+
+    EarcoreError
+    ├── OutOfMapError        a point outside the octree's addressable cube
+    ├── MapFormatError       a .bt / .ot file that is not a valid map
+    ├── UrdfError            a robot description that cannot be read (also a ValueError)
+    ├── PlanningError        earcore.planning: StartInCollision, GoalInCollision,
+    │                        NoPathFound, UnreachablePose
+    └── CalibrationError     earcore.calibration: BoardNotSeen, TooFewFrames,
+                             DegeneratePoses; CalibrationFileError (also a ValueError)
+
+The core's errors are raised by the extension; each area defines its own below the base.
+"""
+
+from __future__ import annotations
+
+from earcore._earcore import EarcoreError, MapFormatError, OutOfMapError
+
+__all__ = ["EarcoreError", "MapFormatError", "OutOfMapError", "UrdfError"]
+
+
+class UrdfError(EarcoreError, ValueError):
+    """A URDF file or one of its meshes is malformed, unsupported or missing."""

@@ -1,0 +1,67 @@
+"""The planning layers' settings (Paper II, Table I); field names are the TOML keys of
+`[planning]` in `earcore run`'s configuration and the keyword arguments they feed
+(`resolution` of the motion checks, the risk's `beta` and `threshold`, `straight_share`
+of `time_parameterize`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["PlanningConfig"]
+
+
+@dataclass
+class PlanningConfig:
+    """Paper II's planning layers (Table I)."""
+
+    #: "predictive" (danger-costed choice + reflexes, Paper II), "reactive" (the
+    #: paper's baseline: shortest path, stop and re-plan when blocked) or "none" (the
+    #: robot shuttles along the straight joint-space path, no planning).
+    mode: str = "predictive"
+    #: RRT-Connect: time limit per attempt (s) and attempts (solutions to choose from).
+    time_limit: float = 1.0
+    attempts: int = 3
+    #: Largest joint step (rad) between checked configurations along a motion.
+    resolution: float = 0.02
+    #: Re-plan the rest of the path every this many seconds when the danger map offers
+    #: a path cheaper by `replan_gain` (0 = only when the path is blocked).
+    replan_period: float = 1.0
+    replan_gain: float = 0.15
+    #: Reflexes (Eqs. 2-3): risk D = |v|² / (β d) against the threshold T.
+    reflexes: bool = True
+    beta: float = 1.5
+    threshold: float = 1.0
+    #: v in Eq. 2: the obstacle's velocity relative to the robot's closest point (true),
+    #: or the obstacle's own velocity as in the paper (false).
+    relative_velocity: bool = True
+    #: Backtracking: this fraction of the executed path; else move the end-effector
+    #: this far away from the closest obstacle point (m).
+    backtrack_fraction: float = 0.1
+    move_away_distance: float = 0.15
+    #: Beyond the paper: an approaching obstacle closer than this (m) also fires the
+    #: reflex, as a move away (a slow hand's risk D stays below T until it touches).
+    min_separation: float = 0.06
+    #: Beyond the paper: paths keep this much clearance (m) from the tracked moving
+    #: obstacles (people) on top of not touching what the map holds of them: the cameras
+    #: see one side of a hand, and a tight path brushed its other side. 0 = off.
+    person_margin: float = 0.04
+    #: Round planned paths' corners by arcs at most this far (rad) from each corner
+    #: before they run, where the rounded path is still valid (else a quarter of it,
+    #: else none); corners are otherwise taken at a crawl. 0 = off, the default: with
+    #: 0.1 rad every experiment ran 25-35 % faster, Exp. 1 most (10.7 -> 7.0 s per
+    #: return trip, Exp. 3 11.1 -> 7.9 s), and Exp. 3 touched the person once in five
+    #: seeds (a faster robot meets more fast reaches while moving).
+    blend_deviation: float = 0.0
+    #: The share of each joint's acceleration limit that planned paths and backtracks
+    #: use along straight stretches away from corners (`time_parameterize`'s
+    #: `straight_share`): 0.5, the default, splits it with the curvature everywhere; 1.0
+    #: uses it all where no curvature competes, so straight moves run ~30 % faster (A to
+    #: B: 2.63 -> 1.86 s); the experiments with people reaching in are measured at 0.5.
+    #: Reflexes' moves away are per-joint transfers either way.
+    straight_share: float = 0.5
+    #: Goal tolerances for end-effector pose goals (m, rad).
+    position_tolerance: float = 0.01
+    orientation_tolerance: float = 0.1
+    #: Seconds of the run before planning starts, used to learn the static scene (the
+    #: reflex layer tracks what is not part of it).
+    warmup: float = 0.5
