@@ -9,6 +9,7 @@ VENV := .venv
 TEST_VENV := .venv-test
 PY := $(VENV)/bin/python
 PIP_FLAGS := --disable-pip-version-check -q
+LINT_TOOLS := "ruff>=0.17,<0.18" "mypy>=1.10"
 export PIP_CACHE_DIR ?= $(HOME)/.cache/pip
 
 .PHONY: help demo map-demo test test-rust test-python develop wheel bench bench-python lint fuzz clean system-deps
@@ -26,6 +27,7 @@ $(VENV)/.ready: pyproject.toml | system-deps
 	$(PY) -m pip install $(PIP_FLAGS) --upgrade pip
 	$(PY) -m pip install $(PIP_FLAGS) "maturin>=1.8,<2" numpy
 	$(PY) -m pip install $(PIP_FLAGS) "matplotlib>=3.7" "pyoctomap>=1.2" "pybullet>=3.2" "example-robot-data>=6" "rerun-sdk>=0.41" "ompl>=2,<3" "opencv-python-headless>=4.9,<5" "pyyaml>=6"
+	$(PY) -m pip install $(PIP_FLAGS) $(LINT_TOOLS)
 	touch $@
 
 develop: $(VENV)/.ready ## build the extension (release) into .venv, editable
@@ -50,7 +52,7 @@ test-python: wheel ## install the wheel into a fresh venv and run pytest against
 	$(TEST_VENV)/bin/python -m pip install $(PIP_FLAGS) "$$(ls dist/earcore-*.whl)[test]"
 	cd tests && ../$(TEST_VENV)/bin/python -m pytest -q -p no:cacheprovider .
 
-test: lint test-rust test-python ## every test: rustfmt + clippy, cargo test (core), pytest (installed wheel)
+test: lint test-rust test-python ## every test: rustfmt + clippy + ruff + mypy, cargo test (core), pytest (installed wheel)
 
 bench: develop ## criterion benches, then the side-by-side comparisons with OctoMap and FCL
 	cargo bench
@@ -68,9 +70,11 @@ bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python
 	$(PY) benches/bench_icp_vs_peers.py
 	$(PY) benches/bench_surface_map.py
 
-lint: ## rustfmt, clippy
+lint: $(VENV)/.ready ## rustfmt, clippy (missing docs included), ruff, mypy
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -q -- -D warnings
+	$(VENV)/bin/ruff check python tests benches
+	$(VENV)/bin/mypy
 
 fuzz: ## fuzz the .bt/.ot readers for 10 minutes each (needs cargo-fuzz)
 	command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz

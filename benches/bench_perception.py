@@ -29,9 +29,10 @@ from pathlib import Path
 import numpy as np
 
 import earcore
+from earcore.interfaces import Frame
 from earcore.perception import PerceptionPipeline
-from earcore.sim.camera import Frame
-from earcore.sim.config import CameraConfig, CellConfig, PerceptionConfig
+from earcore.perception.config import PerceptionConfig
+from earcore.sim.config import CameraConfig, CellConfig
 
 CACHE = Path("out/recorded_frames.npz")
 

@@ -19,8 +19,6 @@ import statistics
 import tempfile
 import time
 
-import numpy as np
-
 import earcore
 
 
@@ -51,7 +49,10 @@ def main() -> None:
     cpu = next((l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")), platform.processor())
     print(f"# earcore {earcore.__version__} vs pyoctomap {pyoctomap.__version__ if hasattr(pyoctomap, '__version__') else ''}")
     print(f"# machine: {cpu}, {os.cpu_count()} cores; frame: {len(points)} points; median of {args.repeats} interleaved rounds\n")
-    print("| resolution | OctoMap | earcore 1 thread | earcore 2 threads | speed-up 1 thread | speed-up 2 threads | same map | bytes/node OctoMap | bytes/node earcore |")
+    print(
+        "| resolution | OctoMap | earcore 1 thread | earcore 2 threads | speed-up 1 thread | speed-up 2 threads | same map "
+        "| bytes/node OctoMap | bytes/node earcore |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     tmp = tempfile.mkdtemp()
     for res in (0.05, 0.02):

@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 
 import earcore
+from earcore.app.calibration_cell import calibration_cell, calibration_cell_config, evaluate
 from earcore.calibration import (
     BoardNotSeen,
     Calibration,
+    CalibrationConfig,
     CalibrationFileError,
-    CalibrationSettings,
     Calibrator,
     CameraCalibration,
     DegeneratePoses,
@@ -30,13 +31,10 @@ from earcore.calibration import (
     fit_eye_to_hand,
     lens_displacement,
 )
-from earcore.calibration.board import Detection
-from earcore.calibration.eye_to_hand import fit_eye_to_hand_from_poses, mean_pose, refine_by_reprojection
-from earcore.calibration.simulate import calibration_cell, calibration_cell_config, evaluate
+from earcore.calibration.board import Checkerboard, Detection
+from earcore.calibration.eye_to_hand import fit_eye_to_hand_from_poses, refine_by_reprojection
 from earcore.depth_error import DepthBias, radius2_grid
-from earcore.perception.pipeline import perturb_pose
-from earcore.sim.tools import Checkerboard
-from earcore.synthetic import look_at
+from earcore.transforms import look_at, mean_pose, perturb_pose
 
 BOARD = Checkerboard()
 
@@ -270,11 +268,12 @@ def board_scene():
     from pybullet_utils.bullet_client import BulletClient
 
     from earcore.sim.camera import SimulatedCamera
-    from earcore.sim.cell import _quaternion
     from earcore.sim.sensors import SENSORS
+    from earcore.sim.tools import visual_shape
+    from earcore.transforms import quaternion
 
     client = BulletClient(pybullet.DIRECT)
-    shape, texture = BOARD.visual_shape(client)
+    shape, texture = visual_shape(BOARD, client)
     body = client.createMultiBody(0, -1, shape, [0, 0, 0])
     client.changeVisualShape(body, -1, textureUniqueId=texture)
     sensor = SENSORS["kinect_v2"]
@@ -282,7 +281,7 @@ def board_scene():
     camera = SimulatedCamera(client, "cam", sensor, camera_pose, rng=np.random.default_rng(0), supersample=2)
 
     def place(base_from_board):
-        w, x, y, z = _quaternion(base_from_board[:3, :3])
+        x, y, z, w = quaternion(base_from_board[:3, :3])
         client.resetBasePositionAndOrientation(body, base_from_board[:3, 3].tolist(), [x, y, z, w])
 
     yield camera, place
@@ -396,9 +395,9 @@ def test_corrupt_calibration_files_are_clear_errors(tmp_path, text, error):
 
 
 def test_perception_uses_the_calibrated_lens_and_pose():
+    from earcore.interfaces import Frame
+    from earcore.perception.config import PerceptionConfig
     from earcore.perception.pipeline import PerceptionPipeline
-    from earcore.sim.camera import Frame
-    from earcore.sim.config import PerceptionConfig
 
     pipeline = PerceptionPipeline(PerceptionConfig(), earcore.robots.load("ur5"))
     entry = _entry("cam")
@@ -424,7 +423,7 @@ def calibrated_v1():
     config = calibration_cell_config(seed=3)
     config.cameras = [c for c in config.cameras if c.name == "kinect_v1_front"]
     cell, mount = calibration_cell(config, seed=3)
-    settings = CalibrationSettings(max_frames=20, seed=3)
+    settings = CalibrationConfig(max_frames=20, seed=3)
     calibrator = Calibrator(cell, settings)
     result = calibrator.run()["kinect_v1_front"]
     yield cell, mount, calibrator, result
@@ -472,15 +471,16 @@ def test_a_colour_only_camera_is_calibrated_from_its_images(tmp_path):
     """A camera without depth (the webcam preset, at half resolution for speed) where
     the Kinect V1 stands: AX = ZB from the board's poses, then lens, pose and mount from
     the pixels; the file keeps it without depth entries and the perception loop skips it."""
+    from earcore.perception.config import PerceptionConfig
     from earcore.perception.pipeline import PerceptionPipeline
-    from earcore.sim.config import CameraConfig, PerceptionConfig
+    from earcore.sim.config import CameraConfig
 
     config = calibration_cell_config(seed=1, camera_scale=0.5)
     v1 = next(c for c in config.cameras if c.name == "kinect_v1_front")
     config.cameras = [CameraConfig("webcam_front", "webcam", v1.position, v1.target)]
     cell, mount = calibration_cell(config, seed=1)
     try:
-        calibrator = Calibrator(cell, CalibrationSettings(max_frames=20, seed=1))
+        calibrator = Calibrator(cell, CalibrationConfig(max_frames=20, seed=1))
         result = calibrator.run_to_file(tmp_path / "cal.yaml")["webcam_front"]
         errors = evaluate(cell, result, mount, calibrator.observations["webcam_front"])
         assert not result.has_depth and result.colour_K is not None and result.depth_error is None
@@ -509,7 +509,7 @@ def test_a_camera_that_never_sees_the_board_names_itself_and_writes_nothing(tmp_
     path = tmp_path / "cal.yaml"
     Calibration({"kept": _entry("kept")}).save(path)
     before = path.read_bytes()
-    calibrator = Calibrator(cell, CalibrationSettings(sweep_elevations_deg=(15.0,)))
+    calibrator = Calibrator(cell, CalibrationConfig(sweep_elevations_deg=(15.0,)))
     with pytest.raises(BoardNotSeen, match="looks_at_the_floor"):
         calibrator.run_to_file(path)
     assert path.read_bytes() == before
@@ -517,7 +517,7 @@ def test_a_camera_that_never_sees_the_board_names_itself_and_writes_nothing(tmp_
 
 
 def test_calibrate_command_rejects_unknown_cameras_and_missing_files(tmp_path, capsys):
-    from earcore.cli import main
+    from earcore.app.cli import main
 
     assert main(["calibrate", "--camera", "no_such_camera", "--out", str(tmp_path / "c.yaml")]) == 2
     assert "no_such_camera" in capsys.readouterr().err
@@ -526,8 +526,8 @@ def test_calibrate_command_rejects_unknown_cameras_and_missing_files(tmp_path, c
 
 
 def test_table_rows_select_the_frames_they_describe():
-    from earcore.calibration.experiments import ROWS, Row, select
-    from earcore.calibration.procedure import Observation
+    from earcore.app.experiments.calibration import ROWS, Row, select
+    from earcore.calibration.estimate import Observation
 
     def frame(phase, tilted=False, factor=None, radius=None, slot=None):
         return Observation("c", np.zeros(6), np.eye(4), Detection(np.zeros((24, 2)), (8, 8)), None, np.zeros((1, 1, 1)),

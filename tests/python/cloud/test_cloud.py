@@ -212,9 +212,8 @@ def test_normals_of_boxes_seen_by_a_depth_camera():
     """Issue 3, acceptance 4: a Kinect V2 (512 × 424, the simulated sensor's axial noise
     model, ~2 mm at 2.5 m) sees a table-sized box, a cube and the floor; PCA normals of
     the 1 cm voxel grid against each point's nearest box face (analytic): median < 5°."""
-    from conftest import nearest_face_normals
-
     from earcore.sim.sensors import SENSORS
+    from reference import nearest_face_normals
 
     boxes = np.array([[-0.6, -0.4, 0.0, 0.6, 0.4, 0.75], [0.8, 0.3, 0.0, 1.1, 0.6, 0.3], [-3, -3, -0.2, 3, 3, 0.0]])
     camera = earcore.synthetic.look_at([2.0, -1.6, 1.7], [0.0, 0.0, 0.4])

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import earcore
-from conftest import octomap_leaves, scene_scans
+from reference import octomap_leaves, scene_scans
 
 
 @pytest.fixture(scope="module")

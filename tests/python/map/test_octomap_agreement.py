@@ -8,7 +8,6 @@ and the two full serialisations (.ot) must be byte-identical.
 
 from __future__ import annotations
 
-import io
 import os
 import subprocess
 import sys
@@ -17,7 +16,7 @@ import numpy as np
 import pytest
 
 import earcore
-from conftest import octomap_leaves, scene_scans
+from reference import octomap_leaves, scene_scans
 
 #: The issue allows 0.01 % of cells to differ; none do, because earcore replicates
 #: OctoMap's float/double arithmetic (float points, double DDA) and update rules.
@@ -94,7 +93,7 @@ def test_thread_count_does_not_change_the_map(tmp_path):
 #: Builds maps in a child process and writes their .ot files (argv: directory).
 _SCALAR_WALK_SCRIPT = """
 import sys, numpy as np, earcore
-from conftest import scene_scans
+from reference import scene_scans
 points, origin = earcore.synthetic.benchmark_frame()
 for resolution in (0.05, 0.02):
     tree = earcore.OcTree(resolution)
@@ -120,13 +119,13 @@ def _cpu_has_avx2() -> bool:
 def test_scalar_walk_fallback_builds_the_same_maps(tmp_path):
     """The batched (AVX2) ray walk and the scalar walk CPUs without AVX2 use agree byte
     for byte; `EARCORE_NO_AVX2` forces the scalar walk (read once per process)."""
-    here = os.path.dirname(__file__)
+    tests = os.path.dirname(os.path.dirname(os.path.dirname(__file__)))  # where reference.py is
     plain = {k: v for k, v in os.environ.items() if k != "EARCORE_NO_AVX2"}
     for name, extra in (("batched", {}), ("scalar", {"EARCORE_NO_AVX2": "1"})):
         (tmp_path / name).mkdir()
         env = {**plain, **extra}
         subprocess.run(
-            [sys.executable, "-c", _SCALAR_WALK_SCRIPT, str(tmp_path / name)], cwd=here, env=env, check=True, timeout=300
+            [sys.executable, "-c", _SCALAR_WALK_SCRIPT, str(tmp_path / name)], cwd=tests, env=env, check=True, timeout=300
         )
     files = sorted(p.name for p in (tmp_path / "batched").iterdir())
     assert len(files) == 8

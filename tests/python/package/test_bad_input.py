@@ -74,7 +74,10 @@ def test_bad_resolution(resolution):
 
 @pytest.mark.parametrize(
     "kwargs",
-    [dict(prob_hit=1.0), dict(prob_miss=0.0), dict(prob_hit=0.3), dict(prob_miss=0.7), dict(clamping_min=0.9, clamping_max=0.2), dict(danger_alpha=-1.0), dict(decay_mode="sometimes")],
+    [
+        dict(prob_hit=1.0), dict(prob_miss=0.0), dict(prob_hit=0.3), dict(prob_miss=0.7),
+        dict(clamping_min=0.9, clamping_max=0.2), dict(danger_alpha=-1.0), dict(decay_mode="sometimes"),
+    ],
 )
 def test_bad_parameters(kwargs):
     with pytest.raises(ValueError):

@@ -9,12 +9,11 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 import earcore
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def test_suite_runs_against_the_installed_wheel():
@@ -38,7 +37,8 @@ def test_version_command_reports_a_broken_extension(tmp_path):
     fake = tmp_path / "earcore"
     fake.mkdir()
     src = Path(earcore.__file__).parent
-    for name in ("__init__.py", "cli.py", "__main__.py"):
+    (fake / "app").mkdir()
+    for name in ("__init__.py", "__main__.py", "app/__init__.py", "app/cli.py"):
         (fake / name).write_text((src / name).read_text())
     (fake / "_earcore.py").write_text("raise ImportError('simulated: undefined symbol')\n")
     out = subprocess.run([sys.executable, "-m", "earcore", "--version"], capture_output=True, text=True, cwd=tmp_path)

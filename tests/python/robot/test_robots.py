@@ -9,8 +9,7 @@ import pytest
 import earcore
 import earcore.robots as robots
 from earcore.synthetic import robot_cell_voxels
-
-from conftest import motion_danger_reference
+from reference import motion_danger_reference
 
 # The peer references are test dependencies (`.[test]`); only the tests that compare
 # with them skip where they are missing, not the whole module.

@@ -1,0 +1,106 @@
+"""The executive in the cell and Paper II's Fig. 7 experiment."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("ompl")
+
+from planning_helpers import A, B  # noqa: E402
+
+
+@pytest.mark.slow
+def test_executive_shuttles_in_the_cell(tmp_path):
+    pytest.importorskip("pybullet")
+    from earcore.app.config import RunConfig
+    from earcore.app.run import run
+
+    config = RunConfig(duration=14.0, snapshots=[])
+    config.cell.camera_scale = 0.25
+    config.cell.person.enabled = False
+    record = importlib.util.find_spec("rerun") is not None
+    summary = run(config, tmp_path, progress=False, record=record, trips=2)
+    trips = summary["trips"]
+    assert len(trips) == 2 and all(t["completed"] for t in trips)
+    assert summary["planning"]["collisions"] == 0
+    # Without obstacles each trip is the direct motion at the limits: A to B and back.
+    assert trips[0]["path_length"] == pytest.approx(np.linalg.norm(B - A), rel=0.02)
+    if record:  # the recording shows the planned paths
+        out = subprocess.run(
+            [sys.executable, "-m", "rerun", "rrd", "print", "-v", str(tmp_path / "cell.rrd")],
+            capture_output=True, text=True, timeout=120,
+        ).stdout
+        assert "world/plan/tool_path" in out
+
+
+def test_fig7_circles_put_the_tool_on_its_circles():
+    """The Fig. 7 driver's reference: during each circle the tool stays at the circle's
+    radius and height while the pan joint turns once."""
+    pytest.importorskip("pybullet")
+    from earcore.app.config import RunConfig
+    from earcore.app.experiments.planning import CirclesDriver
+    from earcore.perception import PerceptionPipeline
+    from earcore.sim.cell import SimulatedCell
+
+    config = RunConfig()
+    config.cell.person.enabled = False
+    config.cell.camera_scale = 0.1
+    cell = SimulatedCell(config.cell)
+    pipeline = PerceptionPipeline(config.perception, cell.model)
+    driver = CirclesDriver(cell, pipeline, repetitions=1)
+    circles = [(start, data) for start, kind, data in driver.segments if kind == "circle"]
+    assert len(circles) == 3
+    for (start, (_, _, duration)), radius in zip(circles, driver.radii):
+        qs = np.array([driver.reference(start + f * duration) for f in np.linspace(0, 1, 9)])
+        tool = cell.model.fk(qs)[:, -1, :3, 3]
+        assert np.allclose(np.linalg.norm(tool[:, :2], axis=1), radius, atol=0.006)
+        assert np.allclose(tool[:, 2], driver.height + 0.1, atol=0.006)
+        assert abs(qs[-1, 0] - qs[0, 0]) == pytest.approx(2 * np.pi)
+    cell.close()
+
+
+def test_fig7_measures_how_often_fading_voxels_are_seen_free():
+    """The occlusion figure of Fig. 7's bands: of the frames in which a voxel was fading
+    (hit before, not hit now), the share in which its danger went down (a ray saw it
+    free). Fed a scripted danger map: an inner voxel that decays every other frame, an
+    outer one that decays every frame, a voxel hit again (not fading) in between."""
+    pytest.importorskip("pybullet")
+    from types import SimpleNamespace
+
+    from earcore.app.config import RunConfig
+    from earcore.app.experiments.planning import HIT_DANGER, CirclesDriver
+    from earcore.perception import PerceptionPipeline
+    from earcore.sim.cell import SimulatedCell
+
+    config = RunConfig()
+    config.cell.person.enabled = False
+    config.cell.camera_scale = 0.1
+    cell = SimulatedCell(config.cell)
+    driver = CirclesDriver(cell, PerceptionPipeline(config.perception, cell.model), repetitions=1)
+    cell.close()
+    inner = np.array([0.2 + 0.025, 0.025, driver.height + 0.025])
+    outer = np.array([0.46 + 0.025, 0.025, driver.height + 0.025])
+    middle = np.array([0.32 + 0.025, 0.025, driver.height + 0.025])
+    c_inner = [HIT_DANGER, 0.9, 0.9, 0.8, 0.8, 0.7, HIT_DANGER, 0.95]
+    c_outer = [HIT_DANGER, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3]
+    c_middle = [0.5, 0.4, 0.3, 0.2, 0.1, 0.0, 0.0, 0.0]  # danger, but never hit: not the sweep
+    for a, b, m in zip(c_inner, c_outer, c_middle):
+        tree = SimpleNamespace(
+            danger_voxels=lambda a=a, b=b, m=m: (np.array([inner, outer, middle]), None, np.array([a, b, m], np.float32))
+        )
+        driver.pipeline = SimpleNamespace(tree=tree)
+        driver.on_frame()
+    bands = {b["radius_m"]: b for b in driver.bands()}
+    # Inner: fading in frames 1-5 and 7 (frame 6 is a hit), decayed in 1, 3, 5, 7.
+    assert bands[0.2]["seen_free_while_fading"] == pytest.approx(4 / 6)
+    assert bands[0.46]["seen_free_while_fading"] == pytest.approx(1.0)
+    assert bands[0.2]["mean_danger"] == pytest.approx(np.mean(np.float32(c_inner)), rel=1e-6)
+    # The sweep (hit in at least half of the one repetition): inner and outer, not middle.
+    assert bands[0.2]["swept_voxels"] == 1 and bands[0.2]["mean_danger_swept"] == bands[0.2]["mean_danger"]
+    assert bands[0.32]["voxels"] == 1 and bands[0.32]["swept_voxels"] == 0 and bands[0.32]["mean_danger_swept"] == 0.0
+    assert bands[0.32]["mean_danger"] == pytest.approx(np.mean(np.float32(c_middle)), rel=1e-6)

@@ -1,0 +1,130 @@
+"""RRT-Connect validated by the collision core, inverse kinematics, the danger-costed choice (Eq. 4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import earcore
+
+pytest.importorskip("ompl")
+
+from planning_helpers import A, B, dense_collides, pillar_tree  # noqa: E402
+
+from earcore.planning import (  # noqa: E402
+    GoalInCollision,
+    JointSpacePlanner,
+    NoPathFound,
+    PredictivePlanner,
+    StartInCollision,
+    UnreachablePose,
+    solve_ik,
+)
+
+
+def test_rrt_connect_paths_are_collision_free(ur5):
+    tree = pillar_tree()
+    assert ur5.check_motion(tree, A, B), "the scene must block the direct motion"
+    planner = JointSpacePlanner(ur5, tree, seed=7)
+    solutions = planner.plan(A, B, attempts=3, time_limit=1.0)
+    assert len(solutions) >= 1
+    for s in solutions:
+        assert np.allclose(s.waypoints[0], A) and np.allclose(s.waypoints[-1], B)
+        assert not dense_collides(ur5, tree, s.waypoints)
+    assert planner.checks["states"] + planner.checks["motions"] > 0
+
+
+def test_direct_motion_skips_the_search(ur5):
+    planner = JointSpacePlanner(ur5, earcore.OcTree(0.05))
+    (only,) = planner.plan(A, B)
+    assert only.waypoints.shape == (2, 6) and planner.checks["states"] == 0
+
+
+def test_planning_errors_name_the_cause(ur5):
+    tree = pillar_tree()
+    planner = JointSpacePlanner(ur5, tree, seed=1)
+    tool_a = ur5.fk(A)[-1, :3, 3]
+    blocked = earcore.OcTree(0.05)
+    blocked.update_nodes(tool_a[None])
+    with pytest.raises(StartInCollision, match="start"):
+        JointSpacePlanner(ur5, blocked).plan(A, B)
+    with pytest.raises(GoalInCollision, match="goal"):
+        JointSpacePlanner(ur5, blocked).plan(B, A)
+    with pytest.raises(NoPathFound):
+        planner.plan(A, B, time_limit=1e-6, attempts=1)
+    with pytest.raises(ValueError, match="joint values"):
+        planner.plan(A[:5], B)
+    with pytest.raises(ValueError, match="NaN"):
+        planner.plan(np.full(6, np.nan), B)
+    with pytest.raises(ValueError):
+        planner.plan(A + np.r_[0, 0, 10, 0, 0, 0], B)  # outside the elbow's limits
+
+
+def rotation_angle(r: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
+
+
+def test_ik_reaches_poses_of_random_configurations(ur5):
+    rng = np.random.default_rng(4)
+    for _ in range(8):
+        target = ur5.fk(rng.uniform(-2, 2, 6))[-1]
+        result = solve_ik(ur5, target, rng=rng)
+        reached = ur5.fk(result.q)[-1]
+        assert np.linalg.norm(reached[:3, 3] - target[:3, 3]) <= 0.01
+        assert rotation_angle(reached[:3, :3] @ target[:3, :3].T) <= 0.1
+
+
+def test_ik_errors():
+    ur5 = earcore.robots.load("ur5")
+    far = np.eye(4)
+    far[:3, 3] = [3.0, 0.0, 0.5]
+    with pytest.raises(UnreachablePose, match="restarts"):
+        solve_ik(ur5, far, restarts=3)
+    skew = np.eye(4)
+    skew[0, 1] = 0.5
+    with pytest.raises(ValueError, match="rotation"):
+        solve_ik(ur5, skew)
+
+
+def test_planning_to_a_pose_goal(ur5):
+    tree = pillar_tree()
+    target = ur5.fk(B)[-1]
+    (path, *_) = JointSpacePlanner(ur5, tree, seed=3).plan(A, target)
+    reached = ur5.fk(path.waypoints[-1])[-1]
+    assert np.linalg.norm(reached[:3, 3] - target[:3, 3]) <= 0.01
+    assert rotation_angle(reached[:3, :3] @ target[:3, :3].T) <= 0.1
+    assert not dense_collides(ur5, tree, path.waypoints)
+
+
+def test_path_danger_is_the_sum_of_its_segments(ur5):
+    tree = earcore.OcTree(0.05)
+    blob = np.random.default_rng(0).uniform([0.1, 0.1, 0.3], [0.4, 0.5, 0.7], (300, 3))
+    tree.insert_point_cloud(blob, [1.0, 1.0, 1.0])
+    tree.end_frame(1 / 15)
+    tree.insert_point_cloud(np.array([[2.0, 2.0, 2.0]]), [1.0, 1.0, 1.0])  # the blob is not hit again
+    tree.end_frame(1 / 15)
+    path = np.stack([A, (A + B) / 2 + 0.2, B])
+    segments = ur5.motion_danger(tree, path[0], path[1], 0.05) + ur5.motion_danger(tree, path[1], path[2], 0.05)
+    assert ur5.path_danger(tree, path, 0.05) == pytest.approx(segments, rel=1e-12)
+    # Each segment is Eq. 4 as documented (the reference written in the tests).
+    from reference import motion_danger_reference
+
+    reference = sum(motion_danger_reference(ur5, tree, path[i], path[i + 1], 0.05) for i in range(2))
+    assert segments == pytest.approx(reference, rel=1e-9)
+    assert segments > ur5.path_danger(earcore.OcTree(0.05), path, 0.05)  # danger adds cost
+
+
+def test_predictive_planner_picks_the_cheapest_solution(ur5):
+    tree = pillar_tree()
+    # Danger on one side of the pillar (voxels hit once, then decaying).
+    side = np.array([[x, y, z] for x in (0.15, 0.2, 0.25) for y in (0.2, 0.25) for z in np.arange(0.3, 0.8, 0.05)])
+    tree.insert_point_cloud(side, [0.2, -0.8, 0.5])
+    tree.end_frame(1 / 15)
+    tree.insert_point_cloud(side + [0, 0, 2.0], [0.2, -0.8, 0.5])  # the side is seen free now
+    tree.end_frame(1 / 15)
+    planner = PredictivePlanner(ur5, tree, attempts=3, seed=11)
+    choice = planner.plan(A, B)
+    costs = [ur5.path_danger(tree, p.waypoints, 0.05) for p, _ in choice.candidates]
+    assert choice.cost == pytest.approx(min(costs))
+    assert np.array_equal(choice.path, choice.candidates[int(np.argmin(costs))][0].waypoints)
+    assert choice.planning_time >= 0 and choice.optimisation_time > 0
