@@ -1,4 +1,4 @@
-"""Planning speed (issue 7): median time from a planning request to the chosen path
+"""Planning speed: median time from a planning request to the chosen path
 (3 RRT-Connect attempts, simplification, smoothing, Eq. 4 costing) and on to the path
 the executive runs with `blend_deviation = 0.1` (corners rounded and checked again), for A→B moves of
 a UR5 in the simulated cell's static scene (table, boxes; 5 cm voxels) with a pillar

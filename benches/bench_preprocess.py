@@ -1,4 +1,4 @@
-"""Pre-processing of one 512×424 depth frame (issue 3: crop, voxel grid, outlier removal),
+"""Pre-processing of one 512×424 depth frame (crop, voxel grid, outlier removal),
 earcore and open3d-cpu on the same points in one run.
 
 The frame is camera 0 of the perception benchmark's first recorded frame set (a Kinect
@@ -88,7 +88,7 @@ def main() -> None:
         counts = " → ".join(f"{n:,}" for n in t["points"])
         print(f"| {name} | {threads} | {1e3 * t['crop']:.2f} | {1e3 * t['voxel grid']:.2f} | "
               f"{1e3 * t['outliers']:.2f} | {1e3 * total:.2f} | {counts} |")
-    print("\nissue 3's target: crop + voxel grid + outlier removal of a 512×424 frame <= 5 ms")
+    print("\ntarget: crop + voxel grid + outlier removal of a 512×424 frame <= 5 ms")
     earcore.set_num_threads(0)
 
 

@@ -2,7 +2,7 @@
 
 1. map update (insert + propagate) of one 15k-point scan into a small map (one scan,
    ~10^4 points) and into a large one (~10^7 points from 667 scans all over the room):
-   the update touches only its branches, so the two times should match (issue 3: < 1.5×);
+   the update touches only its branches, so the two times should match (target: < 1.5×);
 2. point-to-plane ICP per iteration for a 15k-point scan against the map of a 5 s
    hand-held episode, = (time of 11 iterations − time of 1) / 10 (points that stay in
    their leaf reuse their pair after the first iteration), and the whole 11-iteration
@@ -83,7 +83,7 @@ def map_update_flatness(boxes: np.ndarray, large_scans: int, repeats: int) -> No
             )
         print(
             f"{label}: update time, large map / small map = {times['+ rooms elsewhere'] / times['one scan']:.2f} "
-            f"(issue 3: < 1.5); same room filled in: {times['+ same room'] / times['one scan']:.2f}"
+            f"(target: < 1.5); same room filled in: {times['+ same room'] / times['one scan']:.2f}"
         )
 
 
@@ -111,7 +111,7 @@ def icp_per_iteration(boxes: np.ndarray, repeats: int) -> None:
     print(
         f"ICP, {len(scan):,}-point lidar scan against the map of a 5 s episode ({surface.size():,} nodes): "
         f"{1e3 * per_iteration:.2f} ms per iteration after the first, a call of one iteration {1e3 * one:.2f} ms, "
-        f"11 iterations {1e3 * eleven / 11:.2f} ms per iteration all in (issue 3: <= 1 ms; NOctoSLAM: 1.8 ms)"
+        f"11 iterations {1e3 * eleven / 11:.2f} ms per iteration all in (target: <= 1 ms; NOctoSLAM: 1.8 ms)"
     )
 
 

@@ -28,7 +28,7 @@ except ImportError as exc:  # pragma: no cover - exercised by `earcore --version
         f"{exc}. Reinstall the wheel (`pip install --force-reinstall earcore`) or rebuild with `make develop`."
     ) from exc
 
-from earcore import robots, synthetic  # noqa: E402  (light: numpy and the extension only)
+from earcore import errors, interfaces, robots, synthetic, transforms  # noqa: E402  (light: numpy and the extension only)
 from earcore.cloud import (  # noqa: E402
     cluster_points,
     crop,
@@ -75,7 +75,10 @@ __all__ = [
     "LidarOdometry",
     "OdometrySettings",
     "fit_body",
+    "errors",
+    "interfaces",
     "robots",
+    "transforms",
     "__version__",
     "get_num_threads",
     "set_num_threads",

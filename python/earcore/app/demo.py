@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from earcore import DANGER_ON_HIT, OcTree
-from earcore._earcore import render_depth_points
+from earcore.synthetic import render_depth_points
 from earcore.transforms import look_at
 
 

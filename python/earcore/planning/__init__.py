@@ -4,6 +4,7 @@ reflexive layer (obstacle tracking, risk Eq. 2, backtrack / move away), time
 parameterisation within the speed and acceleration limits, and the executive that runs
 A-B-A tasks in the cell. Needs ``pip install 'earcore[planning]'`` (OMPL)."""
 
+from earcore.planning.config import PlanningConfig
 from earcore.planning.errors import GoalInCollision, NoPathFound, PlanningError, StartInCollision
 from earcore.planning.ik import IkResult, UnreachablePose, solve_ik
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
@@ -21,6 +22,7 @@ __all__ = [
     "ObstacleTracker",
     "PlanChoice",
     "PlannedPath",
+    "PlanningConfig",
     "PlanningError",
     "PredictivePlanner",
     "ReactivePlanner",

@@ -11,8 +11,9 @@ from dataclasses import replace
 
 import numpy as np
 
+from earcore.interfaces import Frame
 from earcore.robots import RobotModel, load, urdf_path
-from earcore.sim.camera import Frame, SimulatedCamera
+from earcore.sim.camera import SimulatedCamera
 from earcore.sim.config import CellConfig
 from earcore.sim.controller import JointTrajectoryController
 from earcore.sim.person import HumanArm, Reach

@@ -11,7 +11,6 @@ import pytest
 
 pytest.importorskip("ompl")
 
-from planning_helpers import A, B  # noqa: E402
 
 
 @pytest.mark.slow
@@ -28,8 +27,10 @@ def test_executive_shuttles_in_the_cell(tmp_path):
     trips = summary["trips"]
     assert len(trips) == 2 and all(t["completed"] for t in trips)
     assert summary["planning"]["collisions"] == 0
-    # Without obstacles each trip is the direct motion at the limits: A to B and back.
-    assert trips[0]["path_length"] == pytest.approx(np.linalg.norm(B - A), rel=0.02)
+    # Without obstacles each trip is the direct motion at the limits: A to B and back
+    # (the UR5's default waypoints, written out here).
+    a, b = np.array([0.0, -1.9, 1.6, -1.3, -1.57, 0.0]), np.array([1.3, -1.3, 1.2, -1.5, -1.57, 0.0])
+    assert trips[0]["path_length"] == pytest.approx(np.linalg.norm(b - a), rel=0.02)
     if record:  # the recording shows the planned paths
         out = subprocess.run(
             [sys.executable, "-m", "rerun", "rrd", "print", "-v", str(tmp_path / "cell.rrd")],

@@ -435,7 +435,7 @@ def test_algorithm_1_finds_the_camera_the_lens_and_the_mount(calibrated_v1):
     cell, mount, calibrator, result = calibrated_v1
     errors = evaluate(cell, result, mount, calibrator.observations[result.name])
     assert result.frames <= 20
-    assert errors.translation < 0.005 and errors.rotation_deg < 0.5, errors  # issue 6: ≤ 30 frames
+    assert errors.translation < 0.005 and errors.rotation_deg < 0.5, errors  # ≤ 30 frames
     assert errors.mount_translation < 0.003
     assert result.depth_reprojection_rms < 0.5
     assert errors.depth_lens_px < 1.5 and errors.colour_lens_px < 2.0, errors

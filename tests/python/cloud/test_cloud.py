@@ -209,7 +209,7 @@ def test_normals_reject_bad_input():
 
 
 def test_normals_of_boxes_seen_by_a_depth_camera():
-    """Issue 3, acceptance 4: a Kinect V2 (512 × 424, the simulated sensor's axial noise
+    """A Kinect V2 (512 × 424, the simulated sensor's axial noise
     model, ~2 mm at 2.5 m) sees a table-sized box, a cube and the floor; PCA normals of
     the 1 cm voxel grid against each point's nearest box face (analytic): median < 5°."""
     from earcore.sim.sensors import SENSORS

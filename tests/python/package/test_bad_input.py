@@ -131,7 +131,30 @@ def test_exceptions_are_earcore_errors():
     assert issubclass(earcore.MapFormatError, earcore.EarcoreError)
 
 
-# --- Found by a sweep of every public call with bad arguments (session 19) ---------
+def test_every_exception_the_package_defines_is_an_earcore_error():
+    """One hierarchy: every exception class any earcore module defines (warnings aside)
+    derives from `EarcoreError`, found by importing every module of the package."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    defined = {}
+    for info in pkgutil.walk_packages(earcore.__path__, "earcore."):
+        if info.name.endswith("__main__"):
+            continue
+        try:
+            module = importlib.import_module(info.name)
+        except ImportError:  # an optional dependency (OMPL, OpenCV, pybullet) is missing
+            continue
+        for _, cls in inspect.getmembers(module, inspect.isclass):
+            if issubclass(cls, BaseException) and cls.__module__.startswith("earcore"):
+                defined[f"{cls.__module__}.{cls.__qualname__}"] = cls
+    assert "earcore.calibration.errors.CalibrationError" in defined and "earcore.planning.errors.PlanningError" in defined
+    stray = [name for name, cls in defined.items() if not issubclass(cls, (earcore.EarcoreError, Warning))]
+    assert not stray, stray
+
+
+# --- A sweep of every public call with bad arguments ------------------------------
 
 
 def _toy_arm():

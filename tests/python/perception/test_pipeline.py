@@ -34,7 +34,7 @@ def test_far_ray_selection_helpers():
 
 def test_icp_refinement_aligns_perturbed_cameras():
     """Paper II's one-off fine alignment in the loop: fixed cameras 2 cm / 1° off come
-    out better aligned to each other (relative poses; 5.3 → 2.9 cm here, see NOTES.md)."""
+    out better aligned to each other (relative poses; 5.3 → 2.9 cm here)."""
     from earcore.perception import PerceptionConfig, PerceptionPipeline
     from earcore.sim.cell import SimulatedCell
     from earcore.sim.config import CellConfig

@@ -236,7 +236,7 @@ def test_lidar_odometry_follows_a_hand_held_scanner_through_the_room():
 
 
 def test_surface_normals_of_the_scanned_room():
-    """Issue 3, acceptance 4: ten lidar scans (σ 1.5 cm) of the room with its furniture,
+    """Ten lidar scans (σ 1.5 cm) of the room with its furniture,
     inserted with dynamic leaf depth; every node with a normal, up to 32 cm, against the
     nearest wall, floor, ceiling or box face (analytic): median < 5°."""
     from reference import nearest_face_normals

@@ -45,7 +45,7 @@ __all__ = ["CirclesDriver", "experiment_configs", "fig7", "main", "table2"]
 #: How far the held hand moves about its target (m) in Exp. 2 and 3. Still (0) by
 #: default: with 8 cm of wander (up to 0.28 m/s) both planners touched the person
 #: (3 contacts each in 15 trips, seed 0) and Exp. 3 ran 12.0 s per trip against
-#: Exp. 2's 7.1 s (NOTES.md, session 6).
+#: Exp. 2's 7.1 s (docs/design/reflexes.md).
 HELD_HAND_WANDER = 0.0
 
 #: A 10 × 10 cm pillar between the tool's A and B positions (Exp. 1).
