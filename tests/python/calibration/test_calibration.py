@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 import pytest
+from pose_reference import angle_deg, apply, make_pose, project  # noqa: E402
 
 import earcore
 from earcore.app.calibration_cell import calibration_cell, calibration_cell_config, evaluate
@@ -39,29 +39,14 @@ from earcore.transforms import look_at, mean_pose, perturb_pose
 BOARD = Checkerboard()
 
 
-def _rotation(vector) -> np.ndarray:
-    r, _ = cv2.Rodrigues(np.asarray(vector, dtype=np.float64))
-    return r
 
 
-def _pose(rotation_vector, translation) -> np.ndarray:
-    m = np.eye(4)
-    m[:3, :3] = _rotation(rotation_vector)
-    m[:3, 3] = translation
-    return m
 
 
-def _apply(m, p):
-    return p @ m[:3, :3].T + m[:3, 3]
 
 
-def _angle_deg(a, b) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2, -1, 1))))
 
 
-def _project(points_cam, K, dist):
-    px, _ = cv2.projectPoints(points_cam, np.zeros(3), np.zeros(3), K, np.asarray(dist, dtype=np.float64))
-    return px.reshape(-1, 2)
 
 
 # --- rigid fits -------------------------------------------------------------------
@@ -69,9 +54,9 @@ def _project(points_cam, K, dist):
 
 def test_rigid_fit_matches_the_svd_reference_and_ransac_drops_outliers():
     rng = np.random.default_rng(0)
-    truth = _pose(rng.normal(size=3), rng.normal(size=3))
+    truth = make_pose(rng.normal(size=3), rng.normal(size=3))
     src = rng.uniform(-0.5, 0.5, (50, 3))
-    dst = _apply(truth, src) + rng.normal(scale=1e-3, size=(50, 3))
+    dst = apply(truth, src) + rng.normal(scale=1e-3, size=(50, 3))
     # Reference: Kabsch written out with numpy's SVD.
     cs, cd = src.mean(0), dst.mean(0)
     u, _, vt = np.linalg.svd((src - cs).T @ (dst - cd))
@@ -104,24 +89,24 @@ def test_rigid_fit_rejects_bad_input(src, dst, error):
 
 
 def _synthetic_frames(rng, x, z, count=30, tilt=0.4, noise=0.001):
-    flanges = [_pose(rng.normal(size=3) * tilt, [0.45, 0.2, 0.4] + rng.normal(size=3) * 0.1) for _ in range(count)]
+    flanges = [make_pose(rng.normal(size=3) * tilt, [0.45, 0.2, 0.4] + rng.normal(size=3) * 0.1) for _ in range(count)]
     corners = BOARD.inner_corners()
-    cams = [_apply(np.linalg.inv(x) @ f @ z, corners) + rng.normal(scale=noise, size=corners.shape) for f in flanges]
+    cams = [apply(np.linalg.inv(x) @ f @ z, corners) + rng.normal(scale=noise, size=corners.shape) for f in flanges]
     return cams, np.array(flanges), corners
 
 
 def test_eye_to_hand_recovers_camera_and_mount():
     rng = np.random.default_rng(1)
     x = look_at([1.2, 1.0, 0.9], [0.3, 0.0, 0.2])
-    z = _pose([0.02, -0.015, 0.01], [0.004, -0.003, 0.103])
+    z = make_pose([0.02, -0.015, 0.01], [0.004, -0.003, 0.103])
     cams, flanges, corners = _synthetic_frames(rng, x, z)
     cams[3][5] += 0.05  # a corner with a wrong depth
     cams[7][:] = np.nan  # a frame without depth
-    designed = _pose([0, 0, 0], [0, 0, 0.1])
+    designed = make_pose([0, 0, 0], [0, 0, 0.1])
     fit = fit_eye_to_hand(cams, flanges, corners, designed)
     assert np.abs(fit.base_from_camera[:3, 3] - x[:3, 3]).max() < 1e-3
     assert np.abs(fit.flange_from_board[:3, 3] - z[:3, 3]).max() < 1e-3
-    assert _angle_deg(fit.flange_from_board, z) < 0.2 and _angle_deg(fit.base_from_camera, x) < 0.2
+    assert angle_deg(fit.flange_from_board, z) < 0.2 and angle_deg(fit.base_from_camera, x) < 0.2
     assert fit.frames == 29 and fit.corners == 29 * 24 - 1
     # With the designed mount taken as true, the mount's error lands in the camera pose.
     fixed = fit_eye_to_hand(cams, flanges, corners, designed, estimate_mount=False)
@@ -131,10 +116,10 @@ def test_eye_to_hand_recovers_camera_and_mount():
 def test_eye_to_hand_reports_degenerate_and_too_few_frames():
     rng = np.random.default_rng(2)
     x = look_at([1.2, 1.0, 0.9], [0.3, 0.0, 0.2])
-    z = _pose([0, 0, 0], [0, 0, 0.1])
+    z = make_pose([0, 0, 0], [0, 0, 0.1])
     cams, flanges, corners = _synthetic_frames(rng, x, z, count=10, tilt=0.0)
     flanges[:, :3, :3] = np.eye(3)  # translation only: the mount cannot be told apart
-    cams = [_apply(np.linalg.inv(x) @ f @ z, corners) for f in flanges]
+    cams = [apply(np.linalg.inv(x) @ f @ z, corners) for f in flanges]
     with pytest.raises(DegeneratePoses, match="cam_a.*turned"):
         fit_eye_to_hand(cams, flanges, corners, z, camera="cam_a")
     with pytest.raises(TooFewFrames, match="cam_b.*0 usable frames"):
@@ -143,7 +128,7 @@ def test_eye_to_hand_reports_degenerate_and_too_few_frames():
 
 def _small_turn(rng, degrees):
     axis = rng.normal(size=3)
-    return _pose(axis / np.linalg.norm(axis) * math.radians(degrees), rng.normal(size=3) * 1e-3)
+    return make_pose(axis / np.linalg.norm(axis) * math.radians(degrees), rng.normal(size=3) * 1e-3)
 
 
 def test_ax_zb_recovers_camera_and_mount_from_board_poses():
@@ -151,12 +136,12 @@ def test_ax_zb_recovers_camera_and_mount_from_board_poses():
     little noise) and the flange's; OpenCV's AX = ZB finds the camera and the mount."""
     rng = np.random.default_rng(3)
     x = look_at([1.2, 1.0, 0.9], [0.3, 0.0, 0.2])
-    z = _pose([0.02, -0.015, 0.01], [0.004, -0.003, 0.103])
+    z = make_pose([0.02, -0.015, 0.01], [0.004, -0.003, 0.103])
     _, flanges, corners = _synthetic_frames(rng, x, z, count=25)
     poses = np.array([np.linalg.inv(x) @ f @ z @ _small_turn(rng, 0.05) for f in flanges])
     fit = fit_eye_to_hand_from_poses(poses, flanges, corners, camera="webcam")
-    assert np.linalg.norm(fit.base_from_camera[:3, 3] - x[:3, 3]) < 2e-3 and _angle_deg(fit.base_from_camera, x) < 0.1
-    assert np.linalg.norm(fit.flange_from_board[:3, 3] - z[:3, 3]) < 2e-3 and _angle_deg(fit.flange_from_board, z) < 0.1
+    assert np.linalg.norm(fit.base_from_camera[:3, 3] - x[:3, 3]) < 2e-3 and angle_deg(fit.base_from_camera, x) < 0.1
+    assert np.linalg.norm(fit.flange_from_board[:3, 3] - z[:3, 3]) < 2e-3 and angle_deg(fit.flange_from_board, z) < 0.1
     assert fit.frames == 25 and fit.rmse < 3e-3
     exact = np.array([np.linalg.inv(x) @ f @ z for f in flanges])
     li = fit_eye_to_hand_from_poses(exact, flanges, corners, method="li")
@@ -179,28 +164,28 @@ def test_reprojection_refinement_recovers_camera_and_mount():
     1° off, the joint reprojection fit lands on the truth."""
     rng = np.random.default_rng(6)
     x = look_at([0.9, 0.6, 0.8], [0.45, 0.0, 0.3])
-    z = _pose([0.02, -0.015, 0.01], [0.004, -0.003, 0.103])
+    z = make_pose([0.02, -0.015, 0.01], [0.004, -0.003, 0.103])
     _, flanges, corners = _synthetic_frames(rng, x, z, count=30, tilt=0.3)
     pixels, keep = [], []
     for i, f in enumerate(flanges):
-        cam = _apply(np.linalg.inv(x) @ f @ z, corners)
+        cam = apply(np.linalg.inv(x) @ f @ z, corners)
         if (cam[:, 2] > 0.2).all():
-            pixels.append(_project(cam, K_TRUE, D_TRUE) + rng.normal(scale=0.1, size=(len(corners), 2)))
+            pixels.append(project(cam, K_TRUE, D_TRUE) + rng.normal(scale=0.1, size=(len(corners), 2)))
             keep.append(i)
-    x0 = x @ _pose([0.0, 0.0, math.radians(1.0)], [0.02, 0.0, 0.0])
-    z0 = z @ _pose([math.radians(1.0), 0.0, 0.0], [0.0, 0.003, 0.0])
+    x0 = x @ make_pose([0.0, 0.0, math.radians(1.0)], [0.02, 0.0, 0.0])
+    z0 = z @ make_pose([math.radians(1.0), 0.0, 0.0], [0.0, 0.003, 0.0])
     fx, fz, rms = refine_by_reprojection(pixels, flanges[keep], corners, K_TRUE, D_TRUE, x0, z0)
-    assert np.linalg.norm(fx[:3, 3] - x[:3, 3]) < 1e-3 and _angle_deg(fx, x) < 0.05
-    assert np.linalg.norm(fz[:3, 3] - z[:3, 3]) < 1e-3 and _angle_deg(fz, z) < 0.1
+    assert np.linalg.norm(fx[:3, 3] - x[:3, 3]) < 1e-3 and angle_deg(fx, x) < 0.05
+    assert np.linalg.norm(fz[:3, 3] - z[:3, 3]) < 1e-3 and angle_deg(fz, z) < 0.1
     assert rms == pytest.approx(0.1 * math.sqrt(2), rel=0.15)  # what is left is the pixel noise (2D rms)
 
 
 def test_mean_pose_is_the_centre_of_nearby_poses():
     rng = np.random.default_rng(4)
-    centre = _pose([0.3, -0.2, 0.1], [0.5, 0.1, 0.2])
+    centre = make_pose([0.3, -0.2, 0.1], [0.5, 0.1, 0.2])
     poses = np.array([centre @ _small_turn(rng, 2.0) for _ in range(400)])
     mean = mean_pose(poses)
-    assert _angle_deg(mean, centre) < 0.2 and np.abs(mean[:3, 3] - centre[:3, 3]).max() < 3e-4
+    assert angle_deg(mean, centre) < 0.2 and np.abs(mean[:3, 3] - centre[:3, 3]).max() < 3e-4
     assert np.allclose(mean[:3, :3] @ mean[:3, :3].T, np.eye(3))
 
 
@@ -216,8 +201,8 @@ def _views(rng, count, distance=(0.45, 0.8)):
     while len(views) < count:
         d = rng.uniform(*distance)
         centre = np.array([rng.uniform(-0.45, 0.45) * d, rng.uniform(-0.35, 0.35) * d, d])
-        pose = _pose([math.pi + rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5)], centre)
-        px = _project(_apply(pose, BOARD.inner_corners()), K_TRUE, D_TRUE)
+        pose = make_pose([math.pi + rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5)], centre)
+        px = project(apply(pose, BOARD.inner_corners()), K_TRUE, D_TRUE)
         if (px > 2).all() and (px[:, 0] < 509).all() and (px[:, 1] < 421).all():
             views.append((pose, px))
     return views
@@ -241,7 +226,7 @@ def test_lens_on_robot_recovers_lens_and_pose():
     rng = np.random.default_rng(4)
     base_from_camera = look_at([1.1, 0.8, 0.8], [0.4, 0.0, 0.3])
     views = _views(rng, 30, distance=(0.7, 1.0))
-    points = np.concatenate([_apply(base_from_camera @ pose, BOARD.inner_corners()) for pose, _ in views])
+    points = np.concatenate([apply(base_from_camera @ pose, BOARD.inner_corners()) for pose, _ in views])
     pixels = np.concatenate([px for _, px in views]) + rng.normal(scale=0.1, size=(len(points), 2))
     lens, pose = calibrate_lens_on_robot(points, pixels, (512, 424), np.array([[350.0, 0, 250], [0, 350.0, 210], [0, 0, 1]]))
     assert abs(lens.K[0, 0] - K_TRUE[0, 0]) < 1.0 and abs(lens.K[1, 2] - K_TRUE[1, 2]) < 1.0
@@ -293,12 +278,12 @@ def test_board_corners_and_orientation_against_the_true_lens(board_scene, roll_d
     """Each corner lands within 0.35 px of the true corner projected through the true
     lens, in the board's own order whichever way the board is turned."""
     camera, place = board_scene
-    pose = _pose([math.pi, 0.0, 0.0], [0.12, -0.05, 0.75]) @ _pose([0.3, -0.25, math.radians(roll_deg)], [0, 0, 0])
+    pose = make_pose([math.pi, 0.0, 0.0], [0.12, -0.05, 0.75]) @ make_pose([0.3, -0.25, math.radians(roll_deg)], [0, 0, 0])
     place(pose)
     image, depth, _ = camera.render_true()
     detection = detect_board(image, BOARD)
     assert detection is not None
-    truth = _project(_apply(pose, BOARD.inner_corners()), camera.sensor.intrinsics, camera.sensor.distortion)
+    truth = project(apply(pose, BOARD.inner_corners()), camera.sensor.intrinsics, camera.sensor.distortion)
     assert np.abs(detection.corners - truth).max() < 0.35
     # Corner depth: both methods against the true corners (1 m, Kinect V2 noise ~1.5 mm),
     # the sensor's depth error taken out as a calibrated camera would.
@@ -307,14 +292,14 @@ def test_board_corners_and_orientation_against_the_true_lens(board_scene, roll_d
     frames = sensor.depth_bias.correct(frames, radius2_grid(sensor.intrinsics, sensor.width, sensor.height))
     for method, bound in (("median", 0.004), ("plane", 0.002)):
         points = corner_points(detection, frames, camera.sensor.intrinsics, camera.sensor.distortion, method=method)
-        assert np.linalg.norm(points - _apply(pose, BOARD.inner_corners()), axis=1).max() < bound, method
+        assert np.linalg.norm(points - apply(pose, BOARD.inner_corners()), axis=1).max() < bound, method
 
 
 def test_board_out_of_view_or_cut_is_not_detected(board_scene):
     camera, place = board_scene
-    place(_pose([math.pi, 0.0, 0.0], [0.0, 0.0, -1.0]))  # behind the camera
+    place(make_pose([math.pi, 0.0, 0.0], [0.0, 0.0, -1.0]))  # behind the camera
     assert detect_board(camera.render_true()[0], BOARD) is None
-    place(_pose([math.pi, 0.0, 0.0], [0.72, 0.0, 1.0]))  # half out of the image
+    place(make_pose([math.pi, 0.0, 0.0], [0.72, 0.0, 1.0]))  # half out of the image
     assert detect_board(camera.render_true()[0], BOARD) is None
 
 

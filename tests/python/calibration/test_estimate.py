@@ -12,6 +12,8 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
+from pose_reference import angle_deg, apply, make_pose  # noqa: E402
+
 from earcore.calibration import CalibrationConfig, Checkerboard, Estimator, Observation, SensorSpec, TooFewFrames  # noqa: E402
 from earcore.calibration.board import Detection  # noqa: E402
 
@@ -23,23 +25,14 @@ D_TRUE = np.array([0.09, -0.27, 0.0, 0.0, 0.09])
 K_DATASHEET = np.array([[365.0, 0.0, 256.0], [0.0, 365.0, 212.0], [0.0, 0.0, 1.0]])
 
 
-def _pose(rotation_vector, translation) -> np.ndarray:
-    m = np.eye(4)
-    m[:3, :3] = cv2.Rodrigues(np.asarray(rotation_vector, dtype=np.float64))[0]
-    m[:3, 3] = translation
-    return m
 
 
-def _apply(m, p):
-    return p @ m[:3, :3].T + m[:3, 3]
 
 
-def _angle_deg(a, b) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2, -1, 1))))
 
 
-BASE_FROM_CAMERA = _pose([2.1, -0.9, 0.4], [1.2, 0.7, 0.9])
-MOUNT = _pose([0.03, -0.02, 0.01], [0.004, -0.003, 0.103])
+BASE_FROM_CAMERA = make_pose([2.1, -0.9, 0.4], [1.2, 0.7, 0.9])
+MOUNT = make_pose([0.03, -0.02, 0.01], [0.004, -0.003, 0.103])
 
 
 def _depth_region(cam_from_board: np.ndarray, corners_px: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
@@ -53,7 +46,7 @@ def _depth_region(cam_from_board: np.ndarray, corners_px: np.ndarray) -> tuple[n
     rays = np.c_[rays, np.ones(len(rays))]
     normal, origin = cam_from_board[:3, 2], cam_from_board[:3, 3]
     z = (normal @ origin) / (rays @ normal)
-    on_board = _apply(np.linalg.inv(cam_from_board), rays * z[:, None])
+    on_board = apply(np.linalg.inv(cam_from_board), rays * z[:, None])
     w, h = BOARD.size
     inside = (np.abs(on_board[:, 0]) <= w / 2) & (np.abs(on_board[:, 1]) <= h / 2) & (z > 0)
     depth = np.where(inside, z, 0.0).reshape(u.shape)
@@ -66,8 +59,8 @@ def _observations(rng, count: int, *, depth: bool = True) -> list[Observation]:
     while len(out) < count:
         d = rng.uniform(0.7, 1.1)
         centre = np.array([rng.uniform(-0.45, 0.45) * d, rng.uniform(-0.35, 0.35) * d, d])
-        cam_from_board = _pose([math.pi + rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5)], centre)
-        px, _ = cv2.projectPoints(_apply(cam_from_board, BOARD.inner_corners()), np.zeros(3), np.zeros(3), K_TRUE, D_TRUE)
+        cam_from_board = make_pose([math.pi + rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5)], centre)
+        px, _ = cv2.projectPoints(apply(cam_from_board, BOARD.inner_corners()), np.zeros(3), np.zeros(3), K_TRUE, D_TRUE)
         px = px.reshape(-1, 2)
         if not ((px > 2).all() and (px[:, 0] < SIZE[0] - 3).all() and (px[:, 1] < SIZE[1] - 3).all()):
             continue
@@ -85,7 +78,7 @@ def test_estimation_recovers_pose_lens_and_mount_from_depth_and_pixels():
     cal = estimator.finish("cam", obs, SensorSpec(True, K_DATASHEET))
     # Clean data: the answers within a millimetre (the mount differs from the design by 5 mm).
     assert np.linalg.norm(cal.base_from_camera[:3, 3] - BASE_FROM_CAMERA[:3, 3]) < 1e-3
-    assert _angle_deg(cal.base_from_camera, BASE_FROM_CAMERA) < 0.05
+    assert angle_deg(cal.base_from_camera, BASE_FROM_CAMERA) < 0.05
     assert np.linalg.norm(cal.flange_from_board[:3, 3] - MOUNT[:3, 3]) < 1e-3
     assert np.abs(cal.depth_K - K_TRUE).max() < 0.5
     assert cal.frames == 24 and cal.depth_reprojection_rms < 0.2
@@ -97,7 +90,7 @@ def test_estimation_of_a_colour_only_camera_uses_the_board_poses():
     cal = Estimator(BOARD.inner_corners(), CalibrationConfig()).finish("cam", obs, SensorSpec(False, K_DATASHEET))
     assert cal.depth_K is None and cal.colour_K is not None
     assert np.linalg.norm(cal.base_from_camera[:3, 3] - BASE_FROM_CAMERA[:3, 3]) < 1e-3
-    assert _angle_deg(cal.base_from_camera, BASE_FROM_CAMERA) < 0.1
+    assert angle_deg(cal.base_from_camera, BASE_FROM_CAMERA) < 0.1
     assert np.linalg.norm(cal.flange_from_board[:3, 3] - MOUNT[:3, 3]) < 1e-3
 
 
