@@ -307,9 +307,7 @@ pub fn robot_cell_voxels(resolution: f64, seed: u64) -> Vec<[f64; 3]> {
     }
     // A person: torso and head upright at (0.7, 0.6), an arm reaching toward the robot.
     let capsule = |a: [f64; 3], b: [f64; 3], r: f64| {
-        move |p: [f64; 3]| {
-            crate::robot::capsule::point_segment_distance_squared(&a, &b, &p) <= r * r
-        }
+        move |p: [f64; 3]| crate::robot::point_segment_distance_squared(&a, &b, &p) <= r * r
     };
     let torso = capsule([0.9, 0.9, 0.9], [0.9, 0.9, 1.4], 0.17);
     fill([0.7, 0.7, 0.7], [1.1, 1.1, 1.6], &torso);
