@@ -13,6 +13,8 @@
 //! Units are metres and radians throughout; points are `[f64; 3]` in the map frame
 //! unless a function says otherwise.
 
+#![warn(missing_docs)]
+
 pub mod cloud;
 pub mod eigen3;
 mod error;

@@ -7,8 +7,10 @@ use crate::error::{Error, Result};
 use crate::na::{Matrix4, Matrix6, Rotation3, SymmetricEigen, Translation3, Vector3, Vector6};
 use crate::threads;
 
+/// Stopping rules and robustness of [`icp_point_to_plane`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IcpParams {
+    /// At most this many Gauss-Newton steps.
     pub max_iterations: usize,
     /// Pairs farther apart than this (metres) are ignored.
     pub max_correspondence_distance: f64,
@@ -71,6 +73,7 @@ impl Default for IcpParams {
     }
 }
 
+/// What [`icp_point_to_plane`] found.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IcpResult {
     /// `target_from_source`.
@@ -79,7 +82,9 @@ pub struct IcpResult {
     pub rmse: f64,
     /// Fraction of source points with a pair within the correspondence distance.
     pub fitness: f64,
+    /// Gauss-Newton steps taken.
     pub iterations: usize,
+    /// A step fell below both tolerances before `max_iterations`.
     pub converged: bool,
     /// The pairs cannot fix all six degrees of freedom (e.g. a single plane).
     pub degenerate: bool,
@@ -186,6 +191,10 @@ pub struct PlaneTarget {
 }
 
 impl PlaneTarget {
+    /// A target of `points` (metres) with one normal each (any length; normalised here).
+    ///
+    /// Errors when the counts differ, with fewer than 3 points, or on a non-finite point
+    /// or a zero / non-finite normal.
     pub fn new(points: &[[f64; 3]], normals: &[[f64; 3]]) -> Result<Self> {
         if points.len() != normals.len() {
             return Err(Error::InvalidArgument(format!(
@@ -216,10 +225,12 @@ impl PlaneTarget {
         })
     }
 
+    /// Number of target points.
     pub fn len(&self) -> usize {
         self.normals.len()
     }
 
+    /// Whether the target has no points.
     pub fn is_empty(&self) -> bool {
         self.normals.is_empty()
     }

@@ -6,6 +6,8 @@ use crate::robot::body::{AxisBounds, Body};
 use crate::robot::chain::{Chain, Frame};
 use crate::synthetic::Rng;
 
+/// A robot: its kinematic chain, a body per link (link frame), the base's place
+/// in the world and the link pairs tested for self-collision.
 #[derive(Clone, Debug)]
 pub struct RobotModel {
     chain: Chain,
@@ -26,7 +28,9 @@ pub struct RobotModel {
 /// The robot's bodies placed for one configuration (world frame), with their links.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PlacedBodies {
+    /// Link index of each body.
     pub links: Vec<usize>,
+    /// The bodies, world frame.
     pub bodies: Vec<Body>,
     /// False for bodies fixed to the root (skipped by obstacle checks and clearance).
     pub moving: Vec<bool>,
@@ -41,7 +45,9 @@ pub struct LazyPlacement {
     /// Placement joints run so far for this configuration.
     joints_done: usize,
     bodies: Vec<Option<Body>>,
+    /// Link index of each slot's body.
     pub links: Vec<usize>,
+    /// False for bodies fixed to the root, as in [`PlacedBodies`].
     pub moving: Vec<bool>,
     joints_needed: Vec<usize>,
 }
@@ -148,22 +154,27 @@ impl RobotModel {
         Ok(model)
     }
 
+    /// The kinematic chain.
     pub fn chain(&self) -> &Chain {
         &self.chain
     }
 
+    /// Degrees of freedom (movable joints).
     pub fn dof(&self) -> usize {
         self.chain.dof()
     }
 
+    /// Each link's body in the link frame (None: the link has no geometry).
     pub fn bodies(&self) -> &[Option<Body>] {
         &self.bodies
     }
 
+    /// world_from_root: where the robot stands.
     pub fn base(&self) -> &Frame {
         &self.base
     }
 
+    /// Move the robot's base (world_from_root).
     pub fn set_base(&mut self, base: Frame) {
         self.base = base;
     }
@@ -173,10 +184,13 @@ impl RobotModel {
         &self.fixed_to_root
     }
 
+    /// Link pairs tested for self-collision.
     pub fn self_collision_pairs(&self) -> &[(usize, usize)] {
         &self.self_pairs
     }
 
+    /// Replace the link pairs tested for self-collision; errors on a pair that is not
+    /// two different links of the chain.
     pub fn set_self_collision_pairs(&mut self, pairs: Vec<(usize, usize)>) -> Result<()> {
         let n = self.chain.num_links();
         if let Some(p) = pairs.iter().find(|(a, b)| *a >= n || *b >= n || a == b) {

@@ -14,17 +14,24 @@ use crate::robot::capsule::segment_box_closest;
 /// Closest approach of a body and a box: signed distance (negative inside) and points.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BodyBoxContact {
+    /// Signed distance in metres: the gap, or minus the overlap depth.
     pub distance: f64,
+    /// The body's point nearest the box.
     pub on_body: [f64; 3],
+    /// The box's point nearest the body.
     pub on_box: [f64; 3],
 }
 
 /// See `Body::box_contact_step`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ContactStep {
+    /// The contact, from a closed form.
     Exact(BodyBoxContact),
+    /// A cylinder reached near a flat end: the iterative query decides.
     Iterative {
+        /// What the iterative query finds is at least this far (metres).
         lower_bound: f64,
+        /// The enclosing capsule's contact (the answer if they touch).
         capsule: BodyBoxContact,
     },
 }
@@ -69,6 +76,8 @@ impl<T: Copy> NearestContact<T> {
         }
     }
 
+    /// Offer the pair of `body` and the box at `center` (half sizes `half`), tagged
+    /// `tag`: settled at once when in closed form, else kept while it may still win.
     pub fn offer(&mut self, tag: T, body: &Body, center: &[f64; 3], half: &[f64; 3]) {
         match body.box_contact_step(center, half) {
             ContactStep::Exact(contact) => self.consider(tag, contact),

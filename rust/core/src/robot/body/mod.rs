@@ -25,20 +25,28 @@ use crate::geometry::distance_squared;
 use crate::robot::capsule::{lerp, Capsule};
 use crate::robot::chain::Frame;
 
+/// The shape of a [`Body`] around its axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BodyShape {
+    /// Round ends: every point within the radius of the axis segment.
     Capsule,
+    /// Flat ends at the axis' end points.
     Cylinder,
 }
 
+/// A link body: a capsule or a flat-ended cylinder around the segment `axis.a`–`axis.b`
+/// (metres, in whichever frame the body is given: link frame in a model, world frame
+/// once placed).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Body {
     /// Axis and radius (for a cylinder: the axis between the flat end centres).
     pub axis: Capsule,
+    /// Capsule or cylinder.
     pub shape: BodyShape,
 }
 
 impl Body {
+    /// A capsule around the segment `a`–`b`.
     pub fn capsule(a: [f64; 3], b: [f64; 3], radius: f64) -> Self {
         Body {
             axis: Capsule::new(a, b, radius),
@@ -46,6 +54,7 @@ impl Body {
         }
     }
 
+    /// A cylinder whose flat ends are centred on `a` and `b`.
     pub fn cylinder(a: [f64; 3], b: [f64; 3], radius: f64) -> Self {
         Body {
             axis: Capsule::new(a, b, radius),
@@ -53,6 +62,7 @@ impl Body {
         }
     }
 
+    /// Radius in metres.
     pub fn radius(&self) -> f64 {
         self.axis.radius
     }
@@ -74,6 +84,7 @@ impl Body {
         out
     }
 
+    /// The body moved by `frame` (e.g. world_from_link).
     #[inline]
     pub fn placed(&self, frame: &Frame) -> Body {
         Body {
@@ -89,6 +100,7 @@ impl Body {
         &self.axis
     }
 
+    /// Volume in m³.
     pub fn volume(&self) -> f64 {
         match self.shape {
             BodyShape::Capsule => self.axis.volume(),
@@ -105,6 +117,7 @@ impl Body {
         self.axis.aabb()
     }
 
+    /// Whether the point lies in the body (its surface included).
     #[inline]
     pub fn contains_point(&self, p: &[f64; 3]) -> bool {
         let c = &self.axis;

@@ -13,8 +13,11 @@ const SAMPLES_PER_VOXEL: f64 = 1.0;
 /// Outcome of the distance-field pass over a body's axis samples.
 #[derive(Clone, Copy, Debug)]
 pub enum SampleVerdict {
+    /// A sample's ball reaches an occupied box: the body collides.
     Collides,
+    /// Every sample is proven clear: the body is free.
     Free,
+    /// Some samples are undecided; [`VoxelIndex::body_scan`] settles them.
     Undecided(UndecidedRuns),
 }
 

@@ -12,8 +12,11 @@ const SQRT3: f64 = 1.732_050_807_568_877_2;
 /// occupied voxel box (negative when they overlap), and the closest points.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Clearance {
+    /// Metres from the body to the nearest occupied voxel box (negative: overlap).
     pub distance: f64,
+    /// The body's point nearest the obstacle.
     pub on_body: [f64; 3],
+    /// The obstacle's point nearest the body.
     pub on_obstacle: [f64; 3],
 }
 

@@ -34,6 +34,9 @@ pub enum VoxelSource {
     CurrentObstacles,
 }
 
+/// A dense grid of a map's obstacle voxels in a cube around the robot, with its
+/// distance fields: exact body–voxel collision tests and clearance (see the module
+/// documentation).
 #[derive(Clone, Debug)]
 pub struct VoxelIndex {
     resolution: f64,
@@ -190,18 +193,22 @@ impl VoxelIndex {
         self.mark_box(g, g);
     }
 
+    /// Edge length of a cell, in metres.
     pub fn resolution(&self) -> f64 {
         self.resolution
     }
 
+    /// Cells along x, y and z.
     pub fn dims(&self) -> [usize; 3] {
         self.dims
     }
 
+    /// Number of occupied cells.
     pub fn num_occupied(&self) -> usize {
         self.num_occupied
     }
 
+    /// Bytes of the grid and its distance fields.
     pub fn memory_usage(&self) -> usize {
         self.occupied.len() * (1 + std::mem::size_of::<CellField>())
     }
