@@ -237,6 +237,34 @@ impl PlaneTarget {
 }
 
 /// Align `source` to `target` starting from `initial` (`target_from_source`).
+///
+/// Errors on fewer than 6 source points, a non-finite point, an `initial` that is not
+/// a rigid transform, or invalid `params`.
+///
+/// ```
+/// use earcore_core::cloud::{icp_point_to_plane, IcpParams, PlaneTarget};
+/// use earcore_core::na::Matrix4;
+///
+/// // Target: the corner of three walls (x = 0, y = 0, z = 0) on a 5 cm grid.
+/// let (mut points, mut normals) = (Vec::new(), Vec::new());
+/// for i in 1..10 {
+///     for j in 1..10 {
+///         let (u, v) = (0.05 * i as f64, 0.05 * j as f64);
+///         points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
+///         normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+///     }
+/// }
+/// let target = PlaneTarget::new(&points, &normals)?;
+/// // The source: the same corner seen 2 cm further along x and 1 cm back along y.
+/// let source: Vec<[f64; 3]> = points.iter().map(|p| [p[0] + 0.02, p[1] - 0.01, p[2]]).collect();
+/// let fit = icp_point_to_plane(&source, &target, &Matrix4::identity(), IcpParams::default())?;
+/// assert!(fit.converged && !fit.degenerate);
+/// // target_from_source moves the source back.
+/// assert!((fit.transform[(0, 3)] + 0.02).abs() < 1e-6);
+/// assert!((fit.transform[(1, 3)] - 0.01).abs() < 1e-6);
+/// assert!(fit.transform[(2, 3)].abs() < 1e-6);
+/// # Ok::<(), earcore_core::Error>(())
+/// ```
 pub fn icp_point_to_plane(
     source: &[[f64; 3]],
     target: &impl IcpTarget,

@@ -70,6 +70,22 @@ impl Default for SurfaceParams {
 
 /// NOctoSLAM's octree: per node an occupancy, a surface position and a normal.
 /// See the module documentation for the update rules.
+///
+/// ```
+/// use earcore_core::octree::{SurfaceMap, SurfaceParams};
+///
+/// // A floor patch: points on z = 0 every 2 cm.
+/// let floor: Vec<[f64; 3]> = (0..400)
+///     .map(|i| [0.02 * (i % 20) as f64, 0.02 * (i / 20) as f64, 0.0])
+///     .collect();
+/// let mut map = SurfaceMap::new(0.05, SurfaceParams::default())?;
+/// assert!(map.insert(&floor)? > 0);
+/// // A point just above the floor pairs with the surface and its vertical normal.
+/// let (position, normal, _depth) = map.associate([0.2, 0.2, 0.01]).unwrap();
+/// assert!(position[2].abs() < 1e-6);
+/// assert!(normal[2].abs() > 0.99);
+/// # Ok::<(), earcore_core::Error>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct SurfaceMap {
     conv: KeyConverter,

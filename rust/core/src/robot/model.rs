@@ -8,6 +8,44 @@ use crate::synthetic::Rng;
 
 /// A robot: its kinematic chain, a body per link (link frame), the base's place
 /// in the world and the link pairs tested for self-collision.
+///
+/// ```
+/// use std::f64::consts::FRAC_PI_2;
+///
+/// use earcore_core::na::Vector3;
+/// use earcore_core::robot::{
+///     check_configurations, Body, Chain, CheckParams, Contact, Frame, Joint, JointKind,
+///     RobotModel, VoxelIndex,
+/// };
+///
+/// // A base and one arm link turning about z, 0.3 m up, 0.5 m long along its x axis.
+/// let shoulder = Joint {
+///     name: "shoulder".into(),
+///     kind: JointKind::Revolute,
+///     parent: 0,
+///     child: 1,
+///     origin: Frame::from_xyz_rpy([0.0, 0.0, 0.3], [0.0; 3]),
+///     axis: Vector3::z(),
+///     lower: -3.0,
+///     upper: 3.0,
+/// };
+/// let chain = Chain::new(vec!["base".into(), "arm".into()], vec![shoulder])?;
+/// let arm = Body::capsule([0.0; 3], [0.5, 0.0, 0.0], 0.05);
+/// let model = RobotModel::new(chain, vec![None, Some(arm)])?;
+///
+/// // At 90° the arm points along y.
+/// let placed = model.place(&[FRAC_PI_2])?;
+/// let tip = placed.bodies[0].axis.b;
+/// assert!(tip[0].abs() < 1e-12 && (tip[1] - 0.5).abs() < 1e-12 && (tip[2] - 0.3).abs() < 1e-12);
+///
+/// // An obstacle voxel on the y axis is hit there, not at 0°.
+/// let mut index = VoxelIndex::empty(0.05, [0.0, 0.0, 0.3], 1.0)?;
+/// index.mark_point([0.02, 0.47, 0.32]);
+/// index.compute_distance_field();
+/// let contacts = check_configurations(&model, &index, &[0.0, FRAC_PI_2], CheckParams::default())?;
+/// assert_eq!(contacts, [Contact::Free, Contact::Obstacle(1)]);
+/// # Ok::<(), earcore_core::Error>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct RobotModel {
     chain: Chain,
