@@ -9,11 +9,17 @@ use rayon::prelude::*;
 /// Pinhole depth camera (x right, y down, z forward).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PinholeCamera {
+    /// Image width in pixels.
     pub width: usize,
+    /// Image height in pixels.
     pub height: usize,
+    /// Focal length along x, in pixels.
     pub fx: f64,
+    /// Focal length along y, in pixels.
     pub fy: f64,
+    /// Principal point, x, in pixels.
     pub cx: f64,
+    /// Principal point, y, in pixels.
     pub cy: f64,
     /// Farthest depth (camera z) reported, in metres.
     pub max_depth: f64,
@@ -34,19 +40,26 @@ impl PinholeCamera {
     }
 }
 
+/// A shape of a synthetic scene (metres, map frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Shape {
+    /// A ball.
     Sphere {
+        /// Centre of the ball.
         center: [f64; 3],
+        /// Radius of the ball.
         radius: f64,
     },
     /// Axis-aligned box.
     Box {
+        /// Lower corner.
         lo: [f64; 3],
+        /// Upper corner.
         hi: [f64; 3],
     },
     /// The plane z = `z`.
     Floor {
+        /// Height of the plane.
         z: f64,
     },
 }
@@ -200,9 +213,13 @@ pub fn benchmark_scene() -> (PinholeCamera, Matrix4<f64>, Vec<Shape>) {
 /// `azimuth_steps` angles over 360°.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Lidar {
+    /// Number of beams (scan lines).
     pub rings: usize,
+    /// Samples per beam over 360°.
     pub azimuth_steps: usize,
+    /// Vertical field of view, radians, centred on the horizon.
     pub vertical_fov: f64,
+    /// Longest range reported, metres.
     pub max_range: f64,
     /// Standard deviation of the range noise, metres.
     pub noise_sigma: f64,
@@ -307,9 +324,7 @@ pub fn robot_cell_voxels(resolution: f64, seed: u64) -> Vec<[f64; 3]> {
     }
     // A person: torso and head upright at (0.7, 0.6), an arm reaching toward the robot.
     let capsule = |a: [f64; 3], b: [f64; 3], r: f64| {
-        move |p: [f64; 3]| {
-            crate::robot::capsule::point_segment_distance_squared(&a, &b, &p) <= r * r
-        }
+        move |p: [f64; 3]| crate::robot::point_segment_distance_squared(&a, &b, &p) <= r * r
     };
     let torso = capsule([0.9, 0.9, 0.9], [0.9, 0.9, 1.4], 0.17);
     fill([0.7, 0.7, 0.7], [1.1, 1.1, 1.6], &torso);
@@ -329,6 +344,7 @@ pub struct Rng {
 }
 
 impl Rng {
+    /// A generator seeded with `seed` (every seed gives its own sequence).
     pub fn new(seed: u64) -> Self {
         Rng {
             state: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,

@@ -10,19 +10,28 @@ use crate::na::Matrix4;
 /// Pinhole intrinsics in pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Intrinsics {
+    /// Focal length along the image x axis, in pixels.
     pub fx: f64,
+    /// Focal length along the image y axis, in pixels.
     pub fy: f64,
+    /// Principal point, x (column), in pixels.
     pub cx: f64,
+    /// Principal point, y (row), in pixels.
     pub cy: f64,
 }
 
 /// OpenCV's radial-tangential distortion (k1, k2, p1, p2, k3).
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct BrownConrady {
+    /// First radial coefficient.
     pub k1: f64,
+    /// Second radial coefficient.
     pub k2: f64,
+    /// First tangential coefficient.
     pub p1: f64,
+    /// Second tangential coefficient.
     pub p2: f64,
+    /// Third radial coefficient.
     pub k3: f64,
 }
 
@@ -65,9 +74,13 @@ impl BrownConrady {
 /// A depth image (row-major, `width × height`; 0, NaN or ∞ = no reading). Depth in
 /// metres is `depth × scale` (e.g. 0.001 for millimetre images).
 pub struct DepthFrame<'a> {
+    /// Depth readings, row-major, `width × height` of them.
     pub depth: &'a [f32],
+    /// Image width in pixels.
     pub width: usize,
+    /// Image height in pixels.
     pub height: usize,
+    /// Metres per depth unit.
     pub scale: f64,
 }
 

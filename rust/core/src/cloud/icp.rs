@@ -7,8 +7,10 @@ use crate::error::{Error, Result};
 use crate::na::{Matrix4, Matrix6, Rotation3, SymmetricEigen, Translation3, Vector3, Vector6};
 use crate::threads;
 
+/// Stopping rules and robustness of [`icp_point_to_plane`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IcpParams {
+    /// At most this many Gauss-Newton steps.
     pub max_iterations: usize,
     /// Pairs farther apart than this (metres) are ignored.
     pub max_correspondence_distance: f64,
@@ -71,6 +73,7 @@ impl Default for IcpParams {
     }
 }
 
+/// What [`icp_point_to_plane`] found.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IcpResult {
     /// `target_from_source`.
@@ -79,7 +82,9 @@ pub struct IcpResult {
     pub rmse: f64,
     /// Fraction of source points with a pair within the correspondence distance.
     pub fitness: f64,
+    /// Gauss-Newton steps taken.
     pub iterations: usize,
+    /// A step fell below both tolerances before `max_iterations`.
     pub converged: bool,
     /// The pairs cannot fix all six degrees of freedom (e.g. a single plane).
     pub degenerate: bool,
@@ -186,6 +191,10 @@ pub struct PlaneTarget {
 }
 
 impl PlaneTarget {
+    /// A target of `points` (metres) with one normal each (any length; normalised here).
+    ///
+    /// Errors when the counts differ, with fewer than 3 points, or on a non-finite point
+    /// or a zero / non-finite normal.
     pub fn new(points: &[[f64; 3]], normals: &[[f64; 3]]) -> Result<Self> {
         if points.len() != normals.len() {
             return Err(Error::InvalidArgument(format!(
@@ -216,16 +225,46 @@ impl PlaneTarget {
         })
     }
 
+    /// Number of target points.
     pub fn len(&self) -> usize {
         self.normals.len()
     }
 
+    /// Whether the target has no points.
     pub fn is_empty(&self) -> bool {
         self.normals.is_empty()
     }
 }
 
 /// Align `source` to `target` starting from `initial` (`target_from_source`).
+///
+/// Errors on fewer than 6 source points, a non-finite point, an `initial` that is not
+/// a rigid transform, or invalid `params`.
+///
+/// ```
+/// use earcore_core::cloud::{icp_point_to_plane, IcpParams, PlaneTarget};
+/// use earcore_core::na::Matrix4;
+///
+/// // Target: the corner of three walls (x = 0, y = 0, z = 0) on a 5 cm grid.
+/// let (mut points, mut normals) = (Vec::new(), Vec::new());
+/// for i in 1..10 {
+///     for j in 1..10 {
+///         let (u, v) = (0.05 * i as f64, 0.05 * j as f64);
+///         points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
+///         normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+///     }
+/// }
+/// let target = PlaneTarget::new(&points, &normals)?;
+/// // The source: the same corner seen 2 cm further along x and 1 cm back along y.
+/// let source: Vec<[f64; 3]> = points.iter().map(|p| [p[0] + 0.02, p[1] - 0.01, p[2]]).collect();
+/// let fit = icp_point_to_plane(&source, &target, &Matrix4::identity(), IcpParams::default())?;
+/// assert!(fit.converged && !fit.degenerate);
+/// // target_from_source moves the source back.
+/// assert!((fit.transform[(0, 3)] + 0.02).abs() < 1e-6);
+/// assert!((fit.transform[(1, 3)] - 0.01).abs() < 1e-6);
+/// assert!(fit.transform[(2, 3)].abs() < 1e-6);
+/// # Ok::<(), earcore_core::Error>(())
+/// ```
 pub fn icp_point_to_plane(
     source: &[[f64; 3]],
     target: &impl IcpTarget,

@@ -20,6 +20,7 @@ enum Node {
     },
 }
 
+/// A k-d tree over 3D points, for nearest and k-nearest neighbour queries.
 #[derive(Clone, Debug)]
 pub struct KdTree {
     points: Vec<[f64; 3]>,
@@ -51,14 +52,17 @@ impl KdTree {
         tree
     }
 
+    /// Number of points.
     pub fn len(&self) -> usize {
         self.points.len()
     }
 
+    /// Whether the tree holds no points.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }
 
+    /// The points, in the order they were given.
     pub fn points(&self) -> &[[f64; 3]] {
         &self.points
     }

@@ -7,6 +7,7 @@ use crate::error::{Error, Result};
 use crate::floor::floor_i64;
 use crate::threads;
 
+/// Statistical outlier removal's parameters (PCL's `StatisticalOutlierRemoval`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OutlierParams {
     /// Neighbours per point.

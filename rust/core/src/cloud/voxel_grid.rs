@@ -13,7 +13,24 @@ use crate::floor::floor_i64;
 const PACKED_OFFSET: i64 = 1 << 20;
 
 /// Returns the centroids (in order of each voxel's first point) and, when `values`
-/// (`stride` numbers per point) are given, their per-voxel means.
+/// (`stride` numbers per point) are given, their per-voxel means. Errors when
+/// `voxel_size` is not a positive length, a point is not finite or beyond the grid's
+/// reach, or `values` does not hold `stride` numbers per point.
+///
+/// ```
+/// use earcore_core::cloud::voxel_downsample;
+///
+/// // Two points share the voxel [0, 0.1)³; one lies alone in the next voxel along x.
+/// let points = [[0.01, 0.02, 0.03], [0.03, 0.04, 0.05], [0.15, 0.0, 0.0]];
+/// let (centroids, _) = voxel_downsample(&points, 0.1, None)?;
+/// assert_eq!(centroids.len(), 2);
+/// assert!((centroids[0][0] - 0.02).abs() < 1e-12 && (centroids[0][2] - 0.04).abs() < 1e-12);
+/// assert_eq!(centroids[1], [0.15, 0.0, 0.0]);
+/// // Per-point values (here one number per point) are averaged the same way.
+/// let (_, means) = voxel_downsample(&points, 0.1, Some((&[1.0, 3.0, 5.0], 1)))?;
+/// assert_eq!(means, [2.0, 5.0]);
+/// # Ok::<(), earcore_core::Error>(())
+/// ```
 pub fn voxel_downsample(
     points: &[[f64; 3]],
     voxel_size: f64,

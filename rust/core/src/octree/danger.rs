@@ -22,10 +22,12 @@ pub enum DecayMode {
     Always,
 }
 
+/// Danger decay parameters (Paper I, Eq. 1).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DangerParams {
     /// Decay speed α of Eq. 1 (Table I: 0.3).
     pub alpha: f64,
+    /// When an unhit voxel decays.
     pub mode: DecayMode,
 }
 
@@ -63,6 +65,8 @@ pub fn decay_step(c: f32, dt_alpha: f64) -> f32 {
     }
 }
 
+/// Per-voxel danger: 0.999 where a voxel is hit, decaying while it is not
+/// (Paper I, Eq. 1). Cells are the finest octree cells, named by Morton code.
 #[derive(Clone, Debug, Default)]
 pub struct DangerMap {
     params: DangerParams,
@@ -75,10 +79,12 @@ pub struct DangerMap {
 }
 
 impl DangerMap {
+    /// The decay parameters.
     pub fn params(&self) -> DangerParams {
         self.params
     }
 
+    /// Replace the decay parameters; errors when `alpha` is negative or not finite.
     pub fn set_params(&mut self, params: DangerParams) -> Result<()> {
         if !(params.alpha.is_finite() && params.alpha >= 0.0) {
             return Err(Error::InvalidArgument(format!(
@@ -162,10 +168,12 @@ impl DangerMap {
         Ok(())
     }
 
+    /// Number of voxels with danger above 0.
     pub fn len(&self) -> usize {
         self.active.len()
     }
 
+    /// Whether no voxel has danger.
     pub fn is_empty(&self) -> bool {
         self.active.is_empty()
     }
@@ -182,6 +190,7 @@ impl DangerMap {
         &self.last_obstacles
     }
 
+    /// Bytes held by the map's tables, spare capacity included.
     pub fn memory_usage(&self) -> usize {
         (self.active.capacity() * 12)
             + (self.frame_hits.capacity() + self.frame_seen_free.capacity()) * 8

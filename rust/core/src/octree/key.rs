@@ -21,6 +21,7 @@ impl OcTreeKey {
         spread(self.0[0]) | (spread(self.0[1]) << 1) | (spread(self.0[2]) << 2)
     }
 
+    /// The key whose Morton code is `code` (the inverse of [`morton`](Self::morton)).
     #[inline]
     pub fn from_morton(code: u64) -> Self {
         OcTreeKey([compact(code), compact(code >> 1), compact(code >> 2)])
@@ -141,6 +142,7 @@ impl KeyConverter {
         }
     }
 
+    /// Edge length of a finest cell, in metres.
     #[inline]
     pub fn resolution(&self) -> f64 {
         self.resolution

@@ -8,10 +8,15 @@ use crate::error::{Error, Result};
 /// Sensor model and thresholds, as probabilities (OctoMap's defaults).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OccupancyParams {
+    /// Probability that a cell is occupied after a hit (OctoMap: 0.7).
     pub prob_hit: f64,
+    /// Probability that a cell is occupied after a miss (OctoMap: 0.4).
     pub prob_miss: f64,
+    /// Lower clamping bound of a cell's occupancy (OctoMap: 0.1192).
     pub clamping_min: f64,
+    /// Upper clamping bound of a cell's occupancy (OctoMap: 0.971).
     pub clamping_max: f64,
+    /// A cell is occupied at or above this probability (OctoMap: 0.5).
     pub occupancy_threshold: f64,
 }
 
@@ -28,6 +33,8 @@ impl Default for OccupancyParams {
 }
 
 impl OccupancyParams {
+    /// Errors unless every value is a probability in (0, 1), `prob_hit` > 0.5 >
+    /// `prob_miss`, and `clamping_min` < `clamping_max`.
     pub fn validate(&self) -> Result<()> {
         let open = |name: &str, p: f64| {
             if p.is_finite() && p > 0.0 && p < 1.0 {
@@ -100,8 +107,11 @@ pub type KeyUpdate = (u64, f32);
 /// A leaf as reported by iteration: the key of its lower corner, its depth and log-odds.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Leaf {
+    /// Key of the leaf's lower corner (its finest cell with the smallest key).
     pub key: OcTreeKey,
+    /// Depth of the leaf: 16 for a finest cell, less for a pruned leaf.
     pub depth: u32,
+    /// Occupancy in log-odds.
     pub log_odds: f32,
 }
 
@@ -132,10 +142,14 @@ pub struct OcTree {
 }
 
 impl OcTree {
+    /// An empty tree with cells of `resolution` metres and OctoMap's default parameters.
+    /// Errors when `resolution` is not a positive number.
     pub fn new(resolution: f64) -> Result<Self> {
         Self::with_params(resolution, OccupancyParams::default())
     }
 
+    /// An empty tree with cells of `resolution` metres and the given sensor model.
+    /// Errors when `resolution` is not a positive number or `params` are invalid.
     pub fn with_params(resolution: f64, params: OccupancyParams) -> Result<Self> {
         if !(resolution.is_finite() && resolution > 0.0) {
             return Err(Error::InvalidArgument(format!(
@@ -153,14 +167,17 @@ impl OcTree {
         })
     }
 
+    /// Edge length of a finest cell, in metres.
     pub fn resolution(&self) -> f64 {
         self.conv.resolution()
     }
 
+    /// The sensor model and thresholds, as probabilities.
     pub fn params(&self) -> OccupancyParams {
         self.params
     }
 
+    /// Conversions between metric points and this tree's keys.
     pub fn key_converter(&self) -> &KeyConverter {
         &self.conv
     }
@@ -170,6 +187,7 @@ impl OcTree {
         (self.lo.clamp_min, self.lo.clamp_max)
     }
 
+    /// The occupancy threshold in log-odds (float, as OctoMap stores it).
     pub fn occupancy_threshold_log_odds(&self) -> f32 {
         self.lo.occupied
     }
@@ -197,6 +215,7 @@ impl OcTree {
         std::mem::size_of::<Self>() + self.arena.memory_usage() + self.danger.memory_usage()
     }
 
+    /// Number of leaves (OctoMap's `getNumLeafNodes()`).
     pub fn num_leaf_nodes(&self) -> usize {
         if self.root == NONE {
             return 0;
@@ -466,6 +485,8 @@ impl OcTree {
         }
     }
 
+    /// Visit every leaf (pruned or finest), as [`for_each_leaf_in_keys`](Self::for_each_leaf_in_keys)
+    /// over all keys.
     pub fn for_each_leaf(&self, f: impl FnMut(Leaf)) {
         self.for_each_leaf_in_keys(OcTreeKey([0; 3]), OcTreeKey([u16::MAX; 3]), f)
     }
@@ -491,10 +512,12 @@ impl OcTree {
             })
     }
 
+    /// The per-voxel danger kept alongside the occupancy.
     pub fn danger_map(&self) -> &DangerMap {
         &self.danger
     }
 
+    /// The per-voxel danger, to record frames or change parameters.
     pub fn danger_map_mut(&mut self) -> &mut DangerMap {
         &mut self.danger
     }

@@ -125,6 +125,7 @@ impl Dda {
 /// changed since the previous cell, or 3 for the first cell, so that a receiver can
 /// update per-axis state instead of recomputing everything from the key.
 pub trait RayCells {
+    /// Called once per cell, in the order the ray crosses them.
     fn cell(&mut self, key: OcTreeKey, moved: usize);
 }
 

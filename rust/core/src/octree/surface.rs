@@ -29,15 +29,19 @@ use crate::na::{Matrix3, Vector3};
 /// One node of the surface map.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SurfaceNode {
+    /// Occupancy in log-odds.
     pub log_odds: f32,
+    /// Position of the surface in this node (metres, map frame); may leave the voxel.
     pub position: [f32; 3],
     /// Unit normal; meaningful only when `has_normal`.
     pub normal: [f32; 3],
+    /// Whether `normal` holds a normal.
     pub has_normal: bool,
     /// End points blended into this leaf (saturating; used by `position_memory`).
     pub hits: u16,
 }
 
+/// The surface map's sensor model and normal rules (NOctoSLAM).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SurfaceParams {
     /// Sensor model M: probability that a hit is real (OctoMap's prob_hit).
@@ -64,6 +68,24 @@ impl Default for SurfaceParams {
     }
 }
 
+/// NOctoSLAM's octree: per node an occupancy, a surface position and a normal.
+/// See the module documentation for the update rules.
+///
+/// ```
+/// use earcore_core::octree::{SurfaceMap, SurfaceParams};
+///
+/// // A floor patch: points on z = 0 every 2 cm.
+/// let floor: Vec<[f64; 3]> = (0..400)
+///     .map(|i| [0.02 * (i % 20) as f64, 0.02 * (i / 20) as f64, 0.0])
+///     .collect();
+/// let mut map = SurfaceMap::new(0.05, SurfaceParams::default())?;
+/// assert!(map.insert(&floor)? > 0);
+/// // A point just above the floor pairs with the surface and its vertical normal.
+/// let (position, normal, _depth) = map.associate([0.2, 0.2, 0.01]).unwrap();
+/// assert!(position[2].abs() < 1e-6);
+/// assert!(normal[2].abs() > 0.99);
+/// # Ok::<(), earcore_core::Error>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct SurfaceMap {
     conv: KeyConverter,
@@ -77,14 +99,20 @@ pub struct SurfaceMap {
 /// A node as reported by queries.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SurfaceSample {
+    /// Key of the node's lower corner (its finest cell with the smallest key).
     pub key: OcTreeKey,
+    /// Depth of the node (0 = root, 16 = finest).
     pub depth: u32,
     /// Without children (with dynamic leaf depth, leaves lie above depth 16 too).
     pub leaf: bool,
+    /// The node's values.
     pub node: SurfaceNode,
 }
 
 impl SurfaceMap {
+    /// An empty map with finest cells of `resolution` metres. Errors when `resolution`
+    /// is not a positive number or a parameter is out of range (probabilities in (0, 1),
+    /// `prob_hit` ≤ `clamping_max`, `position_memory` not `Some(0)`).
     pub fn new(resolution: f64, params: SurfaceParams) -> Result<Self> {
         if !(resolution.is_finite() && resolution > 0.0) {
             return Err(Error::InvalidArgument(format!(
@@ -112,10 +140,12 @@ impl SurfaceMap {
         })
     }
 
+    /// Edge length of a finest cell, in metres.
     pub fn resolution(&self) -> f64 {
         self.conv.resolution()
     }
 
+    /// Conversions between metric points and this map's keys.
     pub fn key_converter(&self) -> &KeyConverter {
         &self.conv
     }
@@ -125,6 +155,7 @@ impl SurfaceMap {
         self.arena.len()
     }
 
+    /// Bytes held by the map, spare capacity included.
     pub fn memory_usage(&self) -> usize {
         std::mem::size_of::<Self>() + self.arena.memory_usage()
     }

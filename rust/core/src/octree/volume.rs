@@ -203,6 +203,8 @@ fn local_index(key: OcTreeKey) -> usize {
         | (SPREAD3[(key.0[2] & 7) as usize] << 2)) as usize
 }
 
+/// A set of cells marked free or occupied during one scan, dense (a bit grid) inside
+/// its bounds and sparse outside; occupied wins over free.
 #[derive(Clone, Debug, Default)]
 pub struct KeyVolume {
     dense: Option<Dense>,
@@ -223,6 +225,7 @@ impl KeyVolume {
         }
     }
 
+    /// Mark a cell free (seen through by a ray).
     #[inline(always)]
     pub fn mark_free(&mut self, key: OcTreeKey) {
         match self.dense.as_mut().and_then(|d| d.bit(key).map(|i| (d, i))) {
@@ -231,6 +234,7 @@ impl KeyVolume {
         }
     }
 
+    /// Mark a cell occupied (a ray's end cell).
     #[inline(always)]
     pub fn mark_occupied(&mut self, key: OcTreeKey) {
         match self.dense.as_mut().and_then(|d| d.bit(key).map(|i| (d, i))) {

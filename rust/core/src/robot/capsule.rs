@@ -7,12 +7,16 @@ use crate::robot::chain::Frame;
 /// The segment `a`–`b` swept by a sphere of `radius` (in the frame it is given in).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Capsule {
+    /// One end of the axis.
     pub a: [f64; 3],
+    /// The other end of the axis.
     pub b: [f64; 3],
+    /// Radius in metres.
     pub radius: f64,
 }
 
 impl Capsule {
+    /// The capsule around the segment `a`–`b`.
     pub fn new(a: [f64; 3], b: [f64; 3], radius: f64) -> Self {
         Capsule { a, b, radius }
     }
@@ -27,6 +31,7 @@ impl Capsule {
         }
     }
 
+    /// Length of the axis segment, in metres.
     pub fn length(&self) -> f64 {
         distance_squared(&self.a, &self.b).sqrt()
     }
@@ -43,6 +48,7 @@ impl Capsule {
         (lo, hi)
     }
 
+    /// Whether the point lies in the capsule (its surface included).
     #[inline]
     pub fn contains_point(&self, p: &[f64; 3]) -> bool {
         point_segment_distance_squared(&self.a, &self.b, p) <= self.radius * self.radius
@@ -61,6 +67,7 @@ impl Capsule {
     }
 }
 
+/// The point at parameter `t` on the segment `a`–`b` (0: `a`, 1: `b`).
 #[inline]
 pub fn lerp(a: &[f64; 3], b: &[f64; 3], t: f64) -> [f64; 3] {
     [
@@ -91,6 +98,7 @@ pub fn closest_parameter_on_segment(a: &[f64; 3], b: &[f64; 3], p: &[f64; 3]) ->
     (dot(&sub(p, a), &d) / len2).clamp(0.0, 1.0)
 }
 
+/// Squared distance from `p` to the segment `a`–`b`.
 #[inline]
 pub fn point_segment_distance_squared(a: &[f64; 3], b: &[f64; 3], p: &[f64; 3]) -> f64 {
     let t = closest_parameter_on_segment(a, b, p);

@@ -8,11 +8,14 @@ use crate::na::{Matrix3, Matrix4, Rotation3, Vector3};
 /// apply to points than a quaternion, and what the 4×4 outputs need anyway).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Frame {
+    /// Rotation part.
     pub rotation: Matrix3<f64>,
+    /// Translation part, in metres.
     pub translation: Vector3<f64>,
 }
 
 impl Frame {
+    /// The identity transform.
     pub fn identity() -> Self {
         Frame {
             rotation: Matrix3::identity(),
@@ -36,6 +39,7 @@ impl Frame {
         }
     }
 
+    /// The same transform as a homogeneous 4×4 matrix.
     pub fn to_matrix(&self) -> Matrix4<f64> {
         let mut m = Matrix4::identity();
         m.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.rotation);
@@ -52,6 +56,7 @@ impl Frame {
         }
     }
 
+    /// Transform a point.
     #[inline]
     pub fn apply(&self, p: &[f64; 3]) -> [f64; 3] {
         let v = self.rotation * Vector3::from(*p) + self.translation;
@@ -59,6 +64,7 @@ impl Frame {
     }
 }
 
+/// How a joint moves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum JointKind {
     /// Rotation about the axis, within limits.
@@ -67,15 +73,20 @@ pub enum JointKind {
     Continuous,
     /// Translation along the axis, within limits.
     Prismatic,
+    /// No motion: the child is rigidly attached to the parent.
     Fixed,
 }
 
 /// A joint between a parent and a child link, as URDF describes it.
 #[derive(Clone, Debug)]
 pub struct Joint {
+    /// The joint's name (URDF).
     pub name: String,
+    /// How it moves.
     pub kind: JointKind,
+    /// Index of the parent link.
     pub parent: usize,
+    /// Index of the child link.
     pub child: usize,
     /// parent_from_joint at zero motion.
     pub origin: Frame,
@@ -83,10 +94,12 @@ pub struct Joint {
     pub axis: Vector3<f64>,
     /// Position limits (rad or m); ±∞ for continuous joints.
     pub lower: f64,
+    /// Upper position limit (rad or m); +∞ for continuous joints.
     pub upper: f64,
 }
 
 impl Joint {
+    /// Whether the joint moves (is not fixed), i.e. takes a configuration coordinate.
     pub fn is_movable(&self) -> bool {
         self.kind != JointKind::Fixed
     }
@@ -295,14 +308,17 @@ impl Chain {
         })
     }
 
+    /// Degrees of freedom: the number of movable joints.
     pub fn dof(&self) -> usize {
         self.movable.len()
     }
 
+    /// Number of links.
     pub fn num_links(&self) -> usize {
         self.link_names.len()
     }
 
+    /// Link names, by link index.
     pub fn link_names(&self) -> &[String] {
         &self.link_names
     }
@@ -408,6 +424,9 @@ impl Chain {
             .collect()
     }
 
+    /// Every link's world frame for configuration `q` (one value per movable joint, rad
+    /// or m) with the root at `base`. Errors when `q` has the wrong length or a value
+    /// that is not finite.
     pub fn forward_kinematics(&self, base: &Frame, q: &[f64]) -> Result<Vec<Frame>> {
         self.check_configuration(q, 0)?;
         let mut out = vec![Frame::identity(); self.num_links()];

@@ -15,6 +15,7 @@ use crate::threads::map_parts;
 /// What a configuration hits first.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Contact {
+    /// Nothing is hit.
     Free,
     /// A body (by link index) overlaps an occupied voxel.
     Obstacle(usize),
@@ -23,6 +24,7 @@ pub enum Contact {
 }
 
 impl Contact {
+    /// Whether nothing is hit.
     pub fn is_free(&self) -> bool {
         *self == Contact::Free
     }
@@ -39,6 +41,7 @@ impl Contact {
 /// Options of the checks.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CheckParams {
+    /// Also test the robot's link pairs against each other (default: true).
     pub self_collision: bool,
 }
 

@@ -16,7 +16,9 @@ const ROUNDING_SLACK: f64 = 1e-12;
 /// Which body shapes `fit_body` may choose.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FitShape {
+    /// Always a capsule.
     Capsule,
+    /// Always a cylinder.
     Cylinder,
     /// Whichever encloses the vertices with less volume.
     Auto,

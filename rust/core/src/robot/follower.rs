@@ -24,8 +24,11 @@ pub struct Follower {
 /// `steps + 1` rows of `dof`), until it is back on its motion or the reference ran out.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Rollout {
+    /// The states, row-major: `steps + 1` rows of `dof` joint positions.
     pub states: Vec<f64>,
+    /// Whether the follower got back on its motion.
     pub rejoined: bool,
+    /// Steps taken.
     pub steps: usize,
     /// Largest joint distance between a state and the reference then (rad).
     pub largest_error: f64,
@@ -50,6 +53,9 @@ fn sized(values: &[f64], dof: usize, name: &str) -> Result<()> {
 }
 
 impl Follower {
+    /// A follower with per-joint limits (rad/s, rad/s²) and position feedback `gain`
+    /// (1/s). Errors unless the limits are one per joint, finite and positive, and the
+    /// gain finite and ≥ 0.
     pub fn new(max_velocity: Vec<f64>, max_acceleration: Vec<f64>, gain: f64) -> Result<Self> {
         let positive = |v: &[f64]| v.iter().all(|x| x.is_finite() && *x > 0.0);
         if max_velocity.len() != max_acceleration.len() || max_velocity.is_empty() {
@@ -76,6 +82,7 @@ impl Follower {
         })
     }
 
+    /// Number of joints.
     pub fn dof(&self) -> usize {
         self.max_velocity.len()
     }

@@ -6,6 +6,46 @@ use crate::robot::body::{AxisBounds, Body};
 use crate::robot::chain::{Chain, Frame};
 use crate::synthetic::Rng;
 
+/// A robot: its kinematic chain, a body per link (link frame), the base's place
+/// in the world and the link pairs tested for self-collision.
+///
+/// ```
+/// use std::f64::consts::FRAC_PI_2;
+///
+/// use earcore_core::na::Vector3;
+/// use earcore_core::robot::{
+///     check_configurations, Body, Chain, CheckParams, Contact, Frame, Joint, JointKind,
+///     RobotModel, VoxelIndex,
+/// };
+///
+/// // A base and one arm link turning about z, 0.3 m up, 0.5 m long along its x axis.
+/// let shoulder = Joint {
+///     name: "shoulder".into(),
+///     kind: JointKind::Revolute,
+///     parent: 0,
+///     child: 1,
+///     origin: Frame::from_xyz_rpy([0.0, 0.0, 0.3], [0.0; 3]),
+///     axis: Vector3::z(),
+///     lower: -3.0,
+///     upper: 3.0,
+/// };
+/// let chain = Chain::new(vec!["base".into(), "arm".into()], vec![shoulder])?;
+/// let arm = Body::capsule([0.0; 3], [0.5, 0.0, 0.0], 0.05);
+/// let model = RobotModel::new(chain, vec![None, Some(arm)])?;
+///
+/// // At 90° the arm points along y.
+/// let placed = model.place(&[FRAC_PI_2])?;
+/// let tip = placed.bodies[0].axis.b;
+/// assert!(tip[0].abs() < 1e-12 && (tip[1] - 0.5).abs() < 1e-12 && (tip[2] - 0.3).abs() < 1e-12);
+///
+/// // An obstacle voxel on the y axis is hit there, not at 0°.
+/// let mut index = VoxelIndex::empty(0.05, [0.0, 0.0, 0.3], 1.0)?;
+/// index.mark_point([0.02, 0.47, 0.32]);
+/// index.compute_distance_field();
+/// let contacts = check_configurations(&model, &index, &[0.0, FRAC_PI_2], CheckParams::default())?;
+/// assert_eq!(contacts, [Contact::Free, Contact::Obstacle(1)]);
+/// # Ok::<(), earcore_core::Error>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct RobotModel {
     chain: Chain,
@@ -26,7 +66,9 @@ pub struct RobotModel {
 /// The robot's bodies placed for one configuration (world frame), with their links.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PlacedBodies {
+    /// Link index of each body.
     pub links: Vec<usize>,
+    /// The bodies, world frame.
     pub bodies: Vec<Body>,
     /// False for bodies fixed to the root (skipped by obstacle checks and clearance).
     pub moving: Vec<bool>,
@@ -41,7 +83,9 @@ pub struct LazyPlacement {
     /// Placement joints run so far for this configuration.
     joints_done: usize,
     bodies: Vec<Option<Body>>,
+    /// Link index of each slot's body.
     pub links: Vec<usize>,
+    /// False for bodies fixed to the root, as in [`PlacedBodies`].
     pub moving: Vec<bool>,
     joints_needed: Vec<usize>,
 }
@@ -148,22 +192,27 @@ impl RobotModel {
         Ok(model)
     }
 
+    /// The kinematic chain.
     pub fn chain(&self) -> &Chain {
         &self.chain
     }
 
+    /// Degrees of freedom (movable joints).
     pub fn dof(&self) -> usize {
         self.chain.dof()
     }
 
+    /// Each link's body in the link frame (None: the link has no geometry).
     pub fn bodies(&self) -> &[Option<Body>] {
         &self.bodies
     }
 
+    /// world_from_root: where the robot stands.
     pub fn base(&self) -> &Frame {
         &self.base
     }
 
+    /// Move the robot's base (world_from_root).
     pub fn set_base(&mut self, base: Frame) {
         self.base = base;
     }
@@ -173,10 +222,13 @@ impl RobotModel {
         &self.fixed_to_root
     }
 
+    /// Link pairs tested for self-collision.
     pub fn self_collision_pairs(&self) -> &[(usize, usize)] {
         &self.self_pairs
     }
 
+    /// Replace the link pairs tested for self-collision; errors on a pair that is not
+    /// two different links of the chain.
     pub fn set_self_collision_pairs(&mut self, pairs: Vec<(usize, usize)>) -> Result<()> {
         let n = self.chain.num_links();
         if let Some(p) = pairs.iter().find(|(a, b)| *a >= n || *b >= n || a == b) {
