@@ -1,4 +1,4 @@
-//! Criterion benchmarks of the point-cloud core (issue 3), one thread:
+//! Criterion benchmarks of the point-cloud core, one thread:
 //! - pre-processing of the shared benchmark frame (`synthetic::benchmark_scene`, 512×424,
 //!   ≤ 3 m): 1.5 m crop, 2 cm voxel grid, statistical outlier removal (k 20, 2σ);
 //! - NOctoSLAM's surface map: the update (insert + propagate, dynamic leaf depth) of a

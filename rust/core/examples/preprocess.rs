@@ -1,4 +1,4 @@
-//! Issue 3's pre-processing chain (crop 1.5 m, 2 cm voxel grid, outlier removal k = 20,
+//! Paper II's pre-processing chain (crop 1.5 m, 2 cm voxel grid, outlier removal k = 20,
 //! 2σ) on one thread, per stage, for profilers. Reads a raw little-endian f64 (N, 3)
 //! file of base-frame points if given (e.g. a frame dumped from the perception
 //! benchmark), else renders the synthetic benchmark scene.
