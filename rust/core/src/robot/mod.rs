@@ -13,7 +13,7 @@ pub mod voxel_index;
 
 pub use body::{Body, BodyBoxContact, BodyShape};
 pub use capsule::Capsule;
-pub use chain::{Chain, Frame, Joint, JointKind};
+pub use chain::{Chain, Frame, Joint, JointAxis, JointKind};
 pub use collision::{
     check_configurations, check_motion, clearances, clearances_to_boxes, interpolate,
     motion_danger, touches_boxes, CheckParams, Contact,
