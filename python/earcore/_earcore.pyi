@@ -1,7 +1,7 @@
 """Type stubs of the compiled extension (checked against it by mypy's stubtest)."""
 
 from os import PathLike
-from typing import Any, final
+from typing import Any, Literal, TypedDict, final, overload
 
 from typing_extensions import disjoint_base
 
@@ -53,6 +53,30 @@ _ArrayLike = npt.ArrayLike
 _F64 = npt.NDArray[np.float64]
 _F32 = npt.NDArray[np.float32]
 
+_DecayMode = Literal["observed", "always"]
+_ObstacleSource = Literal["occupied", "current"]
+_BodyShape = Literal["capsule", "cylinder"]
+_JointKind = Literal["revolute", "continuous", "prismatic", "fixed"]
+
+class _Bodies(TypedDict):
+    """`RobotModel.bodies(q)`: the B padded bodies placed for one configuration."""
+
+    link: npt.NDArray[np.int64]
+    a: _F64
+    b: _F64
+    radius: _F64
+    shape: list[_BodyShape]
+
+class _Clearance(TypedDict):
+    """`RobotModel.clearance` / `clearance_to_voxels`: scalars and (3,) points for one
+    configuration (dof,), arrays (K,) and (K, 3) for a batch (K, dof). distance is inf
+    and link -1 (points NaN) where there is no obstacle; negative when overlapping."""
+
+    distance: float | _F64
+    link: int | npt.NDArray[np.int64]
+    on_robot: _F64
+    on_obstacle: _F64
+
 @final
 class InsertReport:
     @property
@@ -85,7 +109,7 @@ class OcTree:
         clamping_max: float = 0.971,
         occupancy_threshold: float = 0.5,
         danger_alpha: float = 0.3,
-        decay_mode: str = "observed",
+        decay_mode: _DecayMode = "observed",
     ) -> OcTree: ...
     @property
     def resolution(self) -> float: ...
@@ -104,9 +128,9 @@ class OcTree:
     @danger_alpha.setter
     def danger_alpha(self, alpha: float) -> None: ...
     @property
-    def decay_mode(self) -> str: ...
+    def decay_mode(self) -> _DecayMode: ...
     @decay_mode.setter
-    def decay_mode(self, mode: str) -> None: ...
+    def decay_mode(self, mode: _DecayMode) -> None: ...
     def insert_point_cloud(
         self, points: _ArrayLike, sensor_origin: _ArrayLike, max_range: float | None = None, discretize: bool = False
     ) -> InsertReport: ...
@@ -293,9 +317,17 @@ def rigid_fit_ransac(
 ) -> tuple[_F64, npt.NDArray[np.bool_], float]: ...
 def robot_cell_voxels(resolution: float = 0.05, seed: int = 0) -> _F64: ...
 
-_BodySpec = tuple[tuple[float, float, float], tuple[float, float, float], float, str]
+_BodySpec = tuple[tuple[float, float, float], tuple[float, float, float], float, _BodyShape]
 _JointSpec = tuple[
-    str, str, int, int, tuple[float, float, float], tuple[float, float, float], tuple[float, float, float], float, float
+    str,
+    _JointKind,
+    int,
+    int,
+    tuple[float, float, float],
+    tuple[float, float, float],
+    tuple[float, float, float],
+    float,
+    float,
 ]
 
 @final
@@ -313,7 +345,7 @@ class Follower:
         tolerance: float,
     ) -> tuple[_F64, bool, int, float]: ...
 
-def fit_body(vertices: _ArrayLike, padding: float = 0.0, shape: str = "auto") -> _BodySpec: ...
+def fit_body(vertices: _ArrayLike, padding: float = 0.0, shape: Literal["capsule", "cylinder", "auto"] = "auto") -> _BodySpec: ...
 
 @disjoint_base
 class RobotModel:
@@ -359,17 +391,38 @@ class RobotModel:
     def fk(self, q: _ArrayLike) -> _F64: ...
     def jacobian(self, q: _ArrayLike, link: int, point: _ArrayLike) -> _F64: ...
     def frame_jacobian(self, q: _ArrayLike, link: int) -> _F64: ...
-    def bodies(self, q: _ArrayLike) -> dict[str, Any]: ...
+    def bodies(self, q: _ArrayLike) -> _Bodies: ...
     def self_filter(self, points: _ArrayLike, q: _ArrayLike, margin: float = 0.0) -> npt.NDArray[np.bool_]: ...
+    @overload
     def check_configurations(
         self,
         tree: OcTree,
         qs: _ArrayLike,
         *,
-        obstacles: str = "occupied",
+        obstacles: _ObstacleSource = "occupied",
         self_collision: bool = True,
-        return_links: bool = False,
-    ) -> Any: ...
+        return_links: Literal[False] = False,
+    ) -> bool | npt.NDArray[np.bool_]: ...
+    @overload
+    def check_configurations(
+        self,
+        tree: OcTree,
+        qs: _ArrayLike,
+        *,
+        obstacles: _ObstacleSource = "occupied",
+        self_collision: bool = True,
+        return_links: Literal[True],
+    ) -> tuple[bool, int] | tuple[npt.NDArray[np.bool_], npt.NDArray[np.int32]]: ...
+    @overload
+    def check_configurations(
+        self,
+        tree: OcTree,
+        qs: _ArrayLike,
+        *,
+        obstacles: _ObstacleSource = "occupied",
+        self_collision: bool = True,
+        return_links: bool,
+    ) -> bool | npt.NDArray[np.bool_] | tuple[bool, int] | tuple[npt.NDArray[np.bool_], npt.NDArray[np.int32]]: ...
     def check_motion(
         self,
         tree: OcTree,
@@ -377,7 +430,7 @@ class RobotModel:
         q1: _ArrayLike,
         resolution: float = 0.02,
         *,
-        obstacles: str = "occupied",
+        obstacles: _ObstacleSource = "occupied",
         self_collision: bool = True,
     ) -> bool: ...
     def check_motions(
@@ -387,12 +440,12 @@ class RobotModel:
         q1s: _ArrayLike,
         resolution: float = 0.02,
         *,
-        obstacles: str = "occupied",
+        obstacles: _ObstacleSource = "occupied",
         self_collision: bool = True,
     ) -> npt.NDArray[np.bool_]: ...
     def self_collisions(self, qs: _ArrayLike) -> npt.NDArray[np.bool_]: ...
-    def clearance(self, tree: OcTree, qs: _ArrayLike, *, obstacles: str = "occupied") -> dict[str, Any]: ...
-    def clearance_to_voxels(self, centres: _ArrayLike, size: float, qs: _ArrayLike) -> dict[str, Any]: ...
+    def clearance(self, tree: OcTree, qs: _ArrayLike, *, obstacles: _ObstacleSource = "occupied") -> _Clearance: ...
+    def clearance_to_voxels(self, centres: _ArrayLike, size: float, qs: _ArrayLike) -> _Clearance: ...
     def touches_voxels(self, centres: _ArrayLike, size: float, qs: _ArrayLike) -> npt.NDArray[np.bool_]: ...
     def path_danger(self, tree: OcTree, path: _ArrayLike, resolution: float = 0.02) -> float: ...
     def motion_danger(self, tree: OcTree, q0: _ArrayLike, q1: _ArrayLike, resolution: float = 0.02) -> float: ...

@@ -616,3 +616,89 @@ def test_local_override_wins_over_the_global_setting():
     finally:
         ec.set_local_num_threads(None)
         ec.set_num_threads(0)
+
+
+# --- 7. typed results in the stubs ---------------------------------------------------
+
+
+def stub_typeddict_keys(name: str) -> dict[str, str]:
+    """Field names and annotations of a TypedDict in the extension's stub file."""
+    import ast
+    from pathlib import Path
+
+    stub = Path(ec.__file__).with_name("_earcore.pyi")
+    tree = ast.parse(stub.read_text())
+    for node in tree.body:
+        if isinstance(node, ast.ClassDef) and node.name == name:
+            return {
+                item.target.id: ast.unparse(item.annotation)
+                for item in node.body
+                if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name)
+            }
+    raise AssertionError(f"{name} is not in the stub")
+
+
+def small_arm():
+    joints = [
+        ("j1", "revolute", 0, 1, (0.0, 0.0, 0.1), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), -3.0, 3.0),
+        ("j2", "revolute", 1, 2, (0.0, 0.0, 0.3), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), -3.0, 3.0),
+    ]
+    bodies = [None, ((0.0, 0.0, 0.0), (0.0, 0.0, 0.3), 0.05, "capsule"), ((0.0, 0.0, 0.0), (0.3, 0.0, 0.0), 0.04, "cylinder")]
+    return ec.RobotModel(["base", "upper", "fore"], joints, bodies)
+
+
+def test_typed_dict_stubs_name_the_runtime_keys_and_types():
+    robot = small_arm()
+    q = np.array([0.2, -0.4])
+    bodies = robot.bodies(q)
+    assert set(bodies) == set(stub_typeddict_keys("_Bodies"))
+    assert bodies["link"].dtype == np.int64 and bodies["a"].dtype == bodies["b"].dtype == bodies["radius"].dtype == np.float64
+    assert bodies["shape"] == ["capsule", "cylinder"]
+    tree = ec.OcTree(RES)
+    tree.update_nodes(np.array([[0.3, 0.0, 0.4]]))
+    fields = stub_typeddict_keys("_Clearance")
+    for qs in (q, np.vstack([q, q])):
+        for found in (robot.clearance(tree, qs), robot.clearance_to_voxels(np.zeros((1, 3)), 0.05, qs)):
+            assert set(found) == set(fields)
+            assert found["on_robot"].dtype == found["on_obstacle"].dtype == np.float64
+            if qs.ndim == 1:
+                assert isinstance(found["distance"], float) and isinstance(found["link"], int)
+            else:
+                assert found["distance"].dtype == np.float64 and found["link"].dtype == np.int64
+    single, links = robot.check_configurations(tree, np.vstack([q, q]), return_links=True)
+    assert single.dtype == np.bool_ and links.dtype == np.int32
+    hit, link = robot.check_configurations(tree, q, return_links=True)
+    assert isinstance(hit, bool) and isinstance(link, int)
+
+
+def test_stub_types_are_checked_by_mypy(tmp_path):
+    api = pytest.importorskip("mypy.api")
+    snippet = tmp_path / "use.py"
+    snippet.write_text(
+        "import numpy as np\n"
+        "from earcore import _earcore as ec\n"
+        "def use(robot: ec.RobotModel, tree: ec.OcTree) -> None:\n"
+        "    q = np.zeros(robot.dof)\n"
+        "    b = robot.bodies(q)\n"
+        "    reveal_type(b['radius'])\n"
+        "    c = robot.clearance(tree, q, obstacles='current')\n"
+        "    reveal_type(c['distance'])\n"
+        "    b['colour']\n"
+        "    robot.clearance(tree, q, obstacles='everything')\n"
+        "    tree.decay_mode = 'sometimes'\n"
+        "    reveal_type(robot.check_configurations(tree, q, return_links=True))\n"
+        "    reveal_type(ec.OcTree(0.1).copy())\n"
+    )
+    out, _, _ = api.run([str(snippet), "--no-incremental", "--follow-imports=silent", "--ignore-missing-imports"])
+    lines = out.splitlines()
+    reveal = [line for line in lines if "Revealed type" in line]
+    assert "numpy.ndarray" in reveal[0] and "float64" in reveal[0]
+    plain = [r.replace("builtins.", "") for r in reveal]
+    assert "float |" in plain[1] and "numpy.ndarray" in plain[1]
+    assert "tuple[bool, int]" in plain[2]
+    assert "earcore._earcore.OcTree" in reveal[3]
+    errors = [line for line in lines if ": error:" in line]
+    assert any('"colour"' in e for e in errors), out
+    assert any("everything" in e or "obstacles" in e for e in errors), out
+    assert any("sometimes" in e or "decay_mode" in e for e in errors), out
+    assert len(errors) == 3, out
