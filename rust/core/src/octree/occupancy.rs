@@ -286,7 +286,7 @@ impl OcTree {
         } else {
             false
         };
-        self.update_recursive(self.root, created, 0, &cells, true);
+        self.update_recursive::<true>(self.root, created, 0, &cells);
         Ok(())
     }
 
@@ -367,27 +367,27 @@ impl OcTree {
         } else {
             false
         };
-        self.update_recursive(self.root, created, 0, updates, false);
+        self.update_recursive::<false>(self.root, created, 0, updates);
     }
 
-    /// Returns whether anything below `node` changed. With `assign`, each update's
+    /// Returns whether anything below `node` changed. With `ASSIGN`, each update's
     /// value replaces the cell's log-odds (already clamped by the caller) and nothing
-    /// aborts, as in OctoMap's `setNodeValue`; otherwise it is added.
-    fn update_recursive(
+    /// aborts, as in OctoMap's `setNodeValue`; otherwise it is added (a compile-time
+    /// flag, so that the scan path is the same code as without it).
+    fn update_recursive<const ASSIGN: bool>(
         &mut self,
         node: u32,
         just_created: bool,
         depth: u32,
         updates: &[KeyUpdate],
-        assign: bool,
     ) -> bool {
         let filtered: Vec<KeyUpdate>;
         let mut updates = updates;
-        if assign && depth == TREE_DEPTH {
+        if ASSIGN && depth == TREE_DEPTH {
             self.arena.set_value(node, updates[0].1);
             return true;
         }
-        if assign {
+        if ASSIGN {
             if !just_created && !self.arena.has_children(node) {
                 self.arena.expand(node);
             }
@@ -424,7 +424,7 @@ impl OcTree {
                 Some(c) => (c, false),
                 None => (self.arena.create_child(node, pos, 0.0), true),
             };
-            changed |= self.update_recursive(child, created, depth + 1, group, assign);
+            changed |= self.update_recursive::<ASSIGN>(child, created, depth + 1, group);
         }
         // Like OctoMap, a node is re-pruned or re-valued only when something below changed.
         if changed && !self.prune_node(node) {
