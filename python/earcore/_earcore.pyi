@@ -1,7 +1,7 @@
 """Type stubs of the compiled extension (checked against it by mypy's stubtest)."""
 
 from os import PathLike
-from typing import Any, final
+from typing import Any, Literal, TypedDict, final, overload
 
 from typing_extensions import disjoint_base
 
@@ -22,6 +22,8 @@ __all__ = [
     "MapFormatError",
     "set_num_threads",
     "get_num_threads",
+    "set_local_num_threads",
+    "voxel_codes",
     "render_depth_points",
     "benchmark_frame",
     "render_lidar_scan",
@@ -50,6 +52,30 @@ class MapFormatError(EarcoreError): ...
 _ArrayLike = npt.ArrayLike
 _F64 = npt.NDArray[np.float64]
 _F32 = npt.NDArray[np.float32]
+
+_DecayMode = Literal["observed", "always"]
+_ObstacleSource = Literal["occupied", "current"]
+_BodyShape = Literal["capsule", "cylinder"]
+_JointKind = Literal["revolute", "continuous", "prismatic", "fixed"]
+
+class _Bodies(TypedDict):
+    """`RobotModel.bodies(q)`: the B padded bodies placed for one configuration."""
+
+    link: npt.NDArray[np.int64]
+    a: _F64
+    b: _F64
+    radius: _F64
+    shape: list[_BodyShape]
+
+class _Clearance(TypedDict):
+    """`RobotModel.clearance` / `clearance_to_voxels`: scalars and (3,) points for one
+    configuration (dof,), arrays (K,) and (K, 3) for a batch (K, dof). distance is inf
+    and link -1 (points NaN) where there is no obstacle; negative when overlapping."""
+
+    distance: float | _F64
+    link: int | npt.NDArray[np.int64]
+    on_robot: _F64
+    on_obstacle: _F64
 
 @final
 class InsertReport:
@@ -83,7 +109,7 @@ class OcTree:
         clamping_max: float = 0.971,
         occupancy_threshold: float = 0.5,
         danger_alpha: float = 0.3,
-        decay_mode: str = "observed",
+        decay_mode: _DecayMode = "observed",
     ) -> OcTree: ...
     @property
     def resolution(self) -> float: ...
@@ -102,9 +128,9 @@ class OcTree:
     @danger_alpha.setter
     def danger_alpha(self, alpha: float) -> None: ...
     @property
-    def decay_mode(self) -> str: ...
+    def decay_mode(self) -> _DecayMode: ...
     @decay_mode.setter
-    def decay_mode(self, mode: str) -> None: ...
+    def decay_mode(self, mode: _DecayMode) -> None: ...
     def insert_point_cloud(
         self, points: _ArrayLike, sensor_origin: _ArrayLike, max_range: float | None = None, discretize: bool = False
     ) -> InsertReport: ...
@@ -114,6 +140,14 @@ class OcTree:
     def insert_free_rays(self, points: _ArrayLike, sensor_origin: _ArrayLike, max_range: float | None = None) -> InsertReport: ...
     def update_node(self, point: _ArrayLike, update: bool | float) -> None: ...
     def update_nodes(self, points: _ArrayLike, occupied: bool = True) -> None: ...
+    def set_log_odds(self, points: _ArrayLike, value: float) -> None: ...
+    def update_log_odds(self, points: _ArrayLike, delta: float, *, repeat: int = 1) -> None: ...
+    def leaves_at_full_depth(
+        self, bbx_min: _ArrayLike, bbx_max: _ArrayLike, *, occupied_only: bool = False
+    ) -> tuple[_F64, _F32]: ...
+    def copy(self) -> OcTree: ...
+    def __copy__(self) -> OcTree: ...
+    def __deepcopy__(self, _memo: Any, /) -> OcTree: ...
     def occupied_voxels(self) -> tuple[_F64, _F64]: ...
     def leaves(self, bbx_min: _ArrayLike | None = None, bbx_max: _ArrayLike | None = None) -> tuple[_F64, _F64, _F32]: ...
     def leaf_keys(self) -> tuple[npt.NDArray[np.uint16], npt.NDArray[np.uint8], _F32]: ...
@@ -222,6 +256,8 @@ def icp_point_to_plane_raw(
 ) -> IcpResult: ...
 def set_num_threads(n: int) -> None: ...
 def get_num_threads() -> int: ...
+def set_local_num_threads(n: int | None) -> int | None: ...
+def voxel_codes(points: _ArrayLike, resolution: float) -> npt.NDArray[np.int64]: ...
 def render_depth_points(
     base_from_camera: _ArrayLike,
     spheres: _ArrayLike,
@@ -281,9 +317,17 @@ def rigid_fit_ransac(
 ) -> tuple[_F64, npt.NDArray[np.bool_], float]: ...
 def robot_cell_voxels(resolution: float = 0.05, seed: int = 0) -> _F64: ...
 
-_BodySpec = tuple[tuple[float, float, float], tuple[float, float, float], float, str]
+_BodySpec = tuple[tuple[float, float, float], tuple[float, float, float], float, _BodyShape]
 _JointSpec = tuple[
-    str, str, int, int, tuple[float, float, float], tuple[float, float, float], tuple[float, float, float], float, float
+    str,
+    _JointKind,
+    int,
+    int,
+    tuple[float, float, float],
+    tuple[float, float, float],
+    tuple[float, float, float],
+    float,
+    float,
 ]
 
 @final
@@ -301,7 +345,7 @@ class Follower:
         tolerance: float,
     ) -> tuple[_F64, bool, int, float]: ...
 
-def fit_body(vertices: _ArrayLike, padding: float = 0.0, shape: str = "auto") -> _BodySpec: ...
+def fit_body(vertices: _ArrayLike, padding: float = 0.0, shape: Literal["capsule", "cylinder", "auto"] = "auto") -> _BodySpec: ...
 
 @disjoint_base
 class RobotModel:
@@ -345,17 +389,40 @@ class RobotModel:
     @property
     def link_bodies(self) -> list[_BodySpec | None]: ...
     def fk(self, q: _ArrayLike) -> _F64: ...
-    def bodies(self, q: _ArrayLike) -> dict[str, Any]: ...
+    def jacobian(self, q: _ArrayLike, link: int, point: _ArrayLike) -> _F64: ...
+    def frame_jacobian(self, q: _ArrayLike, link: int) -> _F64: ...
+    def bodies(self, q: _ArrayLike) -> _Bodies: ...
     def self_filter(self, points: _ArrayLike, q: _ArrayLike, margin: float = 0.0) -> npt.NDArray[np.bool_]: ...
+    @overload
     def check_configurations(
         self,
         tree: OcTree,
         qs: _ArrayLike,
         *,
-        obstacles: str = "occupied",
+        obstacles: _ObstacleSource = "occupied",
         self_collision: bool = True,
-        return_links: bool = False,
-    ) -> Any: ...
+        return_links: Literal[False] = False,
+    ) -> bool | npt.NDArray[np.bool_]: ...
+    @overload
+    def check_configurations(
+        self,
+        tree: OcTree,
+        qs: _ArrayLike,
+        *,
+        obstacles: _ObstacleSource = "occupied",
+        self_collision: bool = True,
+        return_links: Literal[True],
+    ) -> tuple[bool, int] | tuple[npt.NDArray[np.bool_], npt.NDArray[np.int32]]: ...
+    @overload
+    def check_configurations(
+        self,
+        tree: OcTree,
+        qs: _ArrayLike,
+        *,
+        obstacles: _ObstacleSource = "occupied",
+        self_collision: bool = True,
+        return_links: bool,
+    ) -> bool | npt.NDArray[np.bool_] | tuple[bool, int] | tuple[npt.NDArray[np.bool_], npt.NDArray[np.int32]]: ...
     def check_motion(
         self,
         tree: OcTree,
@@ -363,7 +430,7 @@ class RobotModel:
         q1: _ArrayLike,
         resolution: float = 0.02,
         *,
-        obstacles: str = "occupied",
+        obstacles: _ObstacleSource = "occupied",
         self_collision: bool = True,
     ) -> bool: ...
     def check_motions(
@@ -373,12 +440,12 @@ class RobotModel:
         q1s: _ArrayLike,
         resolution: float = 0.02,
         *,
-        obstacles: str = "occupied",
+        obstacles: _ObstacleSource = "occupied",
         self_collision: bool = True,
     ) -> npt.NDArray[np.bool_]: ...
     def self_collisions(self, qs: _ArrayLike) -> npt.NDArray[np.bool_]: ...
-    def clearance(self, tree: OcTree, qs: _ArrayLike, *, obstacles: str = "occupied") -> dict[str, Any]: ...
-    def clearance_to_voxels(self, centres: _ArrayLike, size: float, qs: _ArrayLike) -> dict[str, Any]: ...
+    def clearance(self, tree: OcTree, qs: _ArrayLike, *, obstacles: _ObstacleSource = "occupied") -> _Clearance: ...
+    def clearance_to_voxels(self, centres: _ArrayLike, size: float, qs: _ArrayLike) -> _Clearance: ...
     def touches_voxels(self, centres: _ArrayLike, size: float, qs: _ArrayLike) -> npt.NDArray[np.bool_]: ...
     def path_danger(self, tree: OcTree, path: _ArrayLike, resolution: float = 0.02) -> float: ...
     def motion_danger(self, tree: OcTree, q0: _ArrayLike, q1: _ArrayLike, resolution: float = 0.02) -> float: ...

@@ -1,7 +1,9 @@
 //! How many threads the core's parallel loops use.
 //!
 //! One process-wide setting: `set_num_threads(1)` runs everything on the calling
-//! thread (the single-core figures in the benchmarks), `0` means all cores.
+//! thread (the single-core figures in the benchmarks), `0` means all cores. A thread
+//! may override it for the work it starts itself (`set_local_num_threads`), e.g. a
+//! reflex that must not wait for the pool while a map update uses every core.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -22,9 +24,28 @@ pub fn set_num_threads(n: usize) {
     NUM_THREADS.store(n.min(MAX_THREADS), Ordering::Relaxed);
 }
 
-/// Threads that parallel loops will use now.
+thread_local! {
+    static LOCAL_NUM_THREADS: std::cell::Cell<Option<usize>> = const { std::cell::Cell::new(None) };
+}
+
+/// Override the number of worker threads for parallel loops started on the calling
+/// thread only (`Some(0)` = one per core, capped at [`MAX_THREADS`] like the global
+/// setting); `None` removes the override, so the global setting applies again.
+/// Returns the previous override. Other threads and the global setting are unaffected.
+pub fn set_local_num_threads(n: Option<usize>) -> Option<usize> {
+    LOCAL_NUM_THREADS.with(|local| local.replace(n.map(|n| n.min(MAX_THREADS))))
+}
+
+/// The calling thread's override (see [`set_local_num_threads`]), if any.
+pub fn local_num_threads() -> Option<usize> {
+    LOCAL_NUM_THREADS.with(|local| local.get())
+}
+
+/// Threads that parallel loops started on the calling thread will use now: its
+/// override if it has one, else the global setting.
 pub fn num_threads() -> usize {
-    match NUM_THREADS.load(Ordering::Relaxed) {
+    let setting = local_num_threads().unwrap_or_else(|| NUM_THREADS.load(Ordering::Relaxed));
+    match setting {
         // available_parallelism() reads cgroup files on Linux (~30 µs): ask once.
         0 => *CORES.get_or_init(|| {
             std::thread::available_parallelism()
@@ -65,5 +86,34 @@ pub fn map_parts<T: Sync, R: Send>(parts: &[T], f: impl Fn(&T) -> R + Sync + Sen
     #[cfg(not(feature = "parallel"))]
     {
         parts.iter().map(f).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_local_override_stays_on_its_thread() {
+        let before = num_threads();
+        assert_eq!(set_local_num_threads(Some(1)), None);
+        assert_eq!(num_threads(), 1);
+        // Another thread sees the global setting.
+        let other = std::thread::spawn(num_threads).join().unwrap();
+        assert_eq!(other, before);
+        assert_eq!(set_local_num_threads(Some(3)), Some(1));
+        assert_eq!(num_threads(), 3);
+        assert_eq!(set_local_num_threads(Some(MAX_THREADS + 5)), Some(3));
+        assert_eq!(num_threads(), MAX_THREADS);
+        assert_eq!(set_local_num_threads(None), Some(MAX_THREADS));
+        assert_eq!(num_threads(), before);
+        // The parallel map still returns results in order under an override.
+        set_local_num_threads(Some(1));
+        let parts: Vec<u32> = (0..10).collect();
+        assert_eq!(
+            map_parts(&parts, |x| x * 2),
+            (0..10).map(|x| x * 2).collect::<Vec<_>>()
+        );
+        set_local_num_threads(None);
     }
 }

@@ -233,6 +233,23 @@ pub fn cluster_points<'py>(
     Ok(vec_to_array(py, labels))
 }
 
+/// One int64 per point (N, 3) naming its voxel on a grid of edge `resolution`
+/// anchored at the origin: cell c = floor(p / resolution) per axis, packed as
+/// (cx + 2^20) << 42 | (cy + 2^20) << 21 | (cz + 2^20). For set operations on voxels
+/// with numpy (`np.isin`). Points must be finite with |c| < 2^20 on every axis.
+#[pyfunction]
+#[pyo3(signature = (points, resolution))]
+pub fn voxel_codes<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    resolution: f64,
+) -> PyResult<Bound<'py, PyArray1<i64>>> {
+    let pts = self::points(points, "points")?;
+    let slice = pts.as_slice()?;
+    let codes = py.detach(|| cloud::voxel_codes(slice, resolution)).py()?;
+    Ok(vec_to_array(py, codes))
+}
+
 /// `dst_from_src` (4, 4) minimising Σ wᵢ |R srcᵢ + t − dstᵢ|² (Kabsch), for paired
 /// points (N, 3), N ≥ 3 not all on one line.
 #[pyfunction]

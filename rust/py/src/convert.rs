@@ -94,6 +94,15 @@ pub fn rows_to_array<'py>(
     Ok(array.into_pyarray(py))
 }
 
+/// Columns of `R` numbers into an (R, K) float64 array (e.g. a Jacobian, one column
+/// per joint).
+pub fn columns_to_array<'py, const R: usize>(
+    py: Python<'py>,
+    columns: &[[f64; R]],
+) -> Bound<'py, PyArray2<f64>> {
+    Array2::from_shape_fn((R, columns.len()), |(r, c)| columns[c][r]).into_pyarray(py)
+}
+
 pub fn vec_to_array<'py, T: numpy::Element>(py: Python<'py>, v: Vec<T>) -> Bound<'py, PyArray1<T>> {
     v.into_pyarray(py)
 }

@@ -27,6 +27,27 @@ fn set_num_threads(n: i64) -> PyResult<()> {
     }
 }
 
+/// Override the thread count for earcore work started on the calling thread only
+/// (0 = one per core; None removes the override); returns the previous override.
+#[pyfunction]
+fn set_local_num_threads(n: Option<i64>) -> PyResult<Option<usize>> {
+    let max = earcore_core::threads::MAX_THREADS;
+    let n = match n {
+        None => None,
+        Some(n) => match usize::try_from(n) {
+            Ok(n) if n <= max => Some(n),
+            _ => {
+                return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                    "num_threads must be 0 (one per core) to {max} or None, got {n}"
+                )))
+            }
+        },
+    };
+    Ok(earcore_core::threads::set_local_num_threads(n))
+}
+
+/// Threads earcore's parallel loops started on this thread use now (its local
+/// override if set, else the global setting).
 #[pyfunction]
 fn get_num_threads() -> usize {
     earcore_core::threads::num_threads()
@@ -55,6 +76,8 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MapFormatError", py.get_type::<errors::MapFormatError>())?;
     m.add_function(wrap_pyfunction!(set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(set_local_num_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::voxel_codes, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_depth_points, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::benchmark_frame, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::robot_cell_voxels, m)?)?;

@@ -33,6 +33,8 @@ type KeyedLeaves<'py> = (
     Bound<'py, PyArray1<u8>>,
     Bound<'py, PyArray1<f32>>,
 );
+/// Centres and log-odds of finest cells.
+type Cells<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f32>>);
 /// Hit flags and end points of rays.
 type RayHits<'py> = (Bound<'py, PyArray1<bool>>, Bound<'py, PyArray2<f64>>);
 
@@ -474,6 +476,109 @@ impl PyOcTree {
         .py()
     }
 
+    /// Set the log-odds of the finest cell holding each point (N, 3) to `value`,
+    /// clamped to [clamping_min, clamping_max] in log-odds (`math.inf` / `-math.inf`
+    /// give the clamps): OctoMap's `setNodeValue` for each cell, pruned nodes expanded,
+    /// ancestors updated and equal siblings pruned as it does. A cell listed twice is
+    /// set once. Danger is not touched (as with `update_nodes`). All points are
+    /// checked first, so bad input changes nothing.
+    fn set_log_odds(&self, py: Python<'_>, points: &Bound<'_, PyAny>, value: f64) -> PyResult<()> {
+        if value.is_nan() {
+            return Err(PyValueError::new_err(
+                "value must be a log-odds number, got NaN",
+            ));
+        }
+        let pts = self::points(points, "points")?;
+        let pts = pts.as_slice()?;
+        self.with_write(py, |tree| {
+            let keys = keys_of(tree, pts)?;
+            tree.set_log_odds(&keys, value as f32)
+        })
+        .py()
+    }
+
+    /// Add `delta` (log-odds) to the finest cell holding each point (N, 3), `repeat`
+    /// times per point: the tree ends as after OctoMap's `updateNode(key, delta)` called
+    /// for every point in turn, `repeat` times over (a cell listed twice is updated
+    /// twice per round), with its clamping and its early abort for cells already at the
+    /// bound. `update_nodes(points, occupied)` repeated k times equals
+    /// `update_log_odds(points, log(p / (1 - p)), repeat=k)` with p = prob_hit or
+    /// prob_miss. Danger is not touched. All points are checked first.
+    #[pyo3(signature = (points, delta, *, repeat = 1))]
+    fn update_log_odds(
+        &self,
+        py: Python<'_>,
+        points: &Bound<'_, PyAny>,
+        delta: f64,
+        repeat: i64,
+    ) -> PyResult<()> {
+        let repeat = u32::try_from(repeat).map_err(|_| {
+            PyValueError::new_err(format!(
+                "repeat must be a count from 0 to {}, got {repeat}",
+                u32::MAX
+            ))
+        })?;
+        let delta32 = delta as f32;
+        if !delta32.is_finite() {
+            return Err(PyValueError::new_err(format!(
+                "delta must be a finite log-odds change, got {delta}"
+            )));
+        }
+        let pts = self::points(points, "points")?;
+        let pts = pts.as_slice()?;
+        self.with_write(py, |tree| {
+            let keys = keys_of(tree, pts)?;
+            tree.update_log_odds(&keys, delta32, repeat)
+        })
+        .py()
+    }
+
+    /// Every known finest-resolution cell whose centre lies in the box
+    /// [bbx_min, bbx_max] (bounds included): centres (M, 3) float64 and log-odds (M,)
+    /// float32, pruned leaves split into their cells. `occupied_only`: only cells at or
+    /// above the occupancy threshold. Parts of the box beyond the map are ignored; an
+    /// empty box (min > max on an axis) gives nothing; a box holding more than 2^26
+    /// cells raises ValueError.
+    #[pyo3(signature = (bbx_min, bbx_max, *, occupied_only = false))]
+    fn leaves_at_full_depth<'py>(
+        &self,
+        py: Python<'py>,
+        bbx_min: &Bound<'py, PyAny>,
+        bbx_max: &Bound<'py, PyAny>,
+        occupied_only: bool,
+    ) -> PyResult<Cells<'py>> {
+        let lo = vector3(bbx_min, "bbx_min")?;
+        let hi = vector3(bbx_max, "bbx_max")?;
+        let (c, l) = self
+            .with_read(py, |tree| {
+                let cells =
+                    tree.finest_cells_in_box(lo, hi, occupied_only, MAX_FULL_DEPTH_CELLS)?;
+                let centres: Vec<[f64; 3]> = cells
+                    .iter()
+                    .map(|&(k, _)| tree.node_center(k, earcore_core::octree::TREE_DEPTH))
+                    .collect();
+                Ok((centres, cells.iter().map(|&(_, l)| l).collect::<Vec<f32>>()))
+            })
+            .py()?;
+        Ok((rows_to_array(py, c)?, vec_to_array(py, l)))
+    }
+
+    /// An independent copy: every node and log-odds, the sensor model, the danger
+    /// parameters and state (dangerous voxels, the frame's hits and free sightings, the
+    /// last frame's obstacles). The copy is a new map for caches such as the robot's
+    /// collision index.
+    fn copy(&self, py: Python<'_>) -> Self {
+        Self::wrap(self.with_read(py, |tree| tree.clone()))
+    }
+
+    fn __copy__(&self, py: Python<'_>) -> Self {
+        self.copy(py)
+    }
+
+    fn __deepcopy__(&self, py: Python<'_>, _memo: &Bound<'_, PyAny>) -> Self {
+        self.copy(py)
+    }
+
     /// Centres (M, 3) and edge lengths (M,) of the occupied leaves.
     fn occupied_voxels<'py>(&self, py: Python<'py>) -> PyResult<Voxels<'py>> {
         let (c, s) = self.with_read(py, |tree| {
@@ -785,6 +890,14 @@ impl PyOcTree {
         })
         .py()
     }
+}
+
+/// Most cells `leaves_at_full_depth` returns (1.5 GiB of centres).
+const MAX_FULL_DEPTH_CELLS: usize = 1 << 26;
+
+/// Keys of points that must all lie on the map (the first that does not is the error).
+fn keys_of(tree: &OcTree, points: &[[f64; 3]]) -> earcore_core::Result<Vec<OcTreeKey>> {
+    points.iter().map(|&p| tree.key_of("point", p)).collect()
 }
 
 fn collect_leaves(tree: &OcTree, (kmin, kmax): (OcTreeKey, OcTreeKey)) -> Vec<Leaf> {

@@ -235,6 +235,31 @@ impl PyRobotModel {
         Ok(index)
     }
 
+    /// One configuration (dof,) for `what`.
+    fn one_configuration(&self, q: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<f64>> {
+        let (q, _, single) = configurations(q, self.read().dof(), "q")?;
+        if !single {
+            return Err(PyValueError::new_err(format!(
+                "{what} takes one configuration (dof,)"
+            )));
+        }
+        Ok(q)
+    }
+
+    /// A link index, checked against the robot's links.
+    fn link_index(&self, link: i64) -> PyResult<usize> {
+        let n = self.read().chain().num_links();
+        usize::try_from(link)
+            .ok()
+            .filter(|&l| l < n)
+            .ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "link must be 0 to {} (the robot's links), got {link}",
+                    n - 1
+                ))
+            })
+    }
+
     fn check_q(&self, q: &[f64], k: usize) -> PyResult<()> {
         let model = self.read();
         let dof = model.dof();
@@ -446,6 +471,42 @@ impl PyRobotModel {
         } else {
             Ok(array.into_pyarray(py).into_any())
         }
+    }
+
+    /// (3, dof) Jacobian of a point rigidly attached to link `link` (an index into
+    /// `link_names`), given by its world position `point` at configuration q (dof,):
+    /// column i is the point's velocity in the world frame per unit velocity of joint
+    /// i (revolute: z_i × (point − o_i); prismatic: z_i; zero for joints not between
+    /// the root and `link`). Exact, with the base pose included; q must lie within the
+    /// joint limits.
+    fn jacobian<'py>(
+        &self,
+        py: Python<'py>,
+        q: &Bound<'py, PyAny>,
+        link: i64,
+        point: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let q = self.one_configuration(q, "jacobian()")?;
+        let link = self.link_index(link)?;
+        let p = crate::convert::vector3(point, "point")?;
+        let columns = self.read().point_jacobian(&q, link, p).py()?;
+        Ok(crate::convert::columns_to_array(py, &columns))
+    }
+
+    /// (6, dof) geometric Jacobian of link `link`'s frame at configuration q (dof,):
+    /// rows 0-2 the linear velocity of the link's origin, rows 3-5 the link's angular
+    /// velocity, both in the world frame (Pinocchio's LOCAL_WORLD_ALIGNED), per unit
+    /// velocity of each joint. Rows 0-2 equal `jacobian(q, link, origin of link)`.
+    fn frame_jacobian<'py>(
+        &self,
+        py: Python<'py>,
+        q: &Bound<'py, PyAny>,
+        link: i64,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let q = self.one_configuration(q, "frame_jacobian()")?;
+        let link = self.link_index(link)?;
+        let columns = self.read().frame_jacobian(&q, link).py()?;
+        Ok(crate::convert::columns_to_array(py, &columns))
     }
 
     /// The padded bodies placed for one configuration: a dict with `link` (B,), `a`

@@ -20,4 +20,4 @@ pub use kdtree::KdTree;
 pub use normals::estimate_normals;
 pub use outliers::{statistical_outliers, OutlierParams};
 pub use rigid_fit::{rigid_fit, rigid_fit_ransac, RansacFit};
-pub use voxel_grid::voxel_downsample;
+pub use voxel_grid::{pack_cell, voxel_codes, voxel_downsample};

@@ -12,6 +12,40 @@ use crate::floor::floor_i64;
 /// Packed keys hold cells −2^20 ≤ c < 2^20 per axis, 21 bits each in one u64.
 const PACKED_OFFSET: i64 = 1 << 20;
 
+/// One integer per grid cell: 21 bits per axis, `(x + 2^20) << 42 | (y + 2^20) << 21 |
+/// (z + 2^20)`; `None` for cells outside −2^20 ≤ c < 2^20 on some axis.
+#[inline]
+pub fn pack_cell(cell: [i64; 3]) -> Option<u64> {
+    let [x, y, z] = cell.map(|v| v.wrapping_add(PACKED_OFFSET) as u64);
+    ((x | y | z) < 1 << 21).then_some(x << 42 | y << 21 | z)
+}
+
+/// The packed cell ([`pack_cell`]) of each point on a grid of edge `resolution`
+/// anchored at the origin, cell `floor(p / resolution)` per axis: one integer per
+/// voxel, for set operations on voxels. Points must be finite and their cells within
+/// 2^20 of the origin (|cell| < 2^20 on every axis, so no two cells share a code).
+pub fn voxel_codes(points: &[[f64; 3]], resolution: f64) -> Result<Vec<i64>> {
+    if !(resolution.is_finite() && resolution > 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "resolution must be finite and > 0, got {resolution}"
+        )));
+    }
+    const LIMIT: f64 = (1u64 << 20) as f64;
+    points
+        .iter()
+        .map(|p| {
+            let cell = p.map(|c| (c / resolution).floor());
+            if !cell.iter().all(|c| c.abs() < LIMIT) {
+                return Err(Error::InvalidArgument(format!(
+                    "points must be finite and within 2^20 cells of size {resolution} of the origin (point {p:?})"
+                )));
+            }
+            let code = pack_cell(cell.map(|c| c as i64)).expect("cells within ±2^20 pack");
+            Ok(code as i64)
+        })
+        .collect()
+}
+
 /// Returns the centroids (in order of each voxel's first point) and, when `values`
 /// (`stride` numbers per point) are given, their per-voxel means. Errors when
 /// `voxel_size` is not a positive length, a point is not finite or beyond the grid's
@@ -61,10 +95,7 @@ pub fn voxel_downsample(
     {
         return Ok(done);
     }
-    let packed = Hashed::new(points.len(), |c: [i64; 3]| {
-        let [x, y, z] = c.map(|v| v.wrapping_add(PACKED_OFFSET) as u64);
-        ((x | y | z) < 1 << 21).then_some(x << 42 | y << 21 | z)
-    });
+    let packed = Hashed::new(points.len(), pack_cell);
     Ok(accumulate(points, values, inv, packed).unwrap_or_else(|| {
         accumulate(points, values, inv, Hashed::new(points.len(), Some))
             .expect("every cell has a general key")
@@ -333,5 +364,45 @@ mod tests {
         for (m, w) in means.iter().zip(want_means) {
             assert!((m - w).abs() < 1e-9, "extent {extent}");
         }
+    }
+
+    /// Codes against the formula written out (floor of p / resolution, offset by 2^20,
+    /// 21 bits per axis), including the last cells on either side of the range.
+    #[test]
+    fn voxel_codes_pack_21_bits_per_axis() {
+        let mut rng = Rng::new(11);
+        for resolution in [0.05, 0.013, 1.0, 1e-4] {
+            let reach = 1_048_575.0 * resolution;
+            let mut points: Vec<[f64; 3]> = (0..500)
+                .map(|_| std::array::from_fn(|_| rng.uniform(-reach, reach)))
+                .collect();
+            points.push([-reach, reach, 0.0]);
+            let codes = voxel_codes(&points, resolution).unwrap();
+            for (p, &code) in points.iter().zip(&codes) {
+                let k = p.map(|c| (c / resolution).floor() as i64 + (1 << 20));
+                assert_eq!(code, k[0] << 42 | k[1] << 21 | k[2], "{p:?}");
+                assert!(k.iter().all(|&v| (1..1 << 21).contains(&v)));
+            }
+        }
+        assert_eq!(voxel_codes(&[], 0.1).unwrap(), Vec::<i64>::new());
+        for bad in [
+            [f64::NAN, 0.0, 0.0],
+            [0.0, f64::INFINITY, 0.0],
+            [0.0, 0.0, 1048576.0 * 0.05],
+            [-1048576.0 * 0.05 - 1e-9, 0.0, 0.0],
+        ] {
+            let err = voxel_codes(&[[0.0; 3], bad], 0.05).unwrap_err().to_string();
+            assert!(err.contains("within 2^20 cells of size 0.05"), "{err}");
+        }
+        for res in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let err = voxel_codes(&[[0.0; 3]], res).unwrap_err().to_string();
+            assert!(err.contains("resolution must be finite and > 0"), "{err}");
+        }
+        assert_eq!(
+            pack_cell([-(1 << 20), 0, (1 << 20) - 1]),
+            Some((1 << 20) << 21 | ((1 << 21) - 1))
+        );
+        assert_eq!(pack_cell([1 << 20, 0, 0]), None);
+        assert_eq!(pack_cell([0, -(1 << 20) - 1, 0]), None);
     }
 }

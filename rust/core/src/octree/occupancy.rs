@@ -278,6 +278,94 @@ impl OcTree {
         self.apply_sorted_updates(&[(key.morton(), delta)]);
     }
 
+    /// Set the log-odds of every cell in `keys` to `value` clamped to the clamping
+    /// bounds (±∞ give the bounds), in one walk down the tree.
+    ///
+    /// The result equals OctoMap's `setNodeValue(key, value)` (without lazy
+    /// evaluation) for each cell in any order: pruned nodes on the way are expanded,
+    /// ancestors re-valued as the maximum of their children, and nodes whose eight
+    /// children end up equal pruned. A cell listed twice is set once (setting is
+    /// idempotent). Danger is not touched. A NaN `value` is an error and changes nothing.
+    pub fn set_log_odds(&mut self, keys: &[OcTreeKey], value: f32) -> Result<()> {
+        if value.is_nan() {
+            return Err(Error::InvalidArgument(
+                "log-odds value must not be NaN".into(),
+            ));
+        }
+        let value = value.clamp(self.lo.clamp_min, self.lo.clamp_max);
+        let mut cells: Vec<KeyUpdate> = keys.iter().map(|k| (k.morton(), value)).collect();
+        cells.sort_unstable_by_key(|&(m, _)| m);
+        cells.dedup_by_key(|&mut (m, _)| m);
+        if cells.is_empty() {
+            return Ok(());
+        }
+        let created = if self.root == NONE {
+            self.root = self.arena.alloc(0.0);
+            true
+        } else {
+            false
+        };
+        self.update_recursive::<true>(self.root, created, 0, &cells);
+        Ok(())
+    }
+
+    /// Add `delta` to the log-odds of every cell in `keys`, `repeat` times per listed
+    /// key: the tree ends as after OctoMap's `updateNode(key, delta)` called `repeat`
+    /// times for each entry of `keys` (a cell listed twice is updated twice as often),
+    /// in any order, clamping and early aborts at the bounds included. Danger is not
+    /// touched. A non-finite `delta` is an error and changes nothing.
+    ///
+    /// Runs in rounds of distinct cells (one batched walk each) and stops early once a
+    /// round would change no cell's value.
+    pub fn update_log_odds(&mut self, keys: &[OcTreeKey], delta: f32, repeat: u32) -> Result<()> {
+        if !delta.is_finite() {
+            return Err(Error::InvalidArgument(format!(
+                "log-odds update must be finite, got {delta}"
+            )));
+        }
+        let mut codes: Vec<u64> = keys.iter().map(|k| k.morton()).collect();
+        codes.sort_unstable();
+        // (cell, how many times it is updated), sorted by cell.
+        let mut counts: Vec<(u64, u64)> = Vec::with_capacity(codes.len());
+        for m in codes {
+            match counts.last_mut() {
+                Some((last, n)) if *last == m => *n += u64::from(repeat),
+                _ => counts.push((m, u64::from(repeat))),
+            }
+        }
+        let mut round: Vec<KeyUpdate> = Vec::with_capacity(counts.len());
+        let mut done = 0u64;
+        loop {
+            counts.retain(|&(_, n)| n > done);
+            if counts.is_empty() {
+                return Ok(());
+            }
+            round.clear();
+            round.extend(counts.iter().map(|&(m, _)| (m, delta)));
+            if done > 0 && round.iter().all(|&(m, d)| self.update_is_noop(m, d)) {
+                // Later rounds update subsets of these cells: no-ops too.
+                return Ok(());
+            }
+            self.apply_sorted_updates(&round);
+            done += 1;
+        }
+    }
+
+    /// Whether `updateNode(cell, delta)` would leave the cell's value as it is (an
+    /// early abort at a bound, or a change lost to rounding or clamping). Only used
+    /// once the cell's path has been updated, so that the update would not re-prune
+    /// or re-value any node either.
+    fn update_is_noop(&self, code: u64, delta: f32) -> bool {
+        let Some(v) = self.search(OcTreeKey::from_morton(code), 0) else {
+            return false;
+        };
+        let (lo, hi) = (self.lo.clamp_min, self.lo.clamp_max);
+        if (delta >= 0.0 && v >= hi) || (delta <= 0.0 && v <= lo) {
+            return true;
+        }
+        (v + delta).clamp(lo, hi).to_bits() == v.to_bits()
+    }
+
     /// Apply updates to distinct cells sorted by Morton code in one walk down the tree.
     ///
     /// The result equals OctoMap applying `updateNode(key, delta)` to each cell in any
@@ -298,11 +386,14 @@ impl OcTree {
         } else {
             false
         };
-        self.update_recursive(self.root, created, 0, updates);
+        self.update_recursive::<false>(self.root, created, 0, updates);
     }
 
-    /// Returns whether anything below `node` changed.
-    fn update_recursive(
+    /// Returns whether anything below `node` changed. With `ASSIGN`, each update's
+    /// value replaces the cell's log-odds (already clamped by the caller) and nothing
+    /// aborts, as in OctoMap's `setNodeValue`; otherwise it is added (a compile-time
+    /// flag, so that the scan path is the same code as without it).
+    fn update_recursive<const ASSIGN: bool>(
         &mut self,
         node: u32,
         just_created: bool,
@@ -311,7 +402,15 @@ impl OcTree {
     ) -> bool {
         let filtered: Vec<KeyUpdate>;
         let mut updates = updates;
-        if !just_created && !self.arena.has_children(node) {
+        if ASSIGN && depth == TREE_DEPTH {
+            self.arena.set_value(node, updates[0].1);
+            return true;
+        }
+        if ASSIGN {
+            if !just_created && !self.arena.has_children(node) {
+                self.arena.expand(node);
+            }
+        } else if !just_created && !self.arena.has_children(node) {
             // OctoMap searches each cell first and skips it when the leaf holding it is
             // already clamped in the update's direction.
             let v = self.arena.value(node);
@@ -344,7 +443,7 @@ impl OcTree {
                 Some(c) => (c, false),
                 None => (self.arena.create_child(node, pos, 0.0), true),
             };
-            changed |= self.update_recursive(child, created, depth + 1, group);
+            changed |= self.update_recursive::<ASSIGN>(child, created, depth + 1, group);
         }
         // Like OctoMap, a node is re-pruned or re-valued only when something below changed.
         if changed && !self.prune_node(node) {
@@ -491,6 +590,85 @@ impl OcTree {
         self.for_each_leaf_in_keys(OcTreeKey([0; 3]), OcTreeKey([u16::MAX; 3]), f)
     }
 
+    /// Every known finest-resolution cell whose centre lies in the closed box
+    /// `[lo, hi]` (metres), as (key, log-odds): finest leaves as they are, pruned
+    /// leaves split into their cells (each with the leaf's log-odds). With
+    /// `occupied_only`, only cells at or above the occupancy threshold.
+    ///
+    /// Cells come leaf by leaf in the tree's Morton order, the cells of a pruned leaf
+    /// with x slowest and z fastest. A box with `lo > hi` on some axis holds nothing;
+    /// parts of the box beyond the map are ignored. NaN bounds, and boxes that would
+    /// give more than `max_cells` cells, are errors.
+    pub fn finest_cells_in_box(
+        &self,
+        lo: [f64; 3],
+        hi: [f64; 3],
+        occupied_only: bool,
+        max_cells: usize,
+    ) -> Result<Vec<(OcTreeKey, f32)>> {
+        if lo.iter().chain(&hi).any(|c| c.is_nan()) {
+            return Err(Error::InvalidArgument(format!(
+                "box bounds must not be NaN, got {lo:?} to {hi:?}"
+            )));
+        }
+        // Per axis, the keys of the cells whose centres lie in [lo, hi] (centres grow
+        // with the key, so two bisections over the 2^16 keys find them exactly).
+        let mut first = [0u16; 3];
+        let mut last = [0u16; 3];
+        for a in 0..3 {
+            let centre = |k: u32| self.conv.key_to_coord_axis(k as u16);
+            let start = partition_keys(|k| centre(k) < lo[a]);
+            let end = partition_keys(|k| centre(k) <= hi[a]);
+            if start >= end {
+                return Ok(Vec::new());
+            }
+            first[a] = start as u16;
+            last[a] = (end - 1) as u16;
+        }
+        let mut leaves = Vec::new();
+        self.for_each_leaf_in_keys(OcTreeKey(first), OcTreeKey(last), |l| {
+            if !occupied_only || self.is_occupied_log_odds(l.log_odds) {
+                leaves.push(l);
+            }
+        });
+        // The cells of each leaf inside the key box, per axis [from, to].
+        let spans = |l: &Leaf| -> [(u32, u32); 3] {
+            let side = 1u32 << (TREE_DEPTH - l.depth);
+            std::array::from_fn(|a| {
+                let base = u32::from(l.key.0[a]);
+                (
+                    base.max(u32::from(first[a])),
+                    (base + side - 1).min(u32::from(last[a])),
+                )
+            })
+        };
+        let mut total = 0usize;
+        for l in &leaves {
+            let n = spans(l)
+                .iter()
+                .map(|&(f, t)| (t - f + 1) as usize)
+                .product::<usize>();
+            total = total.saturating_add(n);
+        }
+        if total > max_cells {
+            return Err(Error::InvalidArgument(format!(
+                "the box holds {total} finest cells, more than the {max_cells} allowed (use a smaller box)"
+            )));
+        }
+        let mut cells = Vec::with_capacity(total);
+        for l in &leaves {
+            let [(x0, x1), (y0, y1), (z0, z1)] = spans(l);
+            for x in x0..=x1 {
+                for y in y0..=y1 {
+                    for z in z0..=z1 {
+                        cells.push((OcTreeKey([x as u16, y as u16, z as u16]), l.log_odds));
+                    }
+                }
+            }
+        }
+        Ok(cells)
+    }
+
     /// Centre (metres) of the node at `depth` whose lower-corner key is `key`.
     pub fn node_center(&self, key: OcTreeKey, depth: u32) -> [f64; 3] {
         self.conv.key_to_coord_at_depth(key, depth)
@@ -520,5 +698,298 @@ impl OcTree {
     /// The per-voxel danger, to record frames or change parameters.
     pub fn danger_map_mut(&mut self) -> &mut DangerMap {
         &mut self.danger
+    }
+}
+
+/// How many keys 0, 1, ... satisfy `pred` from the start (`pred` true then false over
+/// the 2^16 keys of an axis): a bisection.
+fn partition_keys(pred: impl Fn(u32) -> bool) -> u32 {
+    let (mut lo, mut hi) = (0u32, 1u32 << 16);
+    while lo < hi {
+        let mid = (lo + hi) / 2;
+        if pred(mid) {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::Rng;
+
+    /// A tree with pruned regions, clamped cells, free and occupied cells, all within
+    /// a 16-cell cube around the origin.
+    fn random_tree(seed: u64) -> OcTree {
+        let mut rng = Rng::new(seed);
+        let mut tree = OcTree::new(0.1).unwrap();
+        // Whole 4×4×4 and 2×2×2 blocks at the clamps (pruned into single leaves).
+        for (corner, side, hit) in [
+            ([0i32, 0, 0], 4, true),
+            ([-4, -4, 0], 4, false),
+            ([2, -2, -2], 2, true),
+        ] {
+            let keys: Vec<OcTreeKey> = (0..side * side * side)
+                .map(|i| {
+                    let c = [i % side, (i / side) % side, i / (side * side)];
+                    key_at(corner[0] + c[0], corner[1] + c[1], corner[2] + c[2])
+                })
+                .collect();
+            let delta = if hit { 100.0 } else { -100.0 };
+            for &k in &keys {
+                tree.update_node_log_odds(k, delta).unwrap();
+            }
+        }
+        for _ in 0..300 {
+            let k = key_at(
+                rand_cell(&mut rng),
+                rand_cell(&mut rng),
+                rand_cell(&mut rng),
+            );
+            let hit = rng.unit() < 0.5;
+            for _ in 0..(1 + (rng.unit() * 3.0) as usize) {
+                tree.update_node(k, hit);
+            }
+        }
+        tree
+    }
+
+    fn rand_cell(rng: &mut Rng) -> i32 {
+        (rng.unit() * 16.0) as i32 - 8
+    }
+
+    fn key_at(x: i32, y: i32, z: i32) -> OcTreeKey {
+        let k = |c: i32| (c + TREE_MAX_VAL) as u16;
+        OcTreeKey([k(x), k(y), k(z)])
+    }
+
+    use super::super::key::TREE_MAX_VAL;
+
+    /// OctoMap's `setNodeValueRecurs` (lazy_eval = false) for one cell, written out
+    /// node by node: the reference for the batched `set_log_odds`.
+    fn set_one(tree: &mut OcTree, key: OcTreeKey, value: f32) {
+        let value = value.clamp(tree.lo.clamp_min, tree.lo.clamp_max);
+        let created = tree.root == NONE;
+        if created {
+            tree.root = tree.arena.alloc(0.0);
+        }
+        fn recurse(
+            t: &mut OcTree,
+            node: u32,
+            just_created: bool,
+            key: OcTreeKey,
+            depth: u32,
+            v: f32,
+        ) {
+            if depth == TREE_DEPTH {
+                t.arena.set_value(node, v);
+                return;
+            }
+            let pos = key.child_index(TREE_DEPTH - 1 - depth);
+            let mut created = false;
+            if t.arena.child(node, pos).is_none() {
+                if !t.arena.has_children(node) && !just_created {
+                    t.arena.expand(node);
+                } else {
+                    t.arena.create_child(node, pos, 0.0);
+                    created = true;
+                }
+            }
+            let child = t.arena.child(node, pos).unwrap();
+            recurse(t, child, created, key, depth + 1, v);
+            if !t.prune_node(node) {
+                let max = t.max_child_log_odds(node);
+                t.arena.set_value(node, max);
+            }
+        }
+        let root = tree.root;
+        recurse(tree, root, created, key, 0, value);
+    }
+
+    fn random_keys(rng: &mut Rng, n: usize) -> Vec<OcTreeKey> {
+        (0..n)
+            .map(|_| key_at(rand_cell(rng), rand_cell(rng), rand_cell(rng)))
+            .collect()
+    }
+
+    #[test]
+    fn set_log_odds_equals_octomap_set_node_value_per_cell() {
+        let mut rng = Rng::new(5);
+        for seed in 0..40 {
+            let base = random_tree(seed);
+            let n = 1 + (rng.unit() * 200.0) as usize;
+            let mut keys = random_keys(&mut rng, n);
+            // Duplicates, and whole pruned blocks set to what they hold already.
+            keys.extend_from_within(..n / 3);
+            let (lo, hi) = base.clamping_log_odds();
+            for value in [
+                hi,
+                lo,
+                0.0,
+                0.85,
+                -0.4,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                7.0,
+            ] {
+                let mut ours = base.clone();
+                ours.set_log_odds(&keys, value).unwrap();
+                let mut want = base.clone();
+                for &k in &keys {
+                    set_one(&mut want, k, value);
+                }
+                assert_eq!(
+                    ours.write_full_bytes(),
+                    want.write_full_bytes(),
+                    "seed {seed}, value {value}"
+                );
+                for &k in &keys {
+                    assert_eq!(ours.search(k, 0), Some(value.clamp(lo, hi)));
+                }
+            }
+        }
+        let mut empty = OcTree::new(0.1).unwrap();
+        empty.set_log_odds(&[], 1.0).unwrap();
+        assert_eq!(empty.size(), 0);
+        let err = empty
+            .set_log_odds(&[key_at(0, 0, 0)], f32::NAN)
+            .unwrap_err();
+        assert!(err.to_string().contains("NaN"));
+        assert_eq!(empty.size(), 0);
+    }
+
+    #[test]
+    fn update_log_odds_equals_update_node_per_listed_key_and_repeat() {
+        let mut rng = Rng::new(6);
+        for seed in 0..40 {
+            let base = random_tree(100 + seed);
+            let n = 1 + (rng.unit() * 200.0) as usize;
+            let mut keys = random_keys(&mut rng, n);
+            keys.extend_from_within(..n / 2);
+            for (delta, repeat) in [
+                (0.85f32, 1u32),
+                (-0.4, 3),
+                (0.4, 10),
+                (-1.3, 40),
+                (0.0, 2),
+                (1e-9, 5),
+                (2.5, 0),
+            ] {
+                let mut ours = base.clone();
+                ours.update_log_odds(&keys, delta, repeat).unwrap();
+                let mut want = base.clone();
+                for _ in 0..repeat {
+                    for &k in &keys {
+                        want.update_node_log_odds(k, delta).unwrap();
+                    }
+                }
+                assert_eq!(
+                    ours.write_full_bytes(),
+                    want.write_full_bytes(),
+                    "seed {seed}, delta {delta}, repeat {repeat}"
+                );
+            }
+        }
+        let mut tree = random_tree(1);
+        let before = tree.write_full_bytes();
+        assert!(tree
+            .update_log_odds(&[key_at(0, 0, 0)], f32::INFINITY, 1)
+            .is_err());
+        assert!(tree
+            .update_log_odds(&[key_at(0, 0, 0)], f32::NAN, 1)
+            .is_err());
+        assert_eq!(tree.write_full_bytes(), before);
+    }
+
+    /// Eight hits reach the upper clamp from anywhere in the clamping range (the
+    /// loop the perception pipeline ran for its support voxels): same tree as one set.
+    #[test]
+    fn eight_hits_equal_setting_the_upper_clamp() {
+        let mut rng = Rng::new(8);
+        for seed in 0..20 {
+            let base = random_tree(200 + seed);
+            let keys = random_keys(&mut rng, 150);
+            let mut looped = base.clone();
+            for _ in 0..8 {
+                for &k in &keys {
+                    looped.update_node(k, true);
+                }
+            }
+            let mut set = base.clone();
+            set.set_log_odds(&keys, f32::INFINITY).unwrap();
+            assert_eq!(
+                looped.write_full_bytes(),
+                set.write_full_bytes(),
+                "seed {seed}"
+            );
+        }
+    }
+
+    #[test]
+    fn finest_cells_in_box_are_the_known_cells_with_centres_inside() {
+        let mut rng = Rng::new(9);
+        for seed in 0..30 {
+            let mut tree = random_tree(300 + seed);
+            tree.prune();
+            let (lo, hi): ([f64; 3], [f64; 3]) = if seed == 0 {
+                // Bounds exactly on cell centres (inclusive) and on borders.
+                ([-0.35, -0.4, 0.05], [0.25, 0.3, 0.4])
+            } else {
+                let a: [f64; 3] = std::array::from_fn(|_| rng.uniform(-1.0, 1.0));
+                let b: [f64; 3] = std::array::from_fn(|_| rng.uniform(-1.0, 1.0));
+                (
+                    std::array::from_fn(|i| a[i].min(b[i])),
+                    std::array::from_fn(|i| a[i].max(b[i])),
+                )
+            };
+            for occupied_only in [false, true] {
+                let got = tree
+                    .finest_cells_in_box(lo, hi, occupied_only, 1 << 20)
+                    .unwrap();
+                let mut want = Vec::new();
+                for x in -12..12 {
+                    for y in -12..12 {
+                        for z in -12..12 {
+                            let key = key_at(x, y, z);
+                            let c = tree.node_center(key, TREE_DEPTH);
+                            let inside = (0..3).all(|a| lo[a] <= c[a] && c[a] <= hi[a]);
+                            if let (true, Some(l)) = (inside, tree.search(key, 0)) {
+                                if !occupied_only || tree.is_occupied_log_odds(l) {
+                                    want.push((key.morton(), l));
+                                }
+                            }
+                        }
+                    }
+                }
+                let mut got: Vec<(u64, f32)> = got.iter().map(|&(k, l)| (k.morton(), l)).collect();
+                got.sort_by_key(|&(m, _)| m);
+                want.sort_by_key(|&(m, _)| m);
+                assert_eq!(got, want, "seed {seed}, box {lo:?} {hi:?}");
+            }
+        }
+        let tree = random_tree(1);
+        assert!(tree
+            .finest_cells_in_box([0.5; 3], [0.4; 3], false, 10)
+            .unwrap()
+            .is_empty());
+        let err = tree
+            .finest_cells_in_box([-1.0; 3], [1.0; 3], false, 10)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("more than the 10 allowed"), "{err}");
+        assert!(tree
+            .finest_cells_in_box([f64::NAN, 0.0, 0.0], [1.0; 3], false, 10)
+            .is_err());
+        // A box reaching beyond the map is cut at its edge.
+        let all = tree
+            .finest_cells_in_box([f64::NEG_INFINITY; 3], [f64::INFINITY; 3], false, 1 << 20)
+            .unwrap();
+        let known = tree
+            .finest_cells_in_box([-2.0; 3], [2.0; 3], false, 1 << 20)
+            .unwrap();
+        assert_eq!(all.len(), known.len());
     }
 }

@@ -77,6 +77,18 @@ pub enum JointKind {
     Fixed,
 }
 
+/// A movable joint's axis placed in the world for one configuration (see
+/// [`Chain::jacobian_axes`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct JointAxis {
+    /// Revolute, continuous or prismatic.
+    pub kind: JointKind,
+    /// Unit axis in the world frame.
+    pub direction: Vector3<f64>,
+    /// A point on the axis: the origin of the joint's child link.
+    pub origin: Vector3<f64>,
+}
+
 /// A joint between a parent and a child link, as URDF describes it.
 #[derive(Clone, Debug)]
 pub struct Joint {
@@ -432,6 +444,35 @@ impl Chain {
         let mut out = vec![Frame::identity(); self.num_links()];
         self.forward_kinematics_into(base, q, &mut out);
         Ok(out)
+    }
+
+    /// Geometric Jacobian of `link` for frames placed by forward kinematics (`frames`,
+    /// one per link, world_from_link at some q): one column per coordinate, each the
+    /// joint's world axis `z` and a point on it `o` (the joint's child frame origin),
+    /// for the movable joints on the way from the root to `link`; `None` for joints
+    /// elsewhere (their columns are zero). A point `p` fixed to `link` moves at
+    /// `z × (p − o)` per unit of a revolute coordinate and at `z` per unit of a
+    /// prismatic one; the link turns at `z` per unit of a revolute coordinate.
+    pub fn jacobian_axes(&self, frames: &[Frame], link: usize) -> Vec<Option<JointAxis>> {
+        let mut axes = vec![None; self.dof()];
+        let mut parent_joint = vec![None; self.num_links()];
+        for (j, joint) in self.joints.iter().enumerate() {
+            parent_joint[joint.child] = Some(j);
+        }
+        let mut at = link;
+        while let Some(j) = parent_joint[at] {
+            let joint = &self.joints[j];
+            if let Some(c) = self.coordinate[j] {
+                let child = &frames[joint.child];
+                axes[c] = Some(JointAxis {
+                    kind: joint.kind,
+                    direction: child.rotation * joint.axis,
+                    origin: child.translation,
+                });
+            }
+            at = joint.parent;
+        }
+        axes
     }
 
     /// An upper bound on how far any point fixed in link `l` within `extent[l]` of its

@@ -17,7 +17,7 @@ pub use capsule::{
     closest_parameter_on_segment, lerp, point_segment_distance_squared, segment_box_closest,
     segment_segment_closest, Capsule,
 };
-pub use chain::{Chain, Frame, Joint, JointKind};
+pub use chain::{Chain, Frame, Joint, JointAxis, JointKind};
 pub use collision::{
     check_configurations, check_motion, clearances, clearances_to_boxes, interpolate,
     motion_danger, touches_boxes, CheckParams, Contact, MAX_MOTION_STEPS,

@@ -3,7 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::robot::body::{AxisBounds, Body};
-use crate::robot::chain::{Chain, Frame};
+use crate::robot::chain::{Chain, Frame, JointKind};
 use crate::synthetic::Rng;
 
 /// A robot: its kinematic chain, a body per link (link frame), the base's place
@@ -305,6 +305,73 @@ impl RobotModel {
         }
     }
 
+    /// Check `q` and `link`, and place every link for `q` (world frames, base included).
+    fn frames_for_jacobian(&self, q: &[f64], link: usize) -> Result<Vec<Frame>> {
+        self.chain.check_configuration(q, 0)?;
+        if link >= self.chain.num_links() {
+            return Err(Error::InvalidArgument(format!(
+                "link must be 0 to {} (the robot's links), got {link}",
+                self.chain.num_links() - 1
+            )));
+        }
+        let mut frames = vec![Frame::identity(); self.chain.num_links()];
+        self.chain
+            .forward_kinematics_into(&self.base, q, &mut frames);
+        Ok(frames)
+    }
+
+    /// Jacobian (3 × dof, one `[dx, dy, dz]` per coordinate) of a point rigidly attached
+    /// to `link`, given by its world position `point` at configuration `q`: how fast the
+    /// point moves in the world frame per unit of each coordinate. Revolute joints on
+    /// the way to `link` give `z × (point − o)` (world axis `z` through `o`), prismatic
+    /// ones `z`; fixed joints and joints not on the way give zero. The exact derivative
+    /// of forward kinematics (joint limits play no part; `q` must lie within them).
+    pub fn point_jacobian(&self, q: &[f64], link: usize, point: [f64; 3]) -> Result<Vec<[f64; 3]>> {
+        if !point.iter().all(|c| c.is_finite()) {
+            return Err(Error::InvalidArgument(format!(
+                "point {point:?} is not finite"
+            )));
+        }
+        let frames = self.frames_for_jacobian(q, link)?;
+        let p = crate::na::Vector3::from(point);
+        Ok(self
+            .chain
+            .jacobian_axes(&frames, link)
+            .into_iter()
+            .map(|axis| match axis {
+                Some(a) if a.kind == JointKind::Prismatic => a.direction.into(),
+                Some(a) => a.direction.cross(&(p - a.origin)).into(),
+                None => [0.0; 3],
+            })
+            .collect())
+    }
+
+    /// Geometric Jacobian (6 × dof) of `link`'s frame at configuration `q`, one column
+    /// `[vx, vy, vz, wx, wy, wz]` per coordinate: the linear velocity of the link's
+    /// origin, then the link's angular velocity, both in the world frame (Pinocchio's
+    /// `LOCAL_WORLD_ALIGNED` frame Jacobian), per unit of each coordinate. The linear
+    /// part is [`Self::point_jacobian`] at the link's origin.
+    pub fn frame_jacobian(&self, q: &[f64], link: usize) -> Result<Vec<[f64; 6]>> {
+        let frames = self.frames_for_jacobian(q, link)?;
+        let p = frames[link].translation;
+        Ok(self
+            .chain
+            .jacobian_axes(&frames, link)
+            .into_iter()
+            .map(|axis| match axis {
+                Some(a) if a.kind == JointKind::Prismatic => {
+                    let z = a.direction;
+                    [z.x, z.y, z.z, 0.0, 0.0, 0.0]
+                }
+                Some(a) => {
+                    let (z, v) = (a.direction, a.direction.cross(&(p - a.origin)));
+                    [v.x, v.y, v.z, z.x, z.y, z.z]
+                }
+                None => [0.0; 6],
+            })
+            .collect())
+    }
+
     /// Bodies placed for `q`, after checking `q`.
     pub fn place(&self, q: &[f64]) -> Result<PlacedBodies> {
         self.chain.check_configuration(q, 0)?;
@@ -497,5 +564,209 @@ mod tests {
             }
         }
         assert!(found > 100 && found < 900, "{found} of 1000 lists touch");
+    }
+
+    /// A branching chain with every joint kind: root → a (revolute) → b (prismatic) →
+    /// c (fixed) → d (continuous), and a side branch root → e (revolute).
+    fn mixed_model() -> RobotModel {
+        let joint =
+            |name: &str, kind, parent, child, xyz: [f64; 3], rpy: [f64; 3], axis: [f64; 3]| Joint {
+                name: name.into(),
+                kind,
+                parent,
+                child,
+                origin: Frame::from_xyz_rpy(xyz, rpy),
+                axis: Vector3::from(axis),
+                lower: -2.0,
+                upper: 2.0,
+            };
+        let joints = vec![
+            joint(
+                "ja",
+                JointKind::Revolute,
+                0,
+                1,
+                [0.1, 0.0, 0.3],
+                [0.2, -0.1, 0.4],
+                [0.0, 0.3, 1.0],
+            ),
+            joint(
+                "jb",
+                JointKind::Prismatic,
+                1,
+                2,
+                [0.4, 0.1, 0.0],
+                [0.0, 0.5, 0.0],
+                [1.0, 0.2, 0.0],
+            ),
+            joint(
+                "jc",
+                JointKind::Fixed,
+                2,
+                3,
+                [0.0, 0.2, 0.1],
+                [0.3, 0.0, -0.2],
+                [0.0, 0.0, 1.0],
+            ),
+            joint(
+                "jd",
+                JointKind::Continuous,
+                3,
+                4,
+                [0.2, 0.0, 0.0],
+                [-0.4, 0.1, 0.0],
+                [1.0, 0.0, 0.0],
+            ),
+            joint(
+                "je",
+                JointKind::Revolute,
+                0,
+                5,
+                [0.0, -0.5, 0.0],
+                [0.0; 3],
+                [0.0, 1.0, 0.0],
+            ),
+        ];
+        let names = ["root", "a", "b", "c", "d", "e"].map(String::from).to_vec();
+        let mut model = RobotModel::new(Chain::new(names, joints).unwrap(), vec![None; 6]).unwrap();
+        let base = Frame::from_xyz_rpy([0.5, -0.2, 0.8], [0.3, 0.2, -1.0]);
+        model.set_base(base);
+        model
+    }
+
+    /// Central differences of forward kinematics: the point fixed to `link` and the
+    /// link's rotation (as an angular velocity from R(q+h)·R(q−h)ᵀ).
+    fn numeric_jacobian(
+        model: &RobotModel,
+        q: &[f64],
+        link: usize,
+        point: [f64; 3],
+    ) -> Vec<[f64; 6]> {
+        let frames = model.chain().forward_kinematics(model.base(), q).unwrap();
+        let local =
+            frames[link].rotation.transpose() * (Vector3::from(point) - frames[link].translation);
+        let h = 1e-6;
+        (0..q.len())
+            .map(|c| {
+                let at = |s: f64| {
+                    let mut qq = q.to_vec();
+                    qq[c] += s;
+                    model.chain().forward_kinematics(model.base(), &qq).unwrap()[link]
+                };
+                let (f1, f0) = (at(h), at(-h));
+                let v =
+                    (f1.rotation * local + f1.translation - f0.rotation * local - f0.translation)
+                        / (2.0 * h);
+                let w = f1.rotation * f0.rotation.transpose();
+                let w = Vector3::new(
+                    w[(2, 1)] - w[(1, 2)],
+                    w[(0, 2)] - w[(2, 0)],
+                    w[(1, 0)] - w[(0, 1)],
+                ) / (4.0 * h);
+                [v.x, v.y, v.z, w.x, w.y, w.z]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn jacobians_match_central_differences() {
+        let model = mixed_model();
+        let mut rng = Rng::new(12);
+        for _ in 0..50 {
+            let q: Vec<f64> = (0..model.dof()).map(|_| rng.uniform(-1.9, 1.9)).collect();
+            let frames = model.chain().forward_kinematics(model.base(), &q).unwrap();
+            for (link, frame) in frames.iter().enumerate() {
+                let offset = Vector3::new(
+                    rng.uniform(-0.5, 0.5),
+                    rng.uniform(-0.5, 0.5),
+                    rng.uniform(-0.5, 0.5),
+                );
+                let p = frame.rotation * offset + frame.translation;
+                let point = [p.x, p.y, p.z];
+                let numeric = numeric_jacobian(&model, &q, link, point);
+                let analytic = model.point_jacobian(&q, link, point).unwrap();
+                let origin = frame.translation;
+                let at_origin = numeric_jacobian(&model, &q, link, [origin.x, origin.y, origin.z]);
+                let frame = model.frame_jacobian(&q, link).unwrap();
+                for c in 0..model.dof() {
+                    for r in 0..3 {
+                        assert!(
+                            (analytic[c][r] - numeric[c][r]).abs() < 1e-8,
+                            "link {link} column {c}"
+                        );
+                    }
+                    for r in 0..6 {
+                        assert!(
+                            (frame[c][r] - at_origin[c][r]).abs() < 1e-8,
+                            "link {link} column {c} row {r}"
+                        );
+                    }
+                }
+            }
+        }
+        // Joints off the way to a link give zero columns: e's joint for d, and the
+        // chain's joints for e.
+        let q = [0.3, 0.2, -0.7, 1.1];
+        let jd = model.frame_jacobian(&q, 4).unwrap();
+        assert_eq!(jd[3], [0.0; 6]);
+        let je = model.frame_jacobian(&q, 5).unwrap();
+        assert!(je[..3].iter().all(|c| *c == [0.0; 6]));
+        assert_eq!(model.frame_jacobian(&q, 0).unwrap(), vec![[0.0; 6]; 4]);
+    }
+
+    /// A planar arm with unit links, written out: p = (cos a + cos(a+b), sin a + sin(a+b)).
+    #[test]
+    fn planar_two_link_jacobian_by_hand() {
+        let joint = |name: &str, parent, child, x: f64| Joint {
+            name: name.into(),
+            kind: JointKind::Revolute,
+            parent,
+            child,
+            origin: Frame::from_xyz_rpy([x, 0.0, 0.0], [0.0; 3]),
+            axis: Vector3::z(),
+            lower: -3.0,
+            upper: 3.0,
+        };
+        let names = ["base", "upper", "fore", "tip"].map(String::from).to_vec();
+        let mut tip = joint("tip", 2, 3, 1.0);
+        tip.kind = JointKind::Fixed;
+        let chain = Chain::new(
+            names,
+            vec![joint("a", 0, 1, 0.0), joint("b", 1, 2, 1.0), tip],
+        )
+        .unwrap();
+        let model = RobotModel::new(chain, vec![None; 4]).unwrap();
+        let (a, b) = (0.4f64, -1.2f64);
+        let j = model.frame_jacobian(&[a, b], 3).unwrap();
+        let want_a = [
+            -a.sin() - (a + b).sin(),
+            a.cos() + (a + b).cos(),
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+        ];
+        let want_b = [-(a + b).sin(), (a + b).cos(), 0.0, 0.0, 0.0, 1.0];
+        for r in 0..6 {
+            assert!(
+                (j[0][r] - want_a[r]).abs() < 1e-15 && (j[1][r] - want_b[r]).abs() < 1e-15,
+                "{j:?}"
+            );
+        }
+        let p = model.point_jacobian(&[a, b], 2, [0.0, 0.0, 5.0]).unwrap();
+        // The world point (0, 0, 5) carried by the forearm: joint b (axis z through
+        // (cos a, sin a, 0)) moves it at z × (p − o) = (sin a, −cos a, 0); joint a's
+        // axis passes through it.
+        let o_b = [a.cos(), a.sin()];
+        assert!((p[1][0] - o_b[1]).abs() < 1e-15 && (p[1][1] + o_b[0]).abs() < 1e-15);
+        assert!(p[0][0].abs() < 1e-15 && p[0][1].abs() < 1e-15);
+        // Bad input: errors, not panics.
+        assert!(model.point_jacobian(&[a, b], 4, [0.0; 3]).is_err());
+        assert!(model.point_jacobian(&[a, b, 0.0], 1, [0.0; 3]).is_err());
+        assert!(model.point_jacobian(&[a, 3.5], 1, [0.0; 3]).is_err());
+        assert!(model
+            .point_jacobian(&[a, b], 1, [f64::NAN, 0.0, 0.0])
+            .is_err());
+        assert!(model.frame_jacobian(&[a, b], 9).is_err());
     }
 }
