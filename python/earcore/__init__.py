@@ -19,8 +19,6 @@ try:
         SurfaceMap,
         __version__,
         fit_body,
-        get_num_threads,
-        set_num_threads,
     )
 except ImportError as exc:  # pragma: no cover - exercised by `earcore --version` on a broken install
     raise ImportError(
@@ -38,6 +36,7 @@ from earcore.cloud import (  # noqa: E402
     voxel_downsample,
 )
 from earcore.lidar_odometry import LidarOdometry, OdometrySettings  # noqa: E402
+from earcore.parallel import get_num_threads, set_num_threads, threads  # noqa: E402
 from earcore.registration import (  # noqa: E402
     DegenerateAlignmentWarning,
     IcpResult,
@@ -82,5 +81,6 @@ __all__ = [
     "__version__",
     "get_num_threads",
     "set_num_threads",
+    "threads",
     "synthetic",
 ]

@@ -15,11 +15,15 @@ from __future__ import annotations
 
 import importlib.metadata
 from pathlib import Path
+from typing import Literal, cast
 
 import numpy as np
 
 from earcore import _earcore
 from earcore.urdf import UrdfError, parse_urdf
+
+#: The joint kinds the core models (URDF's names).
+JointKind = Literal["revolute", "continuous", "prismatic", "fixed"]
 
 __all__ = ["BUILTIN_MODELS", "RobotModel", "UrdfError", "load", "urdf_path"]
 
@@ -76,7 +80,7 @@ class RobotModel(_earcore.RobotModel):
         padding: float = 0.005,
         *,
         geometry: str = "collision",
-        shape: str = "auto",
+        shape: Literal["capsule", "cylinder", "auto"] = "auto",
         name: str | None = None,
     ) -> RobotModel:
         """Read a URDF and fit one body per link around its ``geometry`` meshes
@@ -89,7 +93,7 @@ class RobotModel(_earcore.RobotModel):
         urdf = parse_urdf(path, geometry=geometry)
         index = {link: i for i, link in enumerate(urdf.links)}
         joints = [
-            (j.name, j.kind, index[j.parent], index[j.child], j.xyz, j.rpy, j.axis, j.lower, j.upper)
+            (j.name, cast(JointKind, j.kind), index[j.parent], index[j.child], j.xyz, j.rpy, j.axis, j.lower, j.upper)
             for j in urdf.joints
         ]
         bodies = []
@@ -105,6 +109,8 @@ class RobotModel(_earcore.RobotModel):
         return rng.uniform(limits[:, 0], limits[:, 1], size=(count, self.dof))
 
 
-def load(name: str, padding: float = 0.005, *, geometry: str = "collision", shape: str = "auto") -> RobotModel:
+def load(
+    name: str, padding: float = 0.005, *, geometry: str = "collision", shape: Literal["capsule", "cylinder", "auto"] = "auto"
+) -> RobotModel:
     """A built-in robot by name: ``ur3``, ``ur5``, ``ur10``, ``iiwa`` or ``panda``."""
     return RobotModel.from_urdf(urdf_path(name), padding, geometry=geometry, shape=shape, name=name.lower())

@@ -4,6 +4,7 @@ of `[perception]` in `earcore run`'s configuration."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 __all__ = ["PerceptionConfig"]
 
@@ -31,7 +32,7 @@ class PerceptionConfig:
     voxel_size: float = 0.02
     max_range: float = 4.5
     danger_alpha: float = 0.3
-    decay_mode: str = "observed"
+    decay_mode: Literal["observed", "always"] = "observed"
     #: Growth (m) of the robot's bodies for the self-filter on top of their padding, for
     #: sensor noise: with the Kinect V1's 1.1-1.3 cm depth steps at 2 m, Paper II's 5 mm
     #: alone leaves ~0.9 % of the robot's points in the map.

@@ -11,6 +11,7 @@ then runs on ~10× fewer points; the result differs only in which isolated point
 from __future__ import annotations
 
 import functools
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -200,8 +201,7 @@ class PerceptionPipeline:
         centres = box_voxel_centres(box_min, box_max, self.tree.resolution)
         base = self.robot.base[:3, 3]
         centres = centres[np.linalg.norm(centres[:, :2] - base[:2], axis=1) > keep_clear]
-        for _ in range(8):  # hits until the log-odds clamp: the table stays put
-            self.tree.update_nodes(centres, occupied=True)
+        self.tree.set_log_odds(centres, math.inf)  # at the upper clamp: the table stays put
         return len(centres)
 
     def refine(self, frames: list[Frame]) -> None:
@@ -378,9 +378,10 @@ class PerceptionPipeline:
             seen, _ = self.tree.current_obstacles()
             if len(seen):
                 touching = touching[~np.isin(voxel_codes(touching, res), voxel_codes(seen, res))]
-        # A few misses take a voxel from the clamp (log-odds 3.5) to free (< 0).
-        for _ in range(10 if len(touching) else 0):
-            self.tree.update_nodes(touching, occupied=False)
+        # Ten misses take a voxel from the clamp (log-odds 3.5) to free (< 0).
+        if len(touching):
+            miss = math.log(self.tree.prob_miss / (1 - self.tree.prob_miss))
+            self.tree.update_log_odds(touching, miss, repeat=10)
         return len(touching)
 
     def end_frame(self, report: PerceptionReport, time_s: float) -> PerceptionReport:

@@ -21,7 +21,7 @@ import earcore
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.follower import Follower
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
-from earcore.planning.reflex import ObstacleTracker, RiskReport, copy_map, path_is_clear, plan_recovery, plan_reflex
+from earcore.planning.reflex import ObstacleTracker, RiskReport, path_is_clear, plan_recovery, plan_reflex
 from earcore.planning.trajectory import StopThenMove, Trajectory, Transfer, braking, path_length, time_parameterize, transfer
 
 __all__ = ["Executive", "TripReport"]
@@ -39,20 +39,6 @@ def _collector_paused():
     finally:
         if enabled:
             gc.enable()
-
-
-@contextmanager
-def _on_this_thread():
-    """The core's batched calls run on the calling thread for a latency-critical step:
-    its batches are small (a reflex's few dozen configurations), and handing them to
-    worker threads costs their wake-up, or milliseconds when another process holds
-    the cores."""
-    threads = earcore.get_num_threads()
-    earcore.set_num_threads(1)
-    try:
-        yield
-    finally:
-        earcore.set_num_threads(threads)
 
 
 @dataclass
@@ -317,12 +303,14 @@ class Executive:
                 self.tracker.learn_static(self.tree.current_obstacles()[0])
             return None
         if self.static_tree is None:
-            self.static_tree = copy_map(self.tree)
+            self.static_tree = self.tree.copy()
             self.robot.check_configurations(self.static_tree, q)  # builds its index now, not in a reflex
         self._score_contact()
         report = None
         if self.reflexes_on:
-            with _collector_paused(), _on_this_thread():
+            # The core runs the reflex's small batches (a few dozen configurations) on this
+            # thread: waking workers costs more, milliseconds when another process holds the cores.
+            with _collector_paused(), earcore.threads(1):
                 report, fired = self._reflex_layer(cell, q)
             self.log.risk.append(replace(report, voxels=None, jacobian=None))
             if fired:

@@ -1,6 +1,6 @@
 """Inverse kinematics for end-effector pose goals (Paper II, Table I: 0.01 m and
-0.1 rad tolerances): damped least squares on the 6-D pose error with a Jacobian from
-one batched forward-kinematics call per iteration, restarted from random
+0.1 rad tolerances): damped least squares on the 6-D pose error with the link's
+analytic Jacobian (one core call per iteration), restarted from random
 configurations until a collision-free solution within the tolerances is found.
 """
 
@@ -63,25 +63,22 @@ def solve_ik(
     mid = 0.5 * (lo + hi)
     s_lo, s_hi = np.maximum(lo, mid - np.pi), np.minimum(hi, mid + np.pi)
     rng = rng or np.random.default_rng(0)
-    dof = robot.dof
-    eps = 1e-6
     best = None
     for attempt in range(restarts):
-        q = np.asarray(seed_q, dtype=np.float64).copy() if (attempt == 0 and seed_q is not None) else rng.uniform(s_lo, s_hi)
+        start = np.asarray(seed_q, dtype=np.float64) if (attempt == 0 and seed_q is not None) else rng.uniform(s_lo, s_hi)
+        q = np.clip(start, lo, hi)  # a seed may lie beyond the limits (a perturbed state)
         for it in range(iterations):
-            qs = np.clip(np.vstack([q, q + eps * np.eye(dof)]), lo, hi)
-            frames = robot.fk(qs)[:, link]
-            error = _pose_error(frames[0], target)
+            error = _pose_error(robot.fk(q)[link], target)
             p_err, o_err = np.linalg.norm(error[:3]), np.linalg.norm(error[3:])
             if p_err <= position_tolerance and o_err <= orientation_tolerance:
                 if tree is None or not robot.check_configurations(tree, q):
                     return IkResult(q, float(p_err), float(o_err), it)
                 break  # a solution in collision: restart elsewhere
-            jac = np.stack([_pose_error(frames[0], f) for f in frames[1:]], axis=1)
-            # Columns: d(error)/dq = -(change of pose); (target - current) shrinks along +jac.
-            jac = -jac / np.maximum((qs[1:] - qs[0]).diagonal(), 1e-12)
+            # The link's velocity per joint (linear, angular; world axes): the pose error
+            # (target - current) shrinks along it. Damped least squares.
+            jac = robot.frame_jacobian(q, link)
             damping = 1e-2
-            dq = -jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(6), error)
+            dq = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(6), error)
             # Small steps keep the linearisation honest far from the goal.
             dq *= min(1.0, 0.5 / max(np.abs(dq).max(), 1e-12))
             q = np.clip(q + dq, lo, hi)

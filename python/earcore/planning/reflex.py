@@ -242,7 +242,7 @@ class ObstacleTracker:
             approaching = (moving and float(v @ towards) > 0) if d > 0 else True
             jacobian = None
             if approaching and qd is not None and c["link"] >= 0:
-                jacobian = _point_jacobian(self.robot, q, int(c["link"]), c["on_robot"])
+                jacobian = self.robot.jacobian(q, int(c["link"]), c["on_robot"])
                 v = v - jacobian @ qd
             speed = math.hypot(*v)
             risk = speed**2 / (self.beta * max(d, 1e-3)) if approaching else 0.0
@@ -344,19 +344,6 @@ class ReflexMove:
 
     kind: str
     path: np.ndarray
-
-
-def _point_jacobian(robot, q: np.ndarray, link: int, point: np.ndarray, eps: float = 1e-6) -> np.ndarray:
-    """(3, dof) Jacobian of a point fixed to `link` (given in the world at q), by
-    central differences from one batched forward-kinematics call."""
-    dof = len(q)
-    lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
-    qs = np.clip(np.vstack([q, q + eps * np.eye(dof), q - eps * np.eye(dof)]), lo, hi)
-    frames = robot.fk(qs)[:, link]
-    local = np.linalg.solve(frames[0], np.append(point, 1.0))
-    p = frames[:, :3, :] @ local
-    steps = (qs[1 : dof + 1] - qs[dof + 1 :]).diagonal()
-    return (p[1 : dof + 1] - p[dof + 1 :]).T / np.where(steps == 0, 1.0, steps)
 
 
 def path_is_clear(
@@ -466,7 +453,7 @@ def plan_reflex(
         link = end_effector_link if end_effector_link is not None else len(robot.link_names) - 1
         position = robot.fk(q)[link, :3, 3]
     if jac is None:
-        jac = _point_jacobian(robot, q, link, position)
+        jac = robot.jacobian(q, link, position)
     away = position - report.on_obstacle
     if report.clearance <= 0 and dynamic is not None and len(dynamic):
         # Touching: the closest points lie inside each other and their difference can
@@ -489,38 +476,12 @@ def plan_reflex(
     return ReflexMove("move_away", path)
 
 
-def copy_map(tree):
-    """A copy of a map (through its .ot serialisation: every node and value)."""
-    import tempfile
-    from pathlib import Path
-
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "map.ot"
-        tree.write(path)
-        return earcore.OcTree.read(path)
-
-
 def occupied_cells_near(tree, point: np.ndarray, radius: float) -> np.ndarray:
     """Centres of the occupied finest-resolution cells of `tree` within `radius` of
-    `point` (pruned nodes split into their cells, only where they overlap the ball's box)."""
+    `point` (pruned nodes split into their cells by the core)."""
     point = np.asarray(point, dtype=np.float64)
-    lo, hi = point - radius, point + radius
-    centres, sizes, _ = tree.leaves(lo, hi)
-    res = tree.resolution
-    if len(centres):
-        occupied = tree.is_occupied(centres) == 1
-        centres, sizes = centres[occupied], sizes[occupied]
-    cells = [centres[sizes <= res * 1.5]]
-    for centre, size in zip(centres[sizes > res * 1.5], sizes[sizes > res * 1.5]):
-        corner = centre - size / 2
-        n = int(round(size / res))
-        # The node's cells (corner + (i + ½)·res) whose centres fall inside the box.
-        first = np.clip(np.floor((lo - corner) / res - 0.5), 0, n - 1).astype(int)
-        last = np.clip(np.ceil((hi - corner) / res - 0.5), 0, n - 1).astype(int)
-        axes = [corner[a] + (np.arange(first[a], last[a] + 1) + 0.5) * res for a in range(3)]
-        cells.append(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3))
-    found = np.vstack(cells)
-    return found[np.linalg.norm(found - point, axis=1) <= radius]
+    centres, _ = tree.leaves_at_full_depth(point - radius, point + radius, occupied_only=True)
+    return centres[np.linalg.norm(centres - point, axis=1) <= radius]
 
 
 def plan_recovery(
@@ -544,12 +505,8 @@ def plan_recovery(
     near = occupied_cells_near(tree, c["on_robot"], radius)
     if not len(near):
         return None
-    rest = copy_map(tree)
-    for _ in range(32):  # a clamped occupied cell needs ~9 misses to turn free
-        still = rest.is_occupied(near) == 1
-        if not still.any():
-            break
-        rest.update_nodes(near[still], occupied=False)
+    rest = tree.copy()
+    rest.set_log_odds(near, -math.inf)  # those cells free, at the lower clamp
     report = RiskReport(
         0.0, 0, 0.0, 0.0, float(c["distance"]), c["on_robot"], c["on_obstacle"], 0.0, False, 0.0, link=int(c["link"])
     )

@@ -125,3 +125,23 @@ def test_insertion_releases_the_gil():
     t.join()
     during = [x for x in ticks if start < x < end]
     assert len(during) >= 3, f"only {len(during)} ticks during a {end - start:.3f} s insertion"
+
+
+def test_threads_sets_the_count_for_this_thread_within_the_block():
+    """`earcore.threads(n)`: n inside the block on this thread, the setting before it
+    afterwards (also when the block raises), nested blocks unwind in order, and another
+    thread and the process-wide setting never see it."""
+    before = earcore.get_num_threads()
+    seen_elsewhere = []
+    with pytest.raises(RuntimeError):
+        with earcore.threads(1):
+            assert earcore.get_num_threads() == 1
+            with earcore.threads(3):
+                assert earcore.get_num_threads() == 3
+                worker = threading.Thread(target=lambda: seen_elsewhere.append(earcore.get_num_threads()))
+                worker.start()
+                worker.join()
+            assert earcore.get_num_threads() == 1
+            raise RuntimeError("a failing step")
+    assert earcore.get_num_threads() == before
+    assert seen_elsewhere == [before]

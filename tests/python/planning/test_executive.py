@@ -123,11 +123,9 @@ def test_a_cheaper_plan_is_costed_along_the_way_the_arm_takes(ur5):
 def test_a_reflex_timed_from_a_moving_arm_needs_a_clear_way_on(ur5):
     """Where the reflex's own motion (a stop, a transfer) is not clear, its path timed
     from here runs only if the follower's way onto it is clear too."""
-    from earcore.planning.reflex import copy_map
-
     for tree, clear in ((earcore.OcTree(0.05), True), (swing_voxel_tree(ur5)[0], False)):
         executive = moving_executive(ur5, tree, A, SWING)
-        executive.static_tree = copy_map(tree)
+        executive.static_tree = tree.copy()
         assert not dense_collides(ur5, tree, LIFT)
         assert (executive.timed_reflex(LIFT, escape=False) is not None) == clear
 

@@ -274,8 +274,6 @@ def test_move_away_reuses_the_trackers_jacobian_only_at_its_configuration(ur5):
     it computed its own, and a report from another configuration must not lend it."""
     from dataclasses import replace
 
-    from earcore.planning.reflex import _point_jacobian
-
     res = 0.05
     tracker = ObstacleTracker(ur5, res, beta=1.5)
     blob = np.array([[x, y, z] for x in (0, res) for y in (0, res) for z in (0, res)])
@@ -285,7 +283,7 @@ def test_move_away_reuses_the_trackers_jacobian_only_at_its_configuration(ur5):
         centre = tool + np.array([0.5, 0.0, 0.0]) + np.array([-1.2, 0.0, 0.0]) * k / 15
         report = tracker.update(k / 15, (np.floor((blob + centre) / res) + 0.5) * res, A, qd=qd)
     assert report.approaching and report.jacobian is not None
-    assert np.array_equal(report.jacobian, _point_jacobian(ur5, A, report.link, report.on_robot))
+    assert np.array_equal(report.jacobian, ur5.jacobian(A, report.link, report.on_robot))
     tree, dynamic = earcore.OcTree(res), tracker.last_dynamic
     kwargs = dict(prefer_move_away=True, dynamic=dynamic, voxel_size=res)
     move = plan_reflex(ur5, tree, A, np.array([A]), report, **kwargs)
@@ -407,14 +405,3 @@ def test_a_still_obstacle_is_no_reflex_matter(ur5):
         assert np.linalg.norm(tracker.tracks[0].velocity) < 0.1
     assert worst[0.1] == 0.0
     assert worst[0.0] > 0.0
-
-
-def test_reflex_layer_runs_single_threaded_and_restores_the_setting():
-    from earcore.planning.executive import _on_this_thread
-
-    before = earcore.get_num_threads()
-    with pytest.raises(RuntimeError):
-        with _on_this_thread():
-            assert earcore.get_num_threads() == 1
-            raise RuntimeError("a failing reflex step")
-    assert earcore.get_num_threads() == before
