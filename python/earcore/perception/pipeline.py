@@ -174,14 +174,17 @@ class PerceptionPipeline:
             rho2 = self._radius2[frame.camera] = radius2_grid(K, w, h)
         return bias.correct(frame.depth, rho2)
 
-    def _points_of(self, frame: Frame, **kwargs):
+    def frame_points(self, frame: Frame, **kwargs):
+        """The frame's depth as points through the camera's calibrated lens (if set) with
+        its calibrated depth error taken out; `kwargs` go to `earcore.depth_to_points`
+        (e.g. `base_from_camera`, `return_pixels`)."""
         K, distortion = self.intrinsics.get(frame.camera, (frame.K, frame.distortion))
         return earcore.depth_to_points(
             self._depth_of(frame, K), K[0, 0], K[1, 1], K[0, 2], K[1, 2], distortion=distortion,
             max_depth=self.config.max_range, **kwargs,
         )
 
-    def _pose_of(self, frame: Frame) -> np.ndarray:
+    def camera_pose(self, frame: Frame) -> np.ndarray:
         """The pose the loop believes: the calibrated one if set; for a fixed camera with
         `pose_error`, its true pose perturbed once (a constant calibration error)."""
         if frame.camera in self.poses:
@@ -209,11 +212,11 @@ class PerceptionPipeline:
         fixed = [f for f in frames if self.fixed_cameras is None or f.camera in self.fixed_cameras]
         if len(fixed) < 2:
             return
-        poses = [self._pose_of(f) for f in fixed]
+        poses = [self.camera_pose(f) for f in fixed]
         origin = self.robot.base[:3, 3]
         clouds = []
         for f, pose in zip(fixed, poses):
-            local = self._points_of(f)
+            local = self.frame_points(f)
             # Only the working volume: the far floor and walls are planes that let
             # the alignment slide.
             in_base = local @ pose[:3, :3].T + pose[:3, 3]
@@ -251,8 +254,8 @@ class PerceptionPipeline:
         c = self.config
         origin = self.robot.base[:3, 3]
         t0 = time.perf_counter()
-        pose = self._pose_of(frame)
-        pts, pixels = self._points_of(frame, base_from_camera=pose, return_pixels=True)
+        pose = self.camera_pose(frame)
+        pts, pixels = self.frame_points(frame, base_from_camera=pose, return_pixels=True)
         report.points_in += len(pts)
         t1 = time.perf_counter()
         all_pts = pts

@@ -213,8 +213,8 @@ def test_far_points_clear_the_space_inside_the_crop_sphere():
             pipeline._insert_free_rays = lambda origins, lows, far: (cleared.extend(far), insert(origins, lows, far))
         pipeline.process(frames, cell.q, cell.time)
         known[clear] = pipeline
-    pose = known[True]._pose_of(frames[0])
-    points, pixels = known[True]._points_of(frames[0], base_from_camera=pose, return_pixels=True)
+    pose = known[True].camera_pose(frames[0])
+    points, pixels = known[True].frame_points(frames[0], base_from_camera=pose, return_pixels=True)
     base = cell.model.base[:3, 3]
     # End to end: the far rays are the points on the pixel grid (every stride-th row and
     # column) strictly beyond the crop radius, cut where they leave the sphere; no

@@ -391,7 +391,7 @@ def test_perception_uses_the_calibrated_lens_and_pose():
     rho2 = radius2_grid(K_TRUE, 512, 424)
     depth = 1.5 + entry.depth_bias.error(1.5, rho2)
     frame = Frame("cam", 0.0, np.zeros((424, 512, 3), np.uint8), depth, np.eye(3), np.eye(4))
-    points = pipeline._points_of(frame, base_from_camera=pipeline._pose_of(frame))
+    points = pipeline.frame_points(frame, base_from_camera=pipeline.camera_pose(frame))
     expected = earcore.depth_to_points(
         np.full((424, 512), 1.5), *K_TRUE[[0, 1, 0, 1], [0, 1, 2, 2]], distortion=D_TRUE, base_from_camera=entry.base_from_camera
     )
