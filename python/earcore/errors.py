@@ -6,6 +6,7 @@ catches every domain failure the toolkit reports. Shape and dtype mistakes are
     ├── OutOfMapError        a point outside the octree's addressable cube
     ├── MapFormatError       a .bt / .ot file that is not a valid map
     ├── UrdfError            a robot description that cannot be read (also a ValueError)
+    ├── ConfigError          a setting out of its range (also a ValueError)
     ├── PlanningError        earcore.planning: StartInCollision, GoalInCollision,
     │                        NoPathFound, UnreachablePose
     └── CalibrationError     earcore.calibration: BoardNotSeen, TooFewFrames,
@@ -18,8 +19,13 @@ from __future__ import annotations
 
 from earcore._earcore import EarcoreError, MapFormatError, OutOfMapError
 
-__all__ = ["EarcoreError", "MapFormatError", "OutOfMapError", "UrdfError"]
+__all__ = ["ConfigError", "EarcoreError", "MapFormatError", "OutOfMapError", "UrdfError"]
 
 
 class UrdfError(EarcoreError, ValueError):
     """A URDF file or one of its meshes is malformed, unsupported or missing."""
+
+
+class ConfigError(EarcoreError, ValueError):
+    """A setting (a configuration field, a command-line option) out of its range; the
+    message names the setting."""

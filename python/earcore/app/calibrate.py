@@ -13,11 +13,12 @@ camera succeeded. `--bump NAME` moves that camera 10 cm / 10° in the simulation
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from earcore.app.arguments import Parser, count, fail, positive
 
 __all__ = ["main"]
 
@@ -35,14 +36,14 @@ def main(argv: list[str] | None = None) -> int:
     from earcore.calibration.store import Calibration
     from earcore.transforms import perturb_pose
 
-    parser = argparse.ArgumentParser(prog="earcore calibrate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = Parser(prog="earcore calibrate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=Path("calibration.yaml"), help="the calibration file (default calibration.yaml)")
     parser.add_argument("--camera", nargs="*", default=None, help="calibrate (or check) only these cameras")
     parser.add_argument("--check", action="store_true", help="only check the cameras in --out against the board")
     parser.add_argument("--bump", nargs="*", default=[], help="simulation: move these cameras 10 cm / 10° first")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--camera-scale", type=float, default=1.0, help="camera resolution factor (1 = the sensors' own)")
-    parser.add_argument("--max-frames", type=int, default=20,
+    parser.add_argument("--seed", type=count, default=0)
+    parser.add_argument("--camera-scale", type=positive, default=1.0, help="camera resolution factor (1 = the sensors' own)")
+    parser.add_argument("--max-frames", type=lambda text: count(text, 3), default=20,
                         help="frames per camera (default 20: three cameras in under 3 minutes of motion; Paper I: ~30)")
     parser.add_argument("--full", action="store_true", help="the whole trajectory (both distances, every position)")
     parser.add_argument("--no-tilt", action="store_true", help="no tilting along the trajectory")
@@ -53,8 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.bump:
         cam = next((c for c in cell.cameras if c.name == name), None)
         if cam is None:
-            print(f"earcore calibrate: no camera {name!r}", file=sys.stderr)
-            return 2
+            return fail("earcore calibrate", f"argument --bump: no camera {name!r}; cameras: {[c.name for c in cell.cameras]}")
         cam.place(perturb_pose(cam.base_from_camera, 0.10, np.radians(10.0), bump_rng))
         _say(f"simulation: {name} bumped by 10 cm / 10°")
     settings = CalibrationConfig(max_frames=args.max_frames, tilt_fraction=0.0 if args.no_tilt else 0.7, seed=args.seed)
@@ -65,15 +65,13 @@ def main(argv: list[str] | None = None) -> int:
     names = args.camera or fixed
     unknown = sorted(set(names) - set(fixed))
     if unknown:
-        print(f"earcore calibrate: unknown cameras {unknown}; fixed cameras: {fixed}", file=sys.stderr)
-        return 2
+        return fail("earcore calibrate", f"argument --camera: unknown cameras {unknown}; fixed cameras: {fixed}")
 
     if args.check:
         try:
             existing = Calibration.load(args.out)
         except CalibrationFileError as exc:
-            print(f"earcore calibrate: {exc}", file=sys.stderr)
-            return 2
+            return fail("earcore calibrate", str(exc))
         moved = []
         for name in names:
             if name not in existing.cameras:
@@ -93,8 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         results = calibrator.run_to_file(args.out, names)
     except CalibrationError as exc:
-        print(f"earcore calibrate: {exc}; {args.out} left unchanged", file=sys.stderr)
-        return 1
+        return fail("earcore calibrate", f"{exc}; {args.out} left unchanged", 1)
     _say(f"wrote {args.out}: {', '.join(results)} ({calibrator.motion_time:.0f} s of robot motion, "
          f"{calibrator.solver_time:.1f} s in the solvers, {time.perf_counter() - started:.0f} s wall)")
     for name, cal in results.items():

@@ -1,9 +1,22 @@
-"""The `earcore` command."""
+"""The `earcore` command: one line on stderr and a non-zero exit for anything the user
+can fix (a bad option, a bad configuration file, a missing file); `--debug` shows the
+traceback instead."""
 
 from __future__ import annotations
 
-import argparse
 import sys
+
+from earcore.app.arguments import Parser
+
+__all__ = ["main"]
+
+
+def _is_user_error(exc: BaseException) -> bool:
+    """Failures a user can act on (a bad value, a missing file, a domain failure such as
+    a camera that never saw the board): reported in one line, not as a traceback."""
+    from earcore.errors import EarcoreError
+
+    return isinstance(exc, (ValueError, TypeError, OSError, EarcoreError))
 
 
 def _version() -> int:
@@ -16,10 +29,33 @@ def _version() -> int:
     return 0
 
 
+def _command(name: str, rest: list[str]) -> int:
+    if name == "run":
+        from earcore.app.run import main as run_main
+
+        return run_main(rest)
+    if name == "config":
+        from earcore.app.run import config_main
+
+        return config_main(rest)
+    if name == "calibrate":
+        from earcore.app.calibrate import main as calibrate_main
+
+        return calibrate_main(rest)
+    if name == "experiment":
+        from earcore.app.experiments.planning import main as experiment_main
+
+        return experiment_main(rest)
+    from earcore.app.demo import main as demo_main
+
+    return demo_main(rest)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    parser = argparse.ArgumentParser(prog="earcore", description="Environment-aware robot arm toolkit.")
+    parser = Parser(prog="earcore", description="Environment-aware robot arm toolkit.")
     parser.add_argument("--version", action="store_true", help="print the version (proves the extension loads)")
+    parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     sub = parser.add_subparsers(dest="command")
     sub.add_parser("demo", help="map demo: cameras, an obstacle passing, danger decaying (PNG + summary)", add_help=False)
     sub.add_parser("run", help="the simulated cell end to end: robot, cameras, a person, the map (PNGs + JSON)", add_help=False)
@@ -29,28 +65,30 @@ def main(argv: list[str] | None = None) -> int:
     args, rest = parser.parse_known_args(argv)
     if args.version:
         return _version()
-    if args.command == "run":
-        from earcore.app.run import main as run_main
+    if args.command is None:
+        if rest:
+            parser.error(f"unrecognized arguments: {' '.join(rest)}")
+        parser.print_help()
+        return 0
+    if "--debug" in rest:  # also accepted after the command
+        rest = [a for a in rest if a != "--debug"]
+        args.debug = True
+    try:
+        return _command(args.command, rest)
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        print(f"earcore {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if args.debug or not _is_user_error(exc):
+            raise
+        from earcore.errors import ConfigError
 
-        return run_main(rest)
-    if args.command == "config":
-        from earcore.app.run import config_main
-
-        return config_main(rest)
-    if args.command == "calibrate":
-        from earcore.app.calibrate import main as calibrate_main
-
-        return calibrate_main(rest)
-    if args.command == "experiment":
-        from earcore.app.experiments.planning import main as experiment_main
-
-        return experiment_main(rest)
-    if args.command == "demo":
-        from earcore.app.demo import main as demo_main
-
-        return demo_main(rest)
-    parser.print_help()
-    return 0 if not argv else 2
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        hint = "" if isinstance(exc, ConfigError) else " (--debug shows where)"
+        print(f"earcore {args.command}: error: {message}{hint}", file=sys.stderr)
+        return 2 if isinstance(exc, (ValueError, TypeError)) else 1
 
 
 if __name__ == "__main__":

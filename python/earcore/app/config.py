@@ -14,6 +14,7 @@ from typing import Any
 from earcore.perception.config import PerceptionConfig
 from earcore.planning.config import PlanningConfig
 from earcore.sim.config import CellConfig
+from earcore.validate import ConfigError, non_negative, positive, vector
 
 __all__ = ["RunConfig", "dump_toml", "load_config"]
 
@@ -30,6 +31,19 @@ class RunConfig:
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     planning: PlanningConfig = field(default_factory=PlanningConfig)
 
+    def validate(self) -> RunConfig:
+        """Raise `ConfigError` naming the first setting out of its range; returns self.
+        (Waypoints are checked against the robot's joints and limits when it is built.)"""
+        positive(self.duration, "duration")
+        for i, t in enumerate(self.snapshots):
+            non_negative(t, f"snapshots[{i}]")
+        for i, w in enumerate(self.waypoints):
+            vector(w, f"waypoints[{i}]")
+        self.cell.validate("cell")
+        self.perception.validate("perception")
+        self.planning.validate("planning")
+        return self
+
 
 def _dataclass_in(hint) -> Any:
     """The dataclass a field holds (`X`) or lists (`list[X]`), if any."""
@@ -41,28 +55,37 @@ def _dataclass_in(hint) -> Any:
     return None
 
 
+def _list(value, where: str) -> list:
+    if not isinstance(value, list):
+        raise ConfigError(f"{where} must be an array, got {value!r}")
+    return value
+
+
 def _build(cls, data: dict[str, Any], where: str):
     """`cls(**data)`, building nested dataclasses (and lists of them) by their field
     types and turning TOML arrays into the tuples the fields declare."""
     if not isinstance(data, dict):
-        raise ValueError(f"{where}: expected a table, got {type(data).__name__}")
+        raise ConfigError(f"{where} must be a table ([{where}]), got {data!r}")
     known = {f.name: f for f in fields(cls)}
     unknown = set(data) - set(known)
     if unknown:
-        raise ValueError(f"{where}: unknown keys {sorted(unknown)}; known: {sorted(known)}")
+        raise ConfigError(f"{where or 'the top level'}: unknown keys {sorted(unknown)}; known: {sorted(known)}")
     hints = typing.get_type_hints(cls)
     kwargs = {}
     for name, value in data.items():
         hint = hints[name]
+        key = f"{where}.{name}" if where else name
         nested = _dataclass_in(hint)
         if nested is not None and typing.get_origin(hint) is list:
-            value = [_build(nested, v, f"{where}.{name}[{i}]") for i, v in enumerate(value)]
+            value = [_build(nested, v, f"{key}[{i}]") for i, v in enumerate(_list(value, key))]
         elif nested is not None:
-            value = _build(nested, value, f"{where}.{name}")
+            value = _build(nested, value, key)
         elif typing.get_origin(hint) is tuple:
-            value = tuple(value)
+            value = tuple(_list(value, key))
         elif typing.get_origin(hint) is list and typing.get_origin(typing.get_args(hint)[0]) is tuple:
-            value = [tuple(v) for v in value]
+            value = [tuple(_list(v, f"{key}[{i}]")) for i, v in enumerate(_list(value, key))]
+        elif typing.get_origin(hint) is list:
+            value = _list(value, key)
         kwargs[name] = value
     return cls(**kwargs)
 
@@ -73,8 +96,13 @@ def load_config(path: str | Path) -> RunConfig:
     try:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path} is not valid TOML: {exc}") from exc
-    return _build(RunConfig, data, path.name)
+        raise ConfigError(f"{path} is not valid TOML: {exc}") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read {path}: {exc}") from exc
+    try:
+        return _build(RunConfig, data, "").validate()
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
 
 
 def _toml_value(v: Any) -> str:

@@ -19,7 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from earcore.app.arguments import Parser, count, fail, positive
 from earcore.app.config import RunConfig, dump_toml, load_config
+from earcore.errors import ConfigError
 
 __all__ = ["GroundTruthScore", "main", "run", "summarize"]
 
@@ -94,6 +96,13 @@ def _build(config: RunConfig, driver):
     if config.perception.min_height is not None:
         pipeline.add_support(*cell.table_box())
     waypoints = [np.asarray(w, float) for w in config.waypoints] or default_waypoints(config.cell.robot)
+    lo, hi = cell.model.joint_limits.T
+    for i, w in enumerate(waypoints):
+        if w.shape != (cell.model.dof,) or not ((lo <= w) & (w <= hi)).all():
+            cell.close()
+            raise ConfigError(
+                f"waypoints[{i}] must be {cell.model.dof} joint values within the {config.cell.robot}'s limits, got {w.tolist()}"
+            )
     executive = None
     if driver is not None:
         executive = driver(cell, pipeline)
@@ -122,6 +131,7 @@ def run(
     A-B-A shuttle (mode "none"), or by `driver(cell, pipeline)`: an object with
     `control(dt)`, `after_step()`, `on_frame()`, `summary()` and `finished` (e.g. the
     Fig. 7 circles in `earcore.app.experiments.planning`)."""
+    config.validate()
     out.mkdir(parents=True, exist_ok=True)
     cell, pipeline, executive, waypoints = _build(config, driver)
     path = waypoints[1:] + waypoints[::-1][1:]
@@ -275,12 +285,12 @@ def draw_snapshot(png: Path, pipeline, cell) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="earcore run", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = Parser(prog="earcore run", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", type=Path, help="TOML file (see `earcore config dump`); missing keys keep defaults")
-    parser.add_argument("--duration", type=float, help="simulated seconds (default 30)")
+    parser.add_argument("--duration", type=positive, help="simulated seconds (default 30)")
     parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default ./out)")
-    parser.add_argument("--seed", type=int, help="random seed of the cell (noise, random reaches)")
-    parser.add_argument("--camera-scale", type=float, help="render every camera at this fraction of its resolution")
+    parser.add_argument("--seed", type=count, help="random seed of the cell (noise, random reaches)")
+    parser.add_argument("--camera-scale", type=positive, help="render every camera at this fraction of its resolution")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--no-recording", action="store_true", help="skip the rerun recording (out/cell.rrd)")
     args = parser.parse_args(argv)
@@ -292,6 +302,7 @@ def main(argv: list[str] | None = None) -> int:
         config.cell.seed = args.seed
     if args.camera_scale is not None:
         config.cell.camera_scale = args.camera_scale
+    config.validate()
     record = not args.no_recording
     if record:
         try:
@@ -314,5 +325,4 @@ def config_main(argv: list[str]) -> int:
     if argv[:1] == ["dump"]:
         sys.stdout.write(dump_toml(RunConfig()))
         return 0
-    print("usage: earcore config dump   (prints every option with its default, as TOML)", file=sys.stderr)
-    return 2
+    return fail("earcore config", "the only command is `earcore config dump` (every option with its default, as TOML)")

@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from earcore.validate import ConfigError, count, finite, non_negative, one_of, positive, vector
+
 __all__ = ["PerceptionConfig"]
 
 
@@ -45,3 +47,24 @@ class PerceptionConfig:
     #: Perturb the ground-truth camera poses by this much (m, rad) before use, to
     #: exercise the refinement; 0 = ground truth.
     pose_error: tuple[float, float] = (0.0, 0.0)
+
+    def validate(self, where: str = "perception") -> PerceptionConfig:
+        """Raise `ConfigError` naming the first setting out of its range; returns self."""
+        positive(self.rate_hz, f"{where}.rate_hz", at_most=1000.0)
+        positive(self.resolution, f"{where}.resolution", at_most=10.0)
+        if self.resolution < 1e-4:
+            raise ConfigError(f"{where}.resolution must be at least 0.0001 m (0.1 mm), got {self.resolution!r}")
+        positive(self.crop_radius, f"{where}.crop_radius")
+        if self.min_height is not None:
+            finite(self.min_height, f"{where}.min_height")
+        count(self.outlier_k, f"{where}.outlier_k")
+        positive(self.outlier_std_ratio, f"{where}.outlier_std_ratio")
+        non_negative(self.voxel_size, f"{where}.voxel_size")
+        positive(self.max_range, f"{where}.max_range")
+        non_negative(self.danger_alpha, f"{where}.danger_alpha")
+        one_of(self.decay_mode, ("observed", "always"), f"{where}.decay_mode")
+        non_negative(self.self_filter_margin, f"{where}.self_filter_margin")
+        translation, rotation = vector(self.pose_error, f"{where}.pose_error", 2)
+        non_negative(translation, f"{where}.pose_error[0]")
+        non_negative(rotation, f"{where}.pose_error[1]")
+        return self

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from earcore.validate import ConfigError, count, finite, fraction, non_negative, one_of, positive
+
 __all__ = ["PlanningConfig"]
 
 
@@ -65,3 +67,26 @@ class PlanningConfig:
     #: Seconds of the run before planning starts, used to learn the static scene (the
     #: reflex layer tracks what is not part of it).
     warmup: float = 0.5
+
+    def validate(self, where: str = "planning") -> PlanningConfig:
+        """Raise `ConfigError` naming the first setting out of its range; returns self."""
+        one_of(self.mode, ("predictive", "reactive", "none"), f"{where}.mode")
+        positive(self.time_limit, f"{where}.time_limit")
+        count(self.attempts, f"{where}.attempts")
+        positive(self.resolution, f"{where}.resolution", at_most=3.15)
+        non_negative(self.replan_period, f"{where}.replan_period")
+        v = finite(self.replan_gain, f"{where}.replan_gain")
+        if not 0 <= v < 1:
+            raise ConfigError(f"{where}.replan_gain must be in [0, 1), got {self.replan_gain!r}")
+        positive(self.beta, f"{where}.beta")
+        positive(self.threshold, f"{where}.threshold")
+        fraction(self.backtrack_fraction, f"{where}.backtrack_fraction")
+        positive(self.move_away_distance, f"{where}.move_away_distance")
+        non_negative(self.min_separation, f"{where}.min_separation")
+        non_negative(self.person_margin, f"{where}.person_margin")
+        non_negative(self.blend_deviation, f"{where}.blend_deviation")
+        fraction(self.straight_share, f"{where}.straight_share", zero=False)
+        positive(self.position_tolerance, f"{where}.position_tolerance")
+        positive(self.orientation_tolerance, f"{where}.orientation_tolerance")
+        non_negative(self.warmup, f"{where}.warmup")
+        return self

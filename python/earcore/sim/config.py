@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from earcore.validate import ConfigError, count, fraction, non_negative, one_of, positive, vector
+
 __all__ = ["CameraConfig", "CellConfig", "PersonConfig", "calibration_cameras", "default_cameras"]
 
 
@@ -27,6 +29,18 @@ class CameraConfig:
     mount: str = "world"
     #: Frames per second (the paper: 15 for the Kinects, 30 for the F200).
     rate_hz: float = 15.0
+
+    def validate(self, where: str) -> CameraConfig:
+        from earcore.sim.sensors import SENSORS
+
+        one_of(self.sensor, sorted(SENSORS), f"{where}.sensor")
+        one_of(self.mount, ("world", "end_effector"), f"{where}.mount")
+        position = vector(self.position, f"{where}.position", 3)
+        target = vector(self.target, f"{where}.target", 3)
+        if self.mount == "world" and position == target:
+            raise ConfigError(f"{where}: position and target must differ (the camera looks from one at the other)")
+        positive(self.rate_hz, f"{where}.rate_hz", at_most=1000.0)
+        return self
 
 
 def default_cameras() -> list[CameraConfig]:
@@ -82,6 +96,28 @@ class PersonConfig:
     #: hid the first 15 cm of its reach.
     arrive_s: float = 0.75
 
+    def validate(self, where: str) -> PersonConfig:
+        vector(self.shoulder, f"{where}.shoulder", 3)
+        vector(self.rest_hand, f"{where}.rest_hand", 3)
+        positive(self.peak_speed, f"{where}.peak_speed", at_most=10.0)
+        starts = vector(self.reach_starts, f"{where}.reach_starts")
+        if any(s < 0 for s in starts):
+            raise ConfigError(f"{where}.reach_starts must be >= 0 s, got {self.reach_starts!r}")
+        if len(self.reach_targets) != len(starts):
+            raise ConfigError(f"{where}.reach_targets must have one target per reach start ({len(starts)}), got {len(self.reach_targets)}")
+        for i, target in enumerate(self.reach_targets):
+            vector(target, f"{where}.reach_targets[{i}]", 3)
+        non_negative(self.hold_s, f"{where}.hold_s")
+        for name, values in (("reach_speeds", self.reach_speeds), ("reach_holds", self.reach_holds)):
+            checked = vector(values, f"{where}.{name}")
+            if checked and len(checked) != len(starts):
+                raise ConfigError(f"{where}.{name} must be empty or have one entry per reach start ({len(starts)}), got {len(checked)}")
+            if any(v < 0 or (name == "reach_speeds" and v == 0) for v in checked):
+                raise ConfigError(f"{where}.{name} must be {'> 0' if name == 'reach_speeds' else '>= 0'}, got {values!r}")
+        non_negative(self.wander, f"{where}.wander")
+        non_negative(self.arrive_s, f"{where}.arrive_s")
+        return self
+
 
 @dataclass
 class CellConfig:
@@ -128,3 +164,34 @@ class CellConfig:
     max_acceleration: float = 3.0
     #: Simulation step (s); cameras capture at their own rates on this clock.
     time_step: float = 1.0 / 30.0
+
+    def validate(self, where: str = "cell") -> CellConfig:
+        """Raise `ConfigError` naming the first setting out of its range; returns self."""
+        from earcore.robots import BUILTIN_MODELS
+
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError(f"{where}.seed must be a whole number >= 0, got {self.seed!r}")
+        one_of(self.robot, sorted(BUILTIN_MODELS), f"{where}.robot")
+        non_negative(self.padding, f"{where}.padding")
+        for i, v in enumerate(vector(self.table_size, f"{where}.table_size", 2)):
+            positive(v, f"{where}.table_size[{i}]")
+        positive(self.table_height, f"{where}.table_height")
+        for i, box in enumerate(self.boxes):
+            b = vector(box, f"{where}.boxes[{i}]", 6)
+            if not all(b[k] < b[k + 3] for k in range(3)):
+                raise ConfigError(f"{where}.boxes[{i}] must be (x_min, y_min, z_min, x_max, y_max, z_max) with each min < max, got {box!r}")
+        names = [c.name for c in self.cameras]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"{where}.cameras: names must be unique, got {names}")
+        for i, camera in enumerate(self.cameras):
+            camera.validate(f"{where}.cameras[{i}]")
+        positive(self.camera_scale, f"{where}.camera_scale", at_most=4.0)
+        positive(self.colour_scale, f"{where}.colour_scale", at_most=4.0)
+        count(self.supersample, f"{where}.supersample")
+        one_of(self.robot_meshes, ("visual", "collision"), f"{where}.robot_meshes")
+        self.person.validate(f"{where}.person")
+        fraction(self.speed_fraction, f"{where}.speed_fraction", zero=False)
+        fraction(self.acceleration_fraction, f"{where}.acceleration_fraction", zero=False)
+        positive(self.max_acceleration, f"{where}.max_acceleration")
+        positive(self.time_step, f"{where}.time_step", at_most=0.1)
+        return self

@@ -38,7 +38,7 @@ def test_version_command_reports_a_broken_extension(tmp_path):
     fake.mkdir()
     src = Path(earcore.__file__).parent
     (fake / "app").mkdir()
-    for name in ("__init__.py", "__main__.py", "app/__init__.py", "app/cli.py"):
+    for name in ("__init__.py", "__main__.py", "app/__init__.py", "app/cli.py", "app/arguments.py"):
         (fake / name).write_text((src / name).read_text())
     (fake / "_earcore.py").write_text("raise ImportError('simulated: undefined symbol')\n")
     out = subprocess.run([sys.executable, "-m", "earcore", "--version"], capture_output=True, text=True, cwd=tmp_path)

@@ -164,10 +164,11 @@ def format_table(result: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    parser = argparse.ArgumentParser(prog="earcore experiment calibration", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--camera-scale", type=float, default=1.0, help="camera resolution factor")
+    from earcore.app.arguments import Parser, count, positive
+
+    parser = Parser(prog="earcore experiment calibration", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seed", type=count, default=0)
+    parser.add_argument("--camera-scale", type=positive, default=1.0, help="camera resolution factor")
     parser.add_argument("--out", type=Path, default=Path("out/calibration"))
     args = parser.parse_args(argv)
     result = calibration_table(args.seed, args.camera_scale, args.out,

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from earcore import DANGER_ON_HIT
+from earcore.app.arguments import Parser, count, positive, positive_int
 from earcore.app.config import RunConfig
 
 __all__ = ["CirclesDriver", "experiment_configs", "fig7", "main", "table2"]
@@ -366,12 +367,12 @@ def _draw_fig7(png: Path, driver: CirclesDriver, result: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="earcore experiment", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = Parser(prog="earcore experiment", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("name", choices=["table2", "fig7", "calibration"], help="which experiment (calibration: Paper I's Tables II-III)")
-    parser.add_argument("--repetitions", type=int, default=20, help="fig7: repetitions of the three circles (default 20)")
-    parser.add_argument("--trips", type=int, default=15, help="A-B-A return trips per experiment (default 15)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--camera-scale", type=float, default=0.25, help="camera resolution factor (rendering dominates the run time)")
+    parser.add_argument("--repetitions", type=positive_int, default=20, help="fig7: repetitions of the three circles (default 20)")
+    parser.add_argument("--trips", type=positive_int, default=15, help="A-B-A return trips per experiment (default 15)")
+    parser.add_argument("--seed", type=count, default=0)
+    parser.add_argument("--camera-scale", type=positive, default=0.25, help="camera resolution factor (rendering dominates the run time)")
     parser.add_argument("--only", nargs="*", help="run only these experiments, e.g. 'Exp. 3' Direct")
     parser.add_argument("--out", type=Path, default=Path("out/table2"), help="output folder (fig7: out/fig7)")
     if argv and argv[0] == "calibration":
@@ -379,6 +380,11 @@ def main(argv: list[str] | None = None) -> int:
 
         return calibration_main(argv[1:])
     args = parser.parse_args(argv)
+    names = list(experiment_configs(args.seed, args.camera_scale))
+    if args.only is not None and (not args.only or set(args.only) - set(names)):
+        unknown = sorted(set(args.only) - set(names))
+        parser.error(f"argument --only: {'unknown experiments ' + repr(unknown) if unknown else 'names no experiment'}; "
+                     f"choose from {', '.join(repr(n) for n in names)}")
     if args.name == "fig7":
         out = args.out if args.out != Path("out/table2") else Path("out/fig7")
         result = fig7(args.repetitions, args.camera_scale, out, args.seed)
