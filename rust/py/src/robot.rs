@@ -217,6 +217,7 @@ impl PyRobotModel {
         let index = py
             .detach(|| {
                 let t = tree.read_detached();
+                robot::robot_within_map(&self.read(), &t)?;
                 VoxelIndex::from_tree(&t, source, [centre.x, centre.y, centre.z], half)
             })
             .py()?;
@@ -263,7 +264,7 @@ impl PyRobotModel {
     fn check_q(&self, q: &[f64], k: usize) -> PyResult<()> {
         let model = self.read();
         let dof = model.dof();
-        for (i, row) in q.chunks(dof).enumerate().take(k) {
+        for (i, row) in q.chunks(dof.max(1)).enumerate().take(k) {
             model.chain().check_configuration(row, i).py()?;
         }
         Ok(())
@@ -682,7 +683,7 @@ impl PyRobotModel {
         }
         let index = self.index(py, tree, source)?;
         let params = CheckParams { self_collision };
-        let pairs: Vec<(&[f64], &[f64])> = a.chunks(dof).zip(b.chunks(dof)).collect();
+        let pairs: Vec<(&[f64], &[f64])> = a.chunks(dof.max(1)).zip(b.chunks(dof.max(1))).collect();
         let hits = py.detach(|| {
             let model = self.read();
             let results = earcore_core::threads::map_parts(&pairs, |(x, y)| {
@@ -707,7 +708,7 @@ impl PyRobotModel {
         self.check_q(&q, k)?;
         let hits = py.detach(|| {
             let model = self.read();
-            q.chunks(dof)
+            q.chunks(dof.max(1))
                 .map(|row| {
                     model.place(row).map(|p| {
                         model
