@@ -10,6 +10,10 @@ use pyo3::prelude::*;
 
 use crate::convert::{rows_to_array, vec_to_array};
 
+/// Most rays one synthetic frame may cast (a 4096 × 4096 image): sizes come from the
+/// caller, and the points are allocated before anything is cast.
+const MAX_RAYS: usize = 1 << 24;
+
 /// A finite (4, 4) pose in any numeric dtype (the shared converter, plus finiteness).
 fn pose_from(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Matrix4<f64>> {
     let m = crate::convert::pose(obj, name)?;
@@ -108,10 +112,19 @@ pub fn render_lidar_scan<'py>(
     if rings == 0
         || azimuth_steps == 0
         || !(max_range > 0.0 && noise_sigma >= 0.0 && vertical_fov_deg.is_finite())
+        || !(max_range.is_finite() && noise_sigma.is_finite())
     {
-        return Err(PyValueError::new_err(
-            "lidar needs rings, azimuth steps and a range > 0 and noise_sigma >= 0",
-        ));
+        return Err(PyValueError::new_err(format!(
+            "lidar needs rings and azimuth_steps > 0, a finite max_range > 0, a finite \
+             noise_sigma >= 0 and a finite vertical_fov_deg; got rings={rings}, \
+             azimuth_steps={azimuth_steps}, max_range={max_range}, noise_sigma={noise_sigma}, \
+             vertical_fov_deg={vertical_fov_deg}"
+        )));
+    }
+    if rings.saturating_mul(azimuth_steps) > MAX_RAYS {
+        return Err(PyValueError::new_err(format!(
+            "rings × azimuth_steps = {rings} × {azimuth_steps} is more than {MAX_RAYS} beams"
+        )));
     }
     let lidar = Lidar {
         rings,
@@ -154,10 +167,18 @@ pub fn render_depth_points<'py>(
         cy,
         max_depth,
     };
-    if width == 0 || height == 0 || !(fx > 0.0 && fy > 0.0 && max_depth > 0.0) {
-        return Err(PyValueError::new_err(
-            "camera needs a positive size, focal lengths and max_depth",
-        ));
+    let finite = [fx, fy, cx, cy, max_depth].iter().all(|v| v.is_finite());
+    if width == 0 || height == 0 || !(finite && fx > 0.0 && fy > 0.0 && max_depth > 0.0) {
+        return Err(PyValueError::new_err(format!(
+            "camera needs width and height > 0, finite fx, fy, max_depth > 0 and finite cx, cy; \
+             got width={width}, height={height}, fx={fx}, fy={fy}, cx={cx}, cy={cy}, \
+             max_depth={max_depth}"
+        )));
+    }
+    if width.saturating_mul(height) > MAX_RAYS {
+        return Err(PyValueError::new_err(format!(
+            "width × height = {width} × {height} is more than {MAX_RAYS} pixels"
+        )));
     }
     let shapes = shapes_from(py, spheres, boxes, floor_z)?;
     let pts = py.detach(|| render_points(&camera, &pose, &shapes));

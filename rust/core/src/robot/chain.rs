@@ -64,6 +64,11 @@ impl Frame {
     }
 }
 
+/// Largest length (m) a robot's geometry may hold: joint offsets, prismatic travel and
+/// body coordinates. Far beyond any arm (so only unit mistakes and garbage meet it), and
+/// it keeps the sums and squares of reach and sampling arithmetic far from overflow.
+pub const MAX_ROBOT_LENGTH: f64 = 1e4;
+
 /// How a joint moves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum JointKind {
@@ -242,6 +247,21 @@ impl Chain {
                     joint.name
                 )));
             }
+            if origin
+                .translation
+                .iter()
+                .any(|v| v.abs() > MAX_ROBOT_LENGTH)
+            {
+                return Err(Error::InvalidArgument(format!(
+                    "joint '{}' has an origin xyz {:?} beyond {MAX_ROBOT_LENGTH} m",
+                    joint.name,
+                    [
+                        origin.translation.x,
+                        origin.translation.y,
+                        origin.translation.z
+                    ]
+                )));
+            }
             let norm = joint.axis.norm();
             if joint.is_movable() && !(norm.is_finite() && norm > 1e-12) {
                 return Err(Error::InvalidArgument(format!(
@@ -257,6 +277,14 @@ impl Chain {
             {
                 return Err(Error::InvalidArgument(format!(
                     "joint '{}' has invalid limits [{}, {}]",
+                    joint.name, joint.lower, joint.upper
+                )));
+            }
+            if joint.kind == JointKind::Prismatic
+                && joint.lower.abs().max(joint.upper.abs()) > MAX_ROBOT_LENGTH
+            {
+                return Err(Error::InvalidArgument(format!(
+                    "prismatic joint '{}' has limits [{}, {}] beyond {MAX_ROBOT_LENGTH} m",
                     joint.name, joint.lower, joint.upper
                 )));
             }

@@ -450,25 +450,46 @@ pub fn motion_danger(
 ) -> Result<f64> {
     model.chain().check_configuration(q0, 0)?;
     model.chain().check_configuration(q1, 1)?;
-    let path = interpolate(q0, q1, resolution)?;
+    let steps = interpolate_steps(q0, q1, resolution)?;
+    robot_within_map(model, tree)?;
     let res = tree.resolution();
-    let danger = tree.danger_map();
-    let conv = tree.key_converter();
-    let mut scratch = Scratch::new(model);
-    // Sample parameters of each body's points.
-    let ts: Vec<Vec<f64>> = model
-        .bodies()
+    // Sample parameters of each body's points: one per map voxel of length, bounded so
+    // that a body far longer than the map's voxels is refused, not allocated.
+    let mut counts = Vec::new();
+    let mut points = 0.0;
+    for c in model.bodies().iter().flatten() {
+        let n = (c.axis.length() / res).ceil().max(1.0);
+        points += n + 1.0;
+        counts.push(n);
+    }
+    if !(points <= MAX_DANGER_POINTS as f64 && points * steps as f64 <= MAX_DANGER_WORK as f64) {
+        return Err(Error::InvalidArgument(format!(
+            "motion_danger would sample {points:.3e} body points at {} configurations \
+             (at most {MAX_DANGER_POINTS} points and {MAX_DANGER_WORK} point steps): \
+             use a coarser map or a coarser resolution",
+            steps + 1
+        )));
+    }
+    let ts: Vec<Vec<f64>> = counts
         .iter()
-        .filter_map(|b| b.as_ref())
-        .map(|c| {
-            let n = (c.axis.length() / res).ceil().max(1.0) as usize;
+        .map(|&n| {
+            let n = n as usize;
             (0..=n).map(|i| i as f64 / n as f64).collect()
         })
         .collect();
+    let danger = tree.danger_map();
+    let conv = tree.key_converter();
+    let mut scratch = Scratch::new(model);
+    let mut q = vec![0.0; q0.len()];
     let mut previous: Vec<Vec<[f64; 3]>> = Vec::new();
     let mut total = 0.0;
-    for q in &path {
-        model.place_into(q, &mut scratch.frames, &mut scratch.placed);
+    for s in 0..=steps {
+        // The configurations `interpolate` lists, one at a time.
+        let t = s as f64 / steps as f64;
+        for (j, v) in q.iter_mut().enumerate() {
+            *v = q0[j] + t * (q1[j] - q0[j]);
+        }
+        model.place_into(&q, &mut scratch.frames, &mut scratch.placed);
         let points: Vec<Vec<[f64; 3]>> = scratch
             .placed
             .bodies
@@ -498,6 +519,31 @@ pub fn motion_danger(
         previous = points;
     }
     Ok(total)
+}
+
+/// Most body points `motion_danger` samples per configuration.
+pub const MAX_DANGER_POINTS: usize = 1 << 20;
+
+/// Most body points × configurations one `motion_danger` call evaluates (about a
+/// second's work).
+pub const MAX_DANGER_WORK: usize = 1 << 28;
+
+/// Errors unless the sphere that holds the robot in every configuration (its base
+/// plus `reach_bound`) lies inside the area `tree` can address: beyond it the map
+/// cannot hold an obstacle, so a check there would answer "free" about space the map
+/// cannot see.
+pub fn robot_within_map(model: &RobotModel, tree: &OcTree) -> Result<()> {
+    let t = model.base().translation;
+    let reach = model.reach_bound();
+    let (_, limit) = tree.key_converter().metric_limits();
+    if !t.iter().all(|c| c.is_finite() && c.abs() + reach < limit) {
+        return Err(Error::OutOfBounds {
+            what: "the robot's base (its reach included)",
+            point: [t.x, t.y, t.z],
+            limit: (limit - reach).max(0.0),
+        });
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -17,10 +17,11 @@ pub use capsule::{
     closest_parameter_on_segment, lerp, point_segment_distance_squared, segment_box_closest,
     segment_segment_closest, Capsule,
 };
-pub use chain::{Chain, Frame, Joint, JointAxis, JointKind};
+pub use chain::{Chain, Frame, Joint, JointAxis, JointKind, MAX_ROBOT_LENGTH};
 pub use collision::{
     check_configurations, check_motion, clearances, clearances_to_boxes, interpolate,
-    motion_danger, touches_boxes, CheckParams, Contact, MAX_MOTION_STEPS,
+    motion_danger, robot_within_map, touches_boxes, CheckParams, Contact, MAX_DANGER_POINTS,
+    MAX_DANGER_WORK, MAX_MOTION_STEPS,
 };
 pub use fit::{fit_body, fit_capsule, fit_cylinder, FitShape};
 pub use follower::{Follower, Rollout};
@@ -28,4 +29,5 @@ pub use model::{LazyPlacement, PlacedBodies, RobotModel};
 pub use self_filter::self_filter;
 pub use voxel_index::{
     Clearance, ClearanceScratch, SampleVerdict, UndecidedRuns, VoxelIndex, VoxelSource,
+    MAX_INDEX_CELLS,
 };

@@ -3,7 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::robot::body::{AxisBounds, Body};
-use crate::robot::chain::{Chain, Frame, JointKind};
+use crate::robot::chain::{Chain, Frame, JointKind, MAX_ROBOT_LENGTH};
 use crate::synthetic::Rng;
 
 /// A robot: its kinematic chain, a body per link (link frame), the base's place
@@ -161,14 +161,25 @@ impl RobotModel {
                 chain.num_links()
             )));
         }
+        if chain.dof() == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "the robot has no movable joints ({} links, all joined by fixed joints): \
+                 a configuration would be empty, so there is nothing to move or check",
+                chain.num_links()
+            )));
+        }
         for (l, b) in bodies.iter().enumerate() {
             if let Some(body) = b {
                 let c = &body.axis;
-                let finite = c.a.iter().chain(&c.b).all(|v| v.is_finite());
-                if !(finite && c.radius.is_finite() && c.radius >= 0.0) {
+                let within = |v: &f64| v.is_finite() && v.abs() <= MAX_ROBOT_LENGTH;
+                if !(c.a.iter().chain(&c.b).all(within) && within(&c.radius) && c.radius >= 0.0) {
                     return Err(Error::InvalidArgument(format!(
-                        "the body of link '{}' is not valid: {body:?}",
-                        chain.link_names()[l]
+                        "the body of link '{}' must have finite end points and a radius >= 0, \
+                         all within {MAX_ROBOT_LENGTH} m; got a = {:?}, b = {:?}, radius = {}",
+                        chain.link_names()[l],
+                        c.a,
+                        c.b,
+                        c.radius
                     )));
                 }
             }
@@ -483,13 +494,18 @@ mod tests {
     use crate::na::Vector3;
     use crate::robot::chain::{Joint, JointKind};
 
-    /// A model of `n` links in a fixed chain, with no bodies of its own (the test
-    /// places bodies directly).
+    /// A model of `n` links in a chain (one revolute joint, then fixed ones), with no
+    /// bodies of its own (the test places bodies directly).
     fn fixed_chain(n: usize) -> RobotModel {
+        // One movable joint first: a model needs at least one coordinate.
         let joints = (1..n)
             .map(|c| Joint {
                 name: format!("j{c}"),
-                kind: JointKind::Fixed,
+                kind: if c == 1 {
+                    JointKind::Revolute
+                } else {
+                    JointKind::Fixed
+                },
                 parent: c - 1,
                 child: c,
                 origin: Frame::identity(),

@@ -82,9 +82,8 @@ impl VoxelIndex {
         bodies: &[Body],
         scratch: &mut ClearanceScratch,
     ) -> Result<Option<(usize, Clearance)>> {
-        if self.num_occupied == 0 {
-            return Ok(None);
-        }
+        // No early return for an empty index: the bodies are sampled all the same, so a
+        // body outside the index is an error here as in the collision checks.
         let ClearanceScratch {
             candidates,
             nearest,

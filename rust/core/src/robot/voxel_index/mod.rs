@@ -25,6 +25,9 @@ use crate::octree::{OcTree, OcTreeKey, TREE_DEPTH};
 
 const NONE: u32 = u32::MAX;
 
+/// Most cells a collision index may hold (13 bytes each: 832 MB at the limit).
+pub const MAX_INDEX_CELLS: usize = 64_000_000;
+
 /// Which voxels of the map count as obstacles.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum VoxelSource {
@@ -88,22 +91,36 @@ impl VoxelIndex {
                 "the index region {centre:?} ± {half_extent} is not finite"
             )));
         }
+        // Grid coordinates in floating point first: integer casts saturate (and their
+        // differences wrap) for regions far beyond what a cell count can hold.
+        let mut grid = [(0.0f64, 0.0f64); 3];
+        for (a, g) in grid.iter_mut().enumerate() {
+            // One spare cell each side so boxes touching the region's edge are seen.
+            *g = (
+                ((centre[a] - half_extent) / resolution).floor() - 1.0,
+                ((centre[a] + half_extent) / resolution).floor() + 1.0,
+            );
+        }
+        let cells_f: f64 = grid.iter().map(|(lo, hi)| hi - lo + 1.0).product();
+        // Grid coordinates beyond 2^52 lose whole cells to rounding.
+        let representable = grid
+            .iter()
+            .all(|(lo, hi)| lo.abs() < 4.5e15 && hi.abs() < 4.5e15);
+        if !(representable && cells_f <= MAX_INDEX_CELLS as f64) {
+            let per_axis = 2.0 * half_extent / resolution;
+            return Err(Error::InvalidArgument(format!(
+                "the collision index of the cube {centre:.3?} ± {half_extent:.3} m at {resolution} m \
+                 would need about {per_axis:.3e} cells per axis, more than {MAX_INDEX_CELLS} cells \
+                 in all; use a coarser map, a smaller index_margin or a robot base within the map"
+            )));
+        }
         let mut origin = [0i64; 3];
         let mut dims = [0usize; 3];
         for a in 0..3 {
-            // One spare cell each side so boxes touching the region's edge are seen.
-            let lo = ((centre[a] - half_extent) / resolution).floor() as i64 - 1;
-            let hi = ((centre[a] + half_extent) / resolution).floor() as i64 + 1;
-            origin[a] = lo;
-            dims[a] = (hi - lo + 1) as usize;
+            origin[a] = grid[a].0 as i64;
+            dims[a] = (grid[a].1 - grid[a].0) as usize + 1;
         }
         let cells = dims[0] * dims[1] * dims[2];
-        if cells > 64_000_000 {
-            return Err(Error::InvalidArgument(format!(
-                "the collision index would need {cells} cells ({:?}); use a coarser map or a smaller region",
-                dims
-            )));
-        }
         Ok(VoxelIndex {
             resolution,
             inverse_resolution: 1.0 / resolution,
