@@ -5,6 +5,7 @@ mod convert;
 mod errors;
 mod follower;
 mod icp;
+mod interrupt;
 mod octree;
 mod robot;
 mod surface;
@@ -53,6 +54,26 @@ fn get_num_threads() -> usize {
     earcore_core::threads::num_threads()
 }
 
+/// Take the core's pool lock before `os.fork` (registered by `earcore.parallel`), so
+/// no other thread holds it at the instant of the fork.
+#[pyfunction]
+fn _before_fork() {
+    earcore_core::threads::before_fork();
+}
+
+/// Release the pool lock in the parent after `os.fork`.
+#[pyfunction]
+fn _after_fork_in_parent() {
+    earcore_core::threads::after_fork_in_parent();
+}
+
+/// In a forked child: forget the parent's pool (its threads are not here; the next
+/// parallel call builds one) and release the lock.
+#[pyfunction]
+fn _after_fork_in_child() {
+    earcore_core::threads::after_fork_in_child();
+}
+
 #[pymodule]
 fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
@@ -77,6 +98,9 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(set_local_num_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(_before_fork, m)?)?;
+    m.add_function(wrap_pyfunction!(_after_fork_in_parent, m)?)?;
+    m.add_function(wrap_pyfunction!(_after_fork_in_child, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::voxel_codes, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_depth_points, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::benchmark_frame, m)?)?;
