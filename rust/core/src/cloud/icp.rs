@@ -271,6 +271,21 @@ pub fn icp_point_to_plane(
     initial: &Matrix4<f64>,
     params: IcpParams,
 ) -> Result<IcpResult> {
+    let result = icp_point_to_plane_interruptible(source, target, initial, params, &mut || false)?;
+    // Never asked to stop, so always a result.
+    result.ok_or_else(|| Error::InvalidArgument("ICP was interrupted".into()))
+}
+
+/// [`icp_point_to_plane`], asking `interrupt` on the calling thread after every
+/// iteration (one pass over the source, O(N) pair lookups); `Ok(None)` when it asked
+/// to stop. What `max_iterations` allows is thus stoppable however large it is.
+pub fn icp_point_to_plane_interruptible(
+    source: &[[f64; 3]],
+    target: &impl IcpTarget,
+    initial: &Matrix4<f64>,
+    params: IcpParams,
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Result<Option<IcpResult>> {
     crate::geometry::check_rigid(initial, "initial")?;
     if source.len() < 6 {
         return Err(Error::InvalidArgument(format!(
@@ -355,6 +370,9 @@ pub fn icp_point_to_plane(
             result.converged = true;
             break;
         }
+        if interrupt() {
+            return Ok(None);
+        }
     }
     // Re-orthonormalise the accumulated rotation (products drift by rounding).
     let rotation = Rotation3::from_matrix(&transform.fixed_view::<3, 3>(0, 0).into_owned());
@@ -362,7 +380,7 @@ pub fn icp_point_to_plane(
         .fixed_view_mut::<3, 3>(0, 0)
         .copy_from(rotation.matrix());
     result.transform = transform;
-    Ok(result)
+    Ok(Some(result))
 }
 
 /// Source points per parallel run (and cursor).

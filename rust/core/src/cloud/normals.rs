@@ -7,13 +7,30 @@ use crate::error::{Error, Result};
 use crate::na::{Matrix3, Vector3};
 use crate::threads;
 
+/// Unit normals and surface variations, one per point.
+pub type Normals = (Vec<[f64; 3]>, Vec<f64>);
+
 /// Unit normals (one per point) and the surface variation λ_min / (λ0 + λ1 + λ2)
 /// (0 on a perfect plane, 1/3 for isotropic scatter).
-pub fn estimate_normals(
+///
+/// Cost: O(N log N) for the index plus, per point, the k-neighbour query (O(k log k)
+/// beyond the points it visits) and O(k) for the covariance; k near N makes the
+/// whole O(N²): see [`estimate_normals_interruptible`] to stop such a call.
+pub fn estimate_normals(points: &[[f64; 3]], k: usize, viewpoint: [f64; 3]) -> Result<Normals> {
+    let result = estimate_normals_interruptible(points, k, viewpoint, &mut || false)?;
+    // Never asked to stop, so always computed.
+    result.ok_or_else(|| Error::InvalidArgument("normal estimation was interrupted".into()))
+}
+
+/// [`estimate_normals`], asking `interrupt` on the calling thread every few
+/// milliseconds of work (the points are processed in rounds sized by k); `Ok(None)`
+/// when it asked to stop.
+pub fn estimate_normals_interruptible(
     points: &[[f64; 3]],
     k: usize,
     viewpoint: [f64; 3],
-) -> Result<(Vec<[f64; 3]>, Vec<f64>)> {
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Result<Option<Normals>> {
     if k < 2 {
         return Err(Error::InvalidArgument(format!(
             "normals need k >= 2 neighbours, got {k}"
@@ -34,30 +51,40 @@ pub fn estimate_normals(
     let tree = KdTree::new(points);
     // Queries in Morton order hit the tree's memory coherently; results go back in place.
     let order = crate::geometry::morton_order(points);
-    let chunks: Vec<&[u32]> = order.chunks(4096).collect();
-    let parts = threads::map_parts(&chunks, |chunk| {
-        let mut nn = Vec::with_capacity(k);
-        chunk
-            .iter()
-            .map(|&i| {
-                let i = i as usize;
-                tree.knn(points[i], k, Some(i as u32), &mut nn);
-                let neighbourhood =
-                    std::iter::once(points[i]).chain(nn.iter().map(|&(_, j)| points[j as usize]));
-                (
-                    i,
-                    normal_of(neighbourhood, nn.len() + 1, points[i], viewpoint),
-                )
-            })
-            .collect::<Vec<_>>()
-    });
+    // A chunk's work grows with k: fewer points per chunk keep a round of chunks
+    // to milliseconds, so an interrupt is seen soon whatever k is.
+    let chunk = ((1usize << 17) / k).clamp(1, 4096);
+    let chunks: Vec<&[u32]> = order.chunks(chunk).collect();
+    let mapped = threads::map_parts_interruptible(
+        &chunks,
+        |chunk| {
+            let mut nn = Vec::with_capacity(k);
+            chunk
+                .iter()
+                .map(|&i| {
+                    let i = i as usize;
+                    tree.knn(points[i], k, Some(i as u32), &mut nn);
+                    let neighbourhood = std::iter::once(points[i])
+                        .chain(nn.iter().map(|&(_, j)| points[j as usize]));
+                    (
+                        i,
+                        normal_of(neighbourhood, nn.len() + 1, points[i], viewpoint),
+                    )
+                })
+                .collect::<Vec<_>>()
+        },
+        interrupt,
+    );
+    let Some(parts) = mapped else {
+        return Ok(None);
+    };
     let mut normals = vec![[0.0; 3]; points.len()];
     let mut variation = vec![0.0; points.len()];
     for (i, (n, v)) in parts.into_iter().flatten() {
         normals[i] = n;
         variation[i] = v;
     }
-    Ok((normals, variation))
+    Ok(Some((normals, variation)))
 }
 
 fn normal_of(
