@@ -5,11 +5,11 @@ whose batches are too small to share out.
 The core's thread pool belongs to the process that built it. A child made by
 `os.fork` (multiprocessing's default start method on Linux, hence DataLoader workers
 and many pipelines) starts a pool of its own on its first parallel call, so earcore
-works in forked children after the parent has used it; the hooks registered below
-keep the pool's lock free at the instant of the fork. Other locks still follow
-fork's usual rule: fork while no other thread is inside an earcore call on the same
-object (a map being written by another thread at that instant stays locked in the
-child).
+works in forked children after the parent has used it; hooks the extension registers
+with `os.register_at_fork` keep the pool's lock free at the instant of the fork.
+Other locks still follow fork's usual rule: fork while no other thread is inside an
+earcore call on the same object (a map being written by another thread at that
+instant stays locked in the child).
 
 Long calls can be stopped with Ctrl-C (`KeyboardInterrupt` within a fraction of a
 second) when made from the main thread: ICP (`icp_point_to_plane`, and so
@@ -19,22 +19,12 @@ points. An interrupted call returns nothing and changes nothing.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from earcore._earcore import (
-    _after_fork_in_child,
-    _after_fork_in_parent,
-    _before_fork,
-    get_num_threads,
-    set_local_num_threads,
-    set_num_threads,
-)
+from earcore._earcore import get_num_threads, set_local_num_threads, set_num_threads
 
 __all__ = ["get_num_threads", "set_num_threads", "threads"]
-
-os.register_at_fork(before=_before_fork, after_in_parent=_after_fork_in_parent, after_in_child=_after_fork_in_child)
 
 
 @contextmanager

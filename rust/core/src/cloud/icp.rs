@@ -512,4 +512,46 @@ mod tests {
         assert_eq!(kept.fitness, fresh.fitness);
         assert!(kept.transform[(0, 3)].abs() < 1e-3, "{}", kept.transform);
     }
+    /// An interrupt is asked after every iteration and stops the alignment there;
+    /// one that never asks to stop changes nothing.
+    #[test]
+    fn an_interrupt_stops_icp_between_iterations() {
+        let mut rng = Rng::new(6);
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        for _ in 0..600 {
+            let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
+            points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
+            normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        }
+        let target = PlaneTarget::new(&points, &normals).unwrap();
+        let source: Vec<[f64; 3]> = points.iter().map(|p| [p[0] + 0.02, p[1], p[2]]).collect();
+        let params = IcpParams {
+            max_iterations: 1_000_000_000,
+            translation_tolerance: 0.0,
+            rotation_tolerance: 0.0,
+            ..IcpParams::default()
+        };
+        let initial = Matrix4::identity();
+        let mut asked = 0;
+        let stopped =
+            icp_point_to_plane_interruptible(&source, &target, &initial, params, &mut || {
+                asked += 1;
+                asked == 3
+            });
+        assert_eq!(stopped, Ok(None));
+        assert_eq!(asked, 3);
+        let few = IcpParams {
+            max_iterations: 8,
+            ..params
+        };
+        let mut asked = 0;
+        let done = icp_point_to_plane_interruptible(&source, &target, &initial, few, &mut || {
+            asked += 1;
+            false
+        });
+        assert_eq!(asked, 8);
+        let plain = icp_point_to_plane(&source, &target, &initial, few).unwrap();
+        assert_eq!(done, Ok(Some(plain)));
+        assert!((plain.transform[(0, 3)] + 0.02).abs() < 1e-9);
+    }
 }

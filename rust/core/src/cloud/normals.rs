@@ -113,3 +113,98 @@ fn normal_of(
     };
     ([normal.x, normal.y, normal.z], variation)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::Rng;
+
+    /// Each point's neighbours by sorting every other point, the normal from
+    /// nalgebra's general eigen solver.
+    fn brute_force(points: &[[f64; 3]], k: usize, viewpoint: [f64; 3]) -> Normals {
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let mut others: Vec<(f64, usize)> = points
+                    .iter()
+                    .enumerate()
+                    .filter(|&(j, _)| j != i)
+                    .map(|(j, q)| (crate::geometry::distance_squared(p, q), j))
+                    .collect();
+                others.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                let hood: Vec<Vector3<f64>> = std::iter::once(*p)
+                    .chain(others[..k].iter().map(|&(_, j)| points[j]))
+                    .map(Vector3::from)
+                    .collect();
+                let mean = hood.iter().sum::<Vector3<f64>>() / hood.len() as f64;
+                let cov = hood.iter().fold(Matrix3::zeros(), |a, q| {
+                    a + (q - mean) * (q - mean).transpose()
+                }) / hood.len() as f64;
+                let eig = crate::na::SymmetricEigen::new(cov);
+                let lo = (0..3)
+                    .min_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]))
+                    .unwrap();
+                let mut n: Vector3<f64> = eig.eigenvectors.column(lo).into_owned();
+                if n.dot(&(Vector3::from(viewpoint) - Vector3::from(*p))) < 0.0 {
+                    n = -n;
+                }
+                ([n.x, n.y, n.z], eig.eigenvalues[lo] / eig.eigenvalues.sum())
+            })
+            .unzip()
+    }
+
+    #[test]
+    fn normals_equal_brute_force_for_small_and_large_k() {
+        let mut rng = Rng::new(3);
+        // A wavy sheet: every neighbourhood has one clear direction of least spread.
+        let points: Vec<[f64; 3]> = (0..600)
+            .map(|_| {
+                let (x, y) = (rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0));
+                [x, y, 0.1 * (2.0 * x).sin() + rng.uniform(-0.002, 0.002)]
+            })
+            .collect();
+        let viewpoint = [0.3, -0.2, 2.0];
+        // 10 keeps the neighbours in a sorted array, 60 and 300 in a heap.
+        for k in [10, 60, 300] {
+            let (normals, variation) = estimate_normals(&points, k, viewpoint).unwrap();
+            let (expected, expected_variation) = brute_force(&points, k, viewpoint);
+            for i in 0..points.len() {
+                let d = Vector3::from(normals[i]) - Vector3::from(expected[i]);
+                assert!(d.norm() < 1e-6, "k = {k}, point {i}: {normals:?}");
+                assert!(
+                    (variation[i] - expected_variation[i]).abs() < 1e-9,
+                    "k = {k}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn an_interrupt_stops_normal_estimation() {
+        let mut rng = Rng::new(4);
+        let points: Vec<[f64; 3]> = (0..2000)
+            .map(|_| [rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), 0.0])
+            .collect();
+        crate::threads::set_local_num_threads(Some(2));
+        // k = 1500: chunks of 87 points, three rounds of eight chunks.
+        let mut asked = 0;
+        let stopped = estimate_normals_interruptible(&points, 1500, [0.0, 0.0, 1.0], &mut || {
+            asked += 1;
+            true
+        });
+        assert_eq!(stopped, Ok(None));
+        assert_eq!(asked, 1);
+        let mut asked = 0;
+        let done = estimate_normals_interruptible(&points, 1500, [0.0, 0.0, 1.0], &mut || {
+            asked += 1;
+            false
+        });
+        crate::threads::set_local_num_threads(None);
+        assert_eq!(asked, 3);
+        assert_eq!(
+            done.unwrap().unwrap(),
+            estimate_normals(&points, 1500, [0.0, 0.0, 1.0]).unwrap()
+        );
+    }
+}
