@@ -100,7 +100,11 @@ def estimate_normals(
     """Unit surface normals (N, 3) from the principal components of each point and its
     `k` nearest neighbours, turned to face `viewpoint` (the sensor; the camera-frame
     origin by default). With `return_variation`, also each point's surface variation
-    λ_min / Σλ (0 on a plane, 1/3 for isotropic scatter)."""
+    λ_min / Σλ (0 on a plane, 1/3 for isotropic scatter).
+
+    Cost: O(N log N) plus, per point, a k-neighbour query and a k-point covariance;
+    k near N makes it O(N²), so the call is stoppable: Ctrl-C raises
+    `KeyboardInterrupt` within a fraction of a second (from the main thread)."""
     normals, variation = _earcore.estimate_normals(points, k, viewpoint)
     return (normals, variation) if return_variation else normals
 

@@ -3,8 +3,6 @@
 //! behind each point is known exactly.
 
 use crate::na::{Matrix4, Point3, Vector3};
-#[cfg(feature = "parallel")]
-use rayon::prelude::*;
 
 /// Pinhole depth camera (x right, y down, z forward).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -156,10 +154,9 @@ pub fn render_points(
         }
         out
     };
-    #[cfg(feature = "parallel")]
-    let rows: Vec<Vec<[f64; 3]>> = (0..camera.height).into_par_iter().map(row).collect();
-    #[cfg(not(feature = "parallel"))]
-    let rows: Vec<Vec<[f64; 3]>> = (0..camera.height).map(row).collect();
+    // The core's pool, not rayon's global one (which a forked child cannot use).
+    let v: Vec<usize> = (0..camera.height).collect();
+    let rows = crate::threads::map_parts(&v, |&v| row(v));
     rows.concat()
 }
 

@@ -1,18 +1,33 @@
-//! How many threads the core's parallel loops use.
+//! How many threads the core's parallel loops use, the pool they run on, and how a
+//! long call is stopped early.
 //!
 //! One process-wide setting: `set_num_threads(1)` runs everything on the calling
 //! thread (the single-core figures in the benchmarks), `0` means all cores. A thread
 //! may override it for the work it starts itself (`set_local_num_threads`), e.g. a
 //! reflex that must not wait for the pool while a map update uses every core.
+//!
+//! The pool is the core's own (rayon's global pool is never used) and belongs to the
+//! process that built it: a forked child, which inherits the pool's state but none of
+//! its threads, builds a new one on its first parallel call (see [`before_fork`]).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 static NUM_THREADS: AtomicUsize = AtomicUsize::new(0);
 static CORES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
 
+/// The pool parallel loops run on, with the process that built it.
 #[cfg(feature = "parallel")]
-static POOL: std::sync::Mutex<Option<(usize, std::sync::Arc<rayon::ThreadPool>)>> =
-    std::sync::Mutex::new(None);
+struct Pool {
+    pid: u32,
+    threads: usize,
+    pool: std::sync::Arc<rayon::ThreadPool>,
+}
+
+#[cfg(feature = "parallel")]
+type PoolSlot = std::sync::Mutex<Option<Pool>>;
+
+#[cfg(feature = "parallel")]
+static POOL: PoolSlot = std::sync::Mutex::new(None);
 
 /// Most worker threads that may be asked for: far beyond any machine's cores, far
 /// below the thousands whose spawning took minutes.
@@ -56,6 +71,80 @@ pub fn num_threads() -> usize {
     }
 }
 
+/// The pool of `n` threads for this process, built when missing, of another size or
+/// inherited from the parent of a fork; `None` when no threads can be had.
+#[cfg(feature = "parallel")]
+fn pool(n: usize) -> Option<std::sync::Arc<rayon::ThreadPool>> {
+    let pid = std::process::id();
+    let mut guard = POOL.lock().unwrap_or_else(|e| e.into_inner());
+    forget_if_inherited(&mut guard, pid);
+    if let Some(p) = guard.as_ref().filter(|p| p.threads == n) {
+        return Some(p.pool.clone());
+    }
+    let pool = std::sync::Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .ok()?,
+    );
+    *guard = Some(Pool {
+        pid,
+        threads: n,
+        pool: pool.clone(),
+    });
+    Some(pool)
+}
+
+/// Drop a pool built by another process (the parent of a fork) without touching it:
+/// its threads do not exist here, and dropping it would signal them through locks
+/// one of them may have held when the process forked.
+#[cfg(feature = "parallel")]
+fn forget_if_inherited(slot: &mut Option<Pool>, pid: u32) {
+    if slot.as_ref().is_some_and(|p| p.pid != pid) {
+        std::mem::forget(slot.take());
+    }
+}
+
+#[cfg(feature = "parallel")]
+thread_local! {
+    /// The pool's lock, held by the forking thread from [`before_fork`] to the
+    /// `after_fork_*` call on either side.
+    static FORK_GUARD: std::cell::RefCell<Option<std::sync::MutexGuard<'static, Option<Pool>>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Call in the thread about to fork (Python's `os.register_at_fork(before=...)`):
+/// takes the pool's lock so that no other thread holds it at the instant of the
+/// fork, which would leave it locked for ever in the child. Follow it with
+/// [`after_fork_in_parent`] in the parent and [`after_fork_in_child`] in the child.
+/// Without these calls a child still builds its own pool (the pool records its
+/// process), unless another thread held the lock at that instant.
+pub fn before_fork() {
+    #[cfg(feature = "parallel")]
+    {
+        let guard = POOL.lock().unwrap_or_else(|e| e.into_inner());
+        FORK_GUARD.with(|slot| *slot.borrow_mut() = Some(guard));
+    }
+}
+
+/// Call in the parent after a fork (or a failed fork) begun with [`before_fork`]:
+/// releases the pool's lock.
+pub fn after_fork_in_parent() {
+    #[cfg(feature = "parallel")]
+    FORK_GUARD.with(|slot| drop(slot.borrow_mut().take()));
+}
+
+/// Call in the child after a fork begun with [`before_fork`]: forgets the parent's
+/// pool (the next parallel call builds one here) and releases the lock.
+pub fn after_fork_in_child() {
+    #[cfg(feature = "parallel")]
+    FORK_GUARD.with(|slot| {
+        if let Some(mut guard) = slot.borrow_mut().take() {
+            forget_if_inherited(&mut guard, std::process::id());
+        }
+    });
+}
+
 /// Map `f` over `parts` (in parallel when more than one thread is allowed) and
 /// return the results in order.
 pub fn map_parts<T: Sync, R: Send>(parts: &[T], f: impl Fn(&T) -> R + Sync + Send) -> Vec<R> {
@@ -66,27 +155,40 @@ pub fn map_parts<T: Sync, R: Send>(parts: &[T], f: impl Fn(&T) -> R + Sync + Sen
     #[cfg(feature = "parallel")]
     {
         use rayon::prelude::*;
-        let pool = {
-            let mut guard = POOL.lock().unwrap_or_else(|e| e.into_inner());
-            match guard.as_ref() {
-                Some((size, pool)) if *size == n => pool.clone(),
-                _ => match rayon::ThreadPoolBuilder::new().num_threads(n).build() {
-                    Ok(pool) => {
-                        let pool = std::sync::Arc::new(pool);
-                        *guard = Some((n, pool.clone()));
-                        pool
-                    }
-                    // No threads to be had: run on the caller's thread.
-                    Err(_) => return parts.iter().map(f).collect(),
-                },
-            }
-        };
-        pool.install(|| parts.par_iter().map(f).collect())
+        match pool(n) {
+            Some(pool) => pool.install(|| parts.par_iter().map(f).collect()),
+            // No threads to be had: run on the caller's thread.
+            None => parts.iter().map(f).collect(),
+        }
     }
     #[cfg(not(feature = "parallel"))]
     {
         parts.iter().map(f).collect()
     }
+}
+
+/// Asked by a long call between bounded steps, on the thread that made the call:
+/// `true` stops the call early. The bindings run Python's signal handlers here, so
+/// that Ctrl-C stops the call.
+pub type Interrupt<'a> = dyn FnMut() -> bool + 'a;
+
+/// [`map_parts`] in rounds of a few parts per thread, asking `interrupt` on the
+/// calling thread after each round; `None` when it asked to stop (the parts left
+/// are not computed). Size the parts so that a round takes milliseconds.
+pub fn map_parts_interruptible<T: Sync, R: Send>(
+    parts: &[T],
+    f: impl Fn(&T) -> R + Sync + Send,
+    interrupt: &mut Interrupt<'_>,
+) -> Option<Vec<R>> {
+    let round = num_threads().max(1) * 4;
+    let mut out = Vec::with_capacity(parts.len());
+    for chunk in parts.chunks(round) {
+        out.extend(map_parts(chunk, &f));
+        if interrupt() {
+            return None;
+        }
+    }
+    Some(out)
 }
 
 #[cfg(test)]
@@ -115,5 +217,66 @@ mod tests {
             (0..10).map(|x| x * 2).collect::<Vec<_>>()
         );
         set_local_num_threads(None);
+    }
+
+    #[test]
+    fn an_interrupted_map_stops_between_rounds() {
+        set_local_num_threads(Some(2));
+        let parts: Vec<u32> = (0..100).collect();
+        let done = std::sync::atomic::AtomicUsize::new(0);
+        let f = |x: &u32| {
+            done.fetch_add(1, Ordering::Relaxed);
+            x * 3
+        };
+        // Never asked to stop: every part, in order.
+        assert_eq!(
+            map_parts_interruptible(&parts, f, &mut || false),
+            Some((0..100).map(|x| x * 3).collect())
+        );
+        // Asked to stop after the second round: two rounds computed, nothing returned.
+        done.store(0, Ordering::Relaxed);
+        let mut asked = 0;
+        let stop = map_parts_interruptible(&parts, f, &mut || {
+            asked += 1;
+            asked == 2
+        });
+        assert_eq!(stop, None);
+        assert_eq!(asked, 2);
+        assert_eq!(done.load(Ordering::Relaxed), 2 * 2 * 4);
+        set_local_num_threads(None);
+    }
+
+    #[cfg(feature = "parallel")]
+    #[test]
+    fn a_pool_built_by_another_process_is_replaced_not_used() {
+        let inherited = std::sync::Arc::new(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(2)
+                .build()
+                .unwrap(),
+        );
+        let mut slot = Some(Pool {
+            pid: std::process::id().wrapping_add(1),
+            threads: 2,
+            pool: inherited.clone(),
+        });
+        forget_if_inherited(&mut slot, std::process::id());
+        assert!(slot.is_none());
+        // Forgotten, not dropped: the reference it held is still counted.
+        assert_eq!(std::sync::Arc::strong_count(&inherited), 2);
+        // This process's own pool is kept.
+        let own = std::sync::Arc::new(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(2)
+                .build()
+                .unwrap(),
+        );
+        let mut slot = Some(Pool {
+            pid: std::process::id(),
+            threads: 2,
+            pool: own,
+        });
+        forget_if_inherited(&mut slot, std::process::id());
+        assert!(slot.is_some());
     }
 }

@@ -1,12 +1,13 @@
 //! Point-to-plane ICP: `PlaneTarget` (points + normals + index, built once) and the solver.
 
-use earcore_core::cloud::{icp_point_to_plane, IcpParams, IcpResult, PlaneTarget};
+use earcore_core::cloud::{icp_point_to_plane_interruptible, IcpParams, IcpResult, PlaneTarget};
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray2};
 use pyo3::prelude::*;
 
 use crate::convert::{points, pose};
 use crate::errors::IntoPyResult;
+use crate::interrupt::detach_interruptible;
 use crate::surface::PySurfaceMap;
 
 /// Target of point-to-plane ICP: points (N, 3) with normals (N, 3) and a neighbour
@@ -78,7 +79,7 @@ fn to_py(py: Python<'_>, r: IcpResult) -> PyResult<PyIcpResult> {
 }
 
 /// Align `source` (N, 3) to a `PlaneTarget` or a `SurfaceMap` from `initial` (4, 4;
-/// identity if None).
+/// identity if None). Ctrl-C stops it between iterations (KeyboardInterrupt).
 #[pyfunction]
 #[pyo3(signature = (source, target, initial=None, *, max_iterations=50, max_correspondence_distance=0.2,
                     translation_tolerance=1e-7, rotation_tolerance=1e-7, huber_delta=None))]
@@ -109,14 +110,24 @@ pub fn icp_point_to_plane_raw(
     };
     let result = if let Ok(t) = target.cast::<PyPlaneTarget>() {
         let t = t.get();
-        py.detach(|| icp_point_to_plane(src, &t.inner, &initial, params))
+        detach_interruptible(py, |stop| {
+            icp_point_to_plane_interruptible(src, &t.inner, &initial, params, stop)
+        })?
     } else if let Ok(m) = target.cast::<PySurfaceMap>() {
         let m = m.get();
-        py.detach(|| icp_point_to_plane(src, &*m.read(), &initial, params))
+        detach_interruptible(py, |stop| {
+            icp_point_to_plane_interruptible(src, &*m.read(), &initial, params, stop)
+        })?
     } else {
         return Err(pyo3::exceptions::PyTypeError::new_err(
             "target must be a PlaneTarget or a SurfaceMap",
         ));
     };
-    to_py(py, result.py()?)
+    match result.py()? {
+        Some(r) => to_py(py, r),
+        // Stopped only when a signal handler raised, which detach_interruptible returned.
+        None => Err(pyo3::exceptions::PyKeyboardInterrupt::new_err(
+            "ICP was interrupted",
+        )),
+    }
 }

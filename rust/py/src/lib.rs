@@ -5,6 +5,7 @@ mod convert;
 mod errors;
 mod follower;
 mod icp;
+mod interrupt;
 mod octree;
 mod robot;
 mod surface;
@@ -53,6 +54,26 @@ fn get_num_threads() -> usize {
     earcore_core::threads::num_threads()
 }
 
+/// Take the core's pool lock before `os.fork`, so no other thread holds it at the
+/// instant of the fork.
+#[pyfunction]
+fn _before_fork() {
+    earcore_core::threads::before_fork();
+}
+
+/// Release the pool lock in the parent after `os.fork`.
+#[pyfunction]
+fn _after_fork_in_parent() {
+    earcore_core::threads::after_fork_in_parent();
+}
+
+/// In a forked child: forget the parent's pool (its threads are not here; the next
+/// parallel call builds one) and release the lock.
+#[pyfunction]
+fn _after_fork_in_child() {
+    earcore_core::threads::after_fork_in_child();
+}
+
 #[pymodule]
 fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
@@ -77,6 +98,16 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(get_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(set_local_num_threads, m)?)?;
+    // Registered with os.fork, not exported: a forked child then builds its own pool.
+    let hooks = pyo3::types::PyDict::new(py);
+    hooks.set_item("before", wrap_pyfunction!(_before_fork, m)?)?;
+    hooks.set_item(
+        "after_in_parent",
+        wrap_pyfunction!(_after_fork_in_parent, m)?,
+    )?;
+    hooks.set_item("after_in_child", wrap_pyfunction!(_after_fork_in_child, m)?)?;
+    py.import("os")?
+        .call_method("register_at_fork", (), Some(&hooks))?;
     m.add_function(wrap_pyfunction!(cloud::voxel_codes, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_depth_points, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::benchmark_frame, m)?)?;

@@ -271,6 +271,21 @@ pub fn icp_point_to_plane(
     initial: &Matrix4<f64>,
     params: IcpParams,
 ) -> Result<IcpResult> {
+    let result = icp_point_to_plane_interruptible(source, target, initial, params, &mut || false)?;
+    // Never asked to stop, so always a result.
+    result.ok_or_else(|| Error::InvalidArgument("ICP was interrupted".into()))
+}
+
+/// [`icp_point_to_plane`], asking `interrupt` on the calling thread after every
+/// iteration (one pass over the source, O(N) pair lookups); `Ok(None)` when it asked
+/// to stop. What `max_iterations` allows is thus stoppable however large it is.
+pub fn icp_point_to_plane_interruptible(
+    source: &[[f64; 3]],
+    target: &impl IcpTarget,
+    initial: &Matrix4<f64>,
+    params: IcpParams,
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Result<Option<IcpResult>> {
     crate::geometry::check_rigid(initial, "initial")?;
     if source.len() < 6 {
         return Err(Error::InvalidArgument(format!(
@@ -355,6 +370,9 @@ pub fn icp_point_to_plane(
             result.converged = true;
             break;
         }
+        if interrupt() {
+            return Ok(None);
+        }
     }
     // Re-orthonormalise the accumulated rotation (products drift by rounding).
     let rotation = Rotation3::from_matrix(&transform.fixed_view::<3, 3>(0, 0).into_owned());
@@ -362,7 +380,7 @@ pub fn icp_point_to_plane(
         .fixed_view_mut::<3, 3>(0, 0)
         .copy_from(rotation.matrix());
     result.transform = transform;
-    Ok(result)
+    Ok(Some(result))
 }
 
 /// Source points per parallel run (and cursor).
@@ -493,5 +511,47 @@ mod tests {
         assert_eq!(kept.rmse, fresh.rmse);
         assert_eq!(kept.fitness, fresh.fitness);
         assert!(kept.transform[(0, 3)].abs() < 1e-3, "{}", kept.transform);
+    }
+    /// An interrupt is asked after every iteration and stops the alignment there;
+    /// one that never asks to stop changes nothing.
+    #[test]
+    fn an_interrupt_stops_icp_between_iterations() {
+        let mut rng = Rng::new(6);
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        for _ in 0..600 {
+            let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
+            points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
+            normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        }
+        let target = PlaneTarget::new(&points, &normals).unwrap();
+        let source: Vec<[f64; 3]> = points.iter().map(|p| [p[0] + 0.02, p[1], p[2]]).collect();
+        let params = IcpParams {
+            max_iterations: 1_000_000_000,
+            translation_tolerance: 0.0,
+            rotation_tolerance: 0.0,
+            ..IcpParams::default()
+        };
+        let initial = Matrix4::identity();
+        let mut asked = 0;
+        let stopped =
+            icp_point_to_plane_interruptible(&source, &target, &initial, params, &mut || {
+                asked += 1;
+                asked == 3
+            });
+        assert_eq!(stopped, Ok(None));
+        assert_eq!(asked, 3);
+        let few = IcpParams {
+            max_iterations: 8,
+            ..params
+        };
+        let mut asked = 0;
+        let done = icp_point_to_plane_interruptible(&source, &target, &initial, few, &mut || {
+            asked += 1;
+            false
+        });
+        assert_eq!(asked, 8);
+        let plain = icp_point_to_plane(&source, &target, &initial, few).unwrap();
+        assert_eq!(done, Ok(Some(plain)));
+        assert!((plain.transform[(0, 3)] + 0.02).abs() < 1e-9);
     }
 }

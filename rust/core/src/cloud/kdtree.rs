@@ -7,6 +7,10 @@ use crate::geometry::distance_squared;
 /// A leaf holds at most this many points.
 const LEAF_SIZE: usize = 8;
 
+/// Up to this k, k-nearest-neighbour queries keep their best in a sorted array
+/// (fastest for small k); beyond it, in a heap.
+const SORTED_K: usize = 48;
+
 #[derive(Clone, Copy, Debug)]
 enum Node {
     /// Points `order[start..end]`.
@@ -166,14 +170,76 @@ impl KdTree {
         (best.1 != u32::MAX).then_some(best)
     }
 
-    /// The `k` nearest points to `q` as (squared distance, index), nearest first,
-    /// leaving out the point with index `exclude` (a query point's own entry).
+    /// The `k` nearest points to `q` as (squared distance, index), nearest first
+    /// (ties by index), leaving out the point with index `exclude` (a query point's
+    /// own entry). O(k log k) beyond the points visited, for any k.
     pub fn knn(&self, q: [f64; 3], k: usize, exclude: Option<u32>, out: &mut Vec<(f64, u32)>) {
         out.clear();
         if k == 0 || self.nodes.is_empty() {
             return;
         }
-        self.search(0, q, k, exclude, out);
+        if k <= SORTED_K {
+            self.search(0, q, k, exclude, out);
+            return;
+        }
+        let mut heap = std::collections::BinaryHeap::with_capacity(k.min(self.len()));
+        self.search_heap(0, q, k, exclude, &mut heap);
+        out.extend(
+            heap.into_sorted_vec()
+                .into_iter()
+                .map(|(d, i)| (f64::from_bits(d), i)),
+        );
+    }
+
+    /// `search` for large k: the k best so far in a max-heap of (distance bits,
+    /// index), where an insertion costs O(log k) instead of shifting up to k entries
+    /// (which made k near N quadratic per query). Squared distances are never
+    /// negative, so their bits order as the numbers do.
+    fn search_heap(
+        &self,
+        node: u32,
+        q: [f64; 3],
+        k: usize,
+        exclude: Option<u32>,
+        best: &mut std::collections::BinaryHeap<(u64, u32)>,
+    ) {
+        match self.nodes[node as usize] {
+            Node::Leaf { start, end } => {
+                let (start, end) = (start as usize, end as usize);
+                for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
+                    if Some(i) == exclude {
+                        continue;
+                    }
+                    let entry = (distance_squared(p, &q).to_bits(), i);
+                    if best.len() < k {
+                        best.push(entry);
+                    } else if best.peek().is_some_and(|&worst| entry < worst) {
+                        best.pop();
+                        best.push(entry);
+                    }
+                }
+            }
+            Node::Split {
+                axis,
+                value,
+                left,
+                right,
+            } => {
+                let diff = q[axis as usize] - value;
+                let (near, far) = if diff < 0.0 {
+                    (left, right)
+                } else {
+                    (right, left)
+                };
+                self.search_heap(near, q, k, exclude, best);
+                let worst = best
+                    .peek()
+                    .map_or(f64::INFINITY, |&(d, _)| f64::from_bits(d));
+                if best.len() < k || diff * diff <= worst {
+                    self.search_heap(far, q, k, exclude, best);
+                }
+            }
+        }
     }
 
     fn search(
@@ -283,7 +349,6 @@ mod tests {
         let mut out = Vec::new();
         for qi in 0..290 {
             let q = pts[qi * 7];
-            tree.knn(q, 10, Some((qi * 7) as u32), &mut out);
             let mut brute: Vec<(f64, u32)> = pts
                 .iter()
                 .enumerate()
@@ -296,8 +361,11 @@ mod tests {
                 })
                 .collect();
             brute.sort_by(|a, b| a.partial_cmp(b).unwrap());
-            brute.truncate(10);
-            assert_eq!(out, brute);
+            // The sorted array (k = 10) and the heap (k beyond SORTED_K, up to all).
+            for k in [10, SORTED_K + 1, 300, pts.len() - 1, pts.len() + 5] {
+                tree.knn(q, k, Some((qi * 7) as u32), &mut out);
+                assert_eq!(out, brute[..k.min(brute.len())], "k = {k}");
+            }
         }
     }
 }

@@ -15,9 +15,12 @@ mod voxel_grid;
 pub use clusters::cluster_points;
 pub use crop::{crop_box, crop_sphere};
 pub use depth::{depth_to_points, BrownConrady, DepthFrame, Intrinsics};
-pub use icp::{icp_point_to_plane, IcpParams, IcpResult, IcpTarget, PlaneTarget, SurfaceCursor};
+pub use icp::{
+    icp_point_to_plane, icp_point_to_plane_interruptible, IcpParams, IcpResult, IcpTarget,
+    PlaneTarget, SurfaceCursor,
+};
 pub use kdtree::KdTree;
-pub use normals::estimate_normals;
+pub use normals::{estimate_normals, estimate_normals_interruptible};
 pub use outliers::{statistical_outliers, OutlierParams};
 pub use rigid_fit::{rigid_fit, rigid_fit_ransac, RansacFit};
 pub use voxel_grid::{pack_cell, voxel_codes, voxel_downsample};
