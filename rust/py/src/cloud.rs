@@ -155,9 +155,15 @@ pub fn statistical_outlier_indices<'py>(
 ) -> PyResult<IndexAndValues<'py>> {
     let pts = self::points(points, "points")?;
     let slice = pts.as_slice()?;
-    let (idx, dist) = py
-        .detach(|| cloud::statistical_outliers(slice, OutlierParams { k, std_ratio }))
-        .py()?;
+    let found = detach_interruptible(py, |stop| {
+        cloud::statistical_outliers_interruptible(slice, OutlierParams { k, std_ratio }, stop)
+    })?;
+    let Some((idx, dist)) = found.py()? else {
+        // Stopped only when a signal handler raised, which detach_interruptible returned.
+        return Err(pyo3::exceptions::PyKeyboardInterrupt::new_err(
+            "outlier removal was interrupted",
+        ));
+    };
     Ok((vec_to_array(py, idx), vec_to_array(py, dist)))
 }
 
@@ -290,9 +296,15 @@ pub fn rigid_fit_ransac<'py>(
 ) -> PyResult<TransformInliersRmse<'py>> {
     let (s, d) = (self::points(src, "src")?, self::points(dst, "dst")?);
     let (s, d) = (s.as_slice()?, d.as_slice()?);
-    let fit = py
-        .detach(|| cloud::rigid_fit_ransac(s, d, threshold, iterations, seed))
-        .py()?;
+    let found = detach_interruptible(py, |stop| {
+        cloud::rigid_fit_ransac_interruptible(s, d, threshold, iterations, seed, stop)
+    })?;
+    let Some(fit) = found.py()? else {
+        // Stopped only when a signal handler raised, which detach_interruptible returned.
+        return Err(pyo3::exceptions::PyKeyboardInterrupt::new_err(
+            "RANSAC was interrupted",
+        ));
+    };
     Ok((
         matrix4_to_array(py, &fit.transform),
         vec_to_array(py, fit.inliers),

@@ -178,6 +178,14 @@ LONG_CALLS = {
         call = lambda: earcore.icp_point_to_plane(
             source, surface, max_iterations=10**12, translation_tolerance=0.0, rotation_tolerance=0.0)
         """,
+    "RANSAC with a huge iteration cap": """
+        src = np.random.default_rng(3).uniform(-1, 1, (50_000, 3))
+        call = lambda: earcore.rigid_fit_ransac(src, src + 0.1, 0.01, iterations=10**12)
+        """,
+    "outlier removal with k near N": """
+        points = np.random.default_rng(4).uniform(-1, 1, (150_000, 3))
+        call = lambda: earcore.remove_statistical_outliers(points, len(points) - 1)
+        """,
 }
 
 

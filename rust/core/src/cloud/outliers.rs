@@ -30,6 +30,18 @@ pub fn statistical_outliers(
     points: &[[f64; 3]],
     params: OutlierParams,
 ) -> Result<(Vec<u32>, Vec<f64>)> {
+    statistical_outliers_interruptible(points, params, &mut || false)?
+        .ok_or_else(|| Error::InvalidArgument("outlier removal was interrupted".into()))
+}
+
+/// [`statistical_outliers`], asking `interrupt` on the calling thread between rounds
+/// of the neighbour search (sized so a round takes milliseconds whatever `k` is);
+/// `Ok(None)` when it asked to stop.
+pub fn statistical_outliers_interruptible(
+    points: &[[f64; 3]],
+    params: OutlierParams,
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Result<Option<(Vec<u32>, Vec<f64>)>> {
     if params.k == 0 || !params.std_ratio.is_finite() {
         return Err(Error::InvalidArgument(format!(
             "need k >= 1 and a finite std_ratio, got {params:?}"
@@ -54,11 +66,14 @@ pub fn statistical_outliers(
     } else {
         1.0
     };
-    let mut mean_distance = if scale == 1.0 {
-        mean_knn_distances(points, params.k)
+    let found = if scale == 1.0 {
+        mean_knn_distances(points, params.k, interrupt)
     } else {
         let scaled: Vec<[f64; 3]> = points.iter().map(|p| p.map(|c| c * scale)).collect();
-        mean_knn_distances(&scaled, params.k)
+        mean_knn_distances(&scaled, params.k, interrupt)
+    };
+    let Some(mut mean_distance) = found else {
+        return Ok(None);
     };
     let n = mean_distance.len() as f64;
     let mean = mean_distance.iter().sum::<f64>() / n;
@@ -76,7 +91,7 @@ pub fn statistical_outliers(
             *d /= scale;
         }
     }
-    Ok((inliers, mean_distance))
+    Ok(Some((inliers, mean_distance)))
 }
 
 /// Every point's mean distance to its `k` nearest neighbours (itself excluded).
@@ -91,35 +106,40 @@ pub fn statistical_outliers(
 /// k-th neighbour distance of a sample, measured exactly on a first, coarser grid.
 /// Clouds whose density a grid of at most 16 cells per point cannot resolve (far
 /// apart clusters, heaps of duplicates) go to a k-d tree instead.
-fn mean_knn_distances(points: &[[f64; 3]], k: usize) -> Vec<f64> {
+fn mean_knn_distances(
+    points: &[[f64; 3]],
+    k: usize,
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Option<Vec<f64>> {
     let n = points.len();
     let (lo, hi) = crate::geometry::bounds(points);
     let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
     if extent == 0.0 {
-        return vec![0.0; n]; // every point is the same point
+        return Some(vec![0.0; n]); // every point is the same point
     }
     let (Some(first_cell), Some(finest_cell)) = (
         coarse_cell(lo, hi, extent, 4 * n),
         coarse_cell(lo, hi, extent, 16 * n),
     ) else {
-        return kd_tree_means(points, k);
+        return kd_tree_means(points, k, interrupt);
     };
     let Some(first) = CellGrid::new(points, first_cell, lo, hi) else {
-        return kd_tree_means(points, k);
+        return kd_tree_means(points, k, interrupt);
     };
     let mut search = Searcher::new(first_cell);
     let step = (n / 64).max(1);
-    let mut sample: Vec<f64> = (0..n)
-        .step_by(step)
-        .map(|i| {
-            let c = first.cell_of(&points[i]);
-            search.nearest(&first, points[i], c, k, 1).1.sqrt()
-        })
-        .collect();
+    let mut sample: Vec<f64> = Vec::with_capacity(n / step + 1);
+    for i in (0..n).step_by(step) {
+        let c = first.cell_of(&points[i]);
+        sample.push(search.nearest(&first, points[i], c, k, 1).1.sqrt());
+        if interrupt() {
+            return None; // with k near N each of these searches is long
+        }
+    }
     sample.sort_unstable_by(f64::total_cmp);
     let typical = sample[(sample.len() * 9 / 10).min(sample.len() - 1)];
     if typical < finest_cell / 4.0 {
-        return kd_tree_means(points, k);
+        return kd_tree_means(points, k, interrupt);
     }
     let cell = typical.max(finest_cell);
     let grid = if cell > first_cell / 1.5 && cell < first_cell * 1.5 {
@@ -127,54 +147,67 @@ fn mean_knn_distances(points: &[[f64; 3]], k: usize) -> Vec<f64> {
     } else {
         match CellGrid::new(points, cell, lo, hi) {
             Some(grid) => grid,
-            None => return kd_tree_means(points, k),
+            None => return kd_tree_means(points, k, interrupt),
         }
     };
     let occupied: Vec<u32> = (0..grid.cells() as u32)
         .filter(|&j| grid.starts[j as usize] < grid.starts[j as usize + 1])
         .collect();
-    let chunks: Vec<&[u32]> = occupied.chunks(256).collect();
-    let parts = threads::map_parts(&chunks, |chunk| {
-        let mut search = Searcher::new(grid.cell);
-        let mut results: Vec<(u32, f64)> = Vec::new();
-        for &j in chunk.iter() {
-            let c = grid.coords_of(j as usize);
-            grid.gather(c, 1, &mut search.block);
-            let (s, e) = (grid.starts[j as usize], grid.starts[j as usize + 1]);
-            for at in s as usize..e as usize {
-                let q = grid.position(at);
-                let sum = match search.settle(&grid, q, c, 1, k) {
-                    Some((sum, _)) => sum,
-                    None => search.nearest(&grid, q, c, k, 2).0,
-                };
-                results.push((grid.order[at], sum / k as f64));
+    // Fewer cells per part for large k, so that a round stays short.
+    let chunks: Vec<&[u32]> = occupied.chunks((16384 / k).clamp(1, 256)).collect();
+    let parts = threads::map_parts_interruptible(
+        &chunks,
+        |chunk| {
+            let mut search = Searcher::new(grid.cell);
+            let mut results: Vec<(u32, f64)> = Vec::new();
+            for &j in chunk.iter() {
+                let c = grid.coords_of(j as usize);
+                grid.gather(c, 1, &mut search.block);
+                let (s, e) = (grid.starts[j as usize], grid.starts[j as usize + 1]);
+                for at in s as usize..e as usize {
+                    let q = grid.position(at);
+                    let sum = match search.settle(&grid, q, c, 1, k) {
+                        Some((sum, _)) => sum,
+                        None => search.nearest(&grid, q, c, k, 2).0,
+                    };
+                    results.push((grid.order[at], sum / k as f64));
+                }
             }
-        }
-        results
-    });
+            results
+        },
+        interrupt,
+    )?;
     let mut mean_distance = vec![0.0; n];
     for (i, m) in parts.into_iter().flatten() {
         mean_distance[i as usize] = m;
     }
-    mean_distance
+    Some(mean_distance)
 }
 
 /// The same answer from a k-d tree, for clouds a grid cannot serve.
-fn kd_tree_means(points: &[[f64; 3]], k: usize) -> Vec<f64> {
+fn kd_tree_means(
+    points: &[[f64; 3]],
+    k: usize,
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Option<Vec<f64>> {
     let tree = KdTree::new(points);
     let indices: Vec<u32> = (0..points.len() as u32).collect();
-    let chunks: Vec<&[u32]> = indices.chunks(1024).collect();
-    threads::map_parts(&chunks, |chunk| {
-        let mut nn = Vec::with_capacity(k);
-        chunk
-            .iter()
-            .map(|&i| {
-                tree.knn(points[i as usize], k, Some(i), &mut nn);
-                nn.iter().map(|&(d2, _)| d2.sqrt()).sum::<f64>() / k as f64
-            })
-            .collect::<Vec<f64>>()
-    })
-    .concat()
+    let chunks: Vec<&[u32]> = indices.chunks((65536 / k).clamp(1, 1024)).collect();
+    let parts = threads::map_parts_interruptible(
+        &chunks,
+        |chunk| {
+            let mut nn = Vec::with_capacity(k);
+            chunk
+                .iter()
+                .map(|&i| {
+                    tree.knn(points[i as usize], k, Some(i), &mut nn);
+                    nn.iter().map(|&(d2, _)| d2.sqrt()).sum::<f64>() / k as f64
+                })
+                .collect::<Vec<f64>>()
+        },
+        interrupt,
+    )?;
+    Some(parts.concat())
 }
 
 /// The smallest cell edge (the box's longest side halved again and again) for which
@@ -681,7 +714,7 @@ mod tests {
     }
 
     fn assert_same(points: &[[f64; 3]], k: usize, what: &str) {
-        let got = mean_knn_distances(points, k);
+        let got = mean_knn_distances(points, k, &mut || false).unwrap();
         let want = brute_force(points, k);
         for (i, (g, w)) in got.iter().zip(&want).enumerate() {
             assert!(
@@ -774,8 +807,8 @@ mod tests {
             .collect();
         assert_same(&few, 20, "k + 1 points");
         assert_eq!(
-            mean_knn_distances(&[[0.5, 0.5, 0.5]; 30], 20),
-            vec![0.0; 30]
+            mean_knn_distances(&[[0.5, 0.5, 0.5]; 30], 20, &mut || false),
+            Some(vec![0.0; 30])
         );
         // Squared distances beyond f64's range (the review's case) or below it.
         for spacing in [1e153, 1e-160] {
@@ -840,5 +873,28 @@ mod tests {
                 assert!((sum - want).abs() < 1e-12 && (slow_sum - want).abs() < 1e-12);
             }
         }
+    }
+
+    #[test]
+    fn an_interrupt_stops_outlier_removal_between_rounds() {
+        let mut rng = crate::synthetic::Rng::new(7);
+        let points: Vec<[f64; 3]> = (0..20_000)
+            .map(|_| [rng.unit(), rng.unit(), rng.unit()])
+            .collect();
+        let params = OutlierParams {
+            k: 20,
+            std_ratio: 2.0,
+        };
+        let mut asked = 0;
+        let stopped = statistical_outliers_interruptible(&points, params, &mut || {
+            asked += 1;
+            true
+        })
+        .unwrap();
+        assert!(stopped.is_none() && asked == 1);
+        let whole = statistical_outliers_interruptible(&points, params, &mut || false)
+            .unwrap()
+            .unwrap();
+        assert_eq!(whole, statistical_outliers(&points, params).unwrap());
     }
 }

@@ -58,6 +58,21 @@ pub fn rigid_fit_ransac(
     iterations: usize,
     seed: u64,
 ) -> Result<RansacFit> {
+    rigid_fit_ransac_interruptible(src, dst, threshold, iterations, seed, &mut || false)?
+        .ok_or_else(|| Error::InvalidArgument("RANSAC was interrupted".into()))
+}
+
+/// [`rigid_fit_ransac`], asking `interrupt` on the calling thread after every
+/// hypothesis (one O(N) scoring pass); `Ok(None)` when it asked to stop, so however
+/// many `iterations` are allowed the call can be stopped.
+pub fn rigid_fit_ransac_interruptible(
+    src: &[[f64; 3]],
+    dst: &[[f64; 3]],
+    threshold: f64,
+    iterations: usize,
+    seed: u64,
+    interrupt: &mut crate::threads::Interrupt<'_>,
+) -> Result<Option<RansacFit>> {
     check_pairs(src, dst)?;
     if !(threshold.is_finite() && threshold * threshold > 0.0) {
         return Err(Error::InvalidArgument(format!(
@@ -81,6 +96,9 @@ pub fn rigid_fit_ransac(
     let mut rng = Rng::new(seed);
     let mut best: Option<(usize, f64, Matrix4<f64>)> = None;
     for _ in 0..iterations.max(1) {
+        if interrupt() {
+            return Ok(None);
+        }
         let pick = [0, 1, 2].map(|_| ((rng.unit() * n as f64) as usize).min(n - 1));
         if pick[0] == pick[1] || pick[1] == pick[2] || pick[0] == pick[2] {
             continue;
@@ -124,11 +142,11 @@ pub fn rigid_fit_ransac(
     } else {
         f64::NAN
     };
-    Ok(RansacFit {
+    Ok(Some(RansacFit {
         transform,
         inliers,
         rmse,
-    })
+    }))
 }
 
 fn check_pairs(src: &[[f64; 3]], dst: &[[f64; 3]]) -> Result<()> {
@@ -313,5 +331,27 @@ mod tests {
         assert!(rigid_fit(&a, &b, None).is_err());
         assert!(rigid_fit_ransac(&a, &a, 0.0, 10, 0).is_err());
         assert!(rigid_fit(&a, &a, Some(&[1.0, -1.0, 1.0])).is_err());
+    }
+
+    #[test]
+    fn an_interrupt_stops_ransac_between_hypotheses() {
+        let src: Vec<[f64; 3]> = (0..50)
+            .map(|i| {
+                let t = i as f64;
+                [t.sin(), (0.7 * t).cos(), 0.1 * t]
+            })
+            .collect();
+        let dst: Vec<[f64; 3]> = src.iter().map(|p| [p[0] + 0.5, p[1], p[2]]).collect();
+        let mut asked = 0;
+        let stopped = rigid_fit_ransac_interruptible(&src, &dst, 0.01, 1 << 40, 0, &mut || {
+            asked += 1;
+            asked > 3
+        })
+        .unwrap();
+        assert!(stopped.is_none() && asked == 4);
+        let fit = rigid_fit_ransac_interruptible(&src, &dst, 0.01, 50, 0, &mut || false)
+            .unwrap()
+            .unwrap();
+        assert!((fit.transform[(0, 3)] - 0.5).abs() < 1e-9 && fit.inliers.iter().all(|&b| b));
     }
 }
