@@ -89,7 +89,7 @@ impl DangerMap {
         if !(params.alpha.is_finite() && params.alpha >= 0.0) {
             return Err(Error::InvalidArgument(format!(
                 "alpha must be finite and ≥ 0, got {}",
-                params.alpha
+                crate::geometry::fmt_num(params.alpha)
             )));
         }
         self.params = params;
@@ -117,7 +117,8 @@ impl DangerMap {
     pub fn end_frame(&mut self, dt: f64) -> Result<FrameReport> {
         if !(dt.is_finite() && dt >= 0.0) {
             return Err(Error::InvalidArgument(format!(
-                "dt must be a finite, non-negative time in seconds, got {dt}"
+                "dt must be a finite, non-negative time in seconds, got {}",
+                crate::geometry::fmt_num(dt)
             )));
         }
         let dt_alpha = dt * self.params.alpha;
@@ -157,7 +158,8 @@ impl DangerMap {
     pub fn set_value(&mut self, m: u64, c: f32) -> Result<()> {
         if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
             return Err(Error::InvalidArgument(format!(
-                "danger must lie in [0, 1], got {c}"
+                "danger must lie in [0, 1], got {}",
+                crate::geometry::fmt_num(f64::from(c))
             )));
         }
         if c > 0.0 {

@@ -88,11 +88,7 @@ fn parse_header(bytes: &[u8], first_line: &str) -> Result<(Header, usize)> {
     let id = id.ok_or_else(|| Error::Format("header has no 'id'".into()))?;
     let size = size.ok_or_else(|| Error::Format("header has no 'size'".into()))?;
     let resolution = resolution.ok_or_else(|| Error::Format("header has no 'res'".into()))?;
-    if !(resolution.is_finite() && resolution > 0.0) {
-        return Err(Error::Format(format!(
-            "resolution must be positive, found {resolution}"
-        )));
-    }
+    super::key::check_resolution(resolution).map_err(|e| Error::Format(e.to_string()))?;
     Ok((
         Header {
             id,
@@ -125,6 +121,18 @@ impl Reader<'_> {
         })?;
         self.pos = end;
         Ok(chunk.try_into().expect("slice length is N"))
+    }
+
+    /// The tree's data must end the file. OctoMap's readers stop after the tree and
+    /// never look further, but neither writer puts anything there: bytes after the
+    /// tree are a second tree, a concatenation or corruption, not part of this map.
+    fn finish(&self) -> Result<()> {
+        match self.bytes.len() - self.pos.min(self.bytes.len()) {
+            0 => Ok(()),
+            extra => Err(Error::Format(format!(
+                "{extra} bytes after the tree's data (a map file holds one tree and ends with it)"
+            ))),
+        }
     }
 }
 
@@ -242,11 +250,12 @@ impl OcTree {
     pub fn read_binary_bytes(bytes: &[u8], params: OccupancyParams) -> Result<OcTree> {
         let (head, start) = parse_header(bytes, BINARY_HEADER)?;
         let mut tree = OcTree::with_params(head.resolution, params)?;
+        let mut r = Reader { bytes, pos: start };
         if head.size > 0 {
-            let mut r = Reader { bytes, pos: start };
             tree.root = tree.arena.alloc(tree.lo.clamp_max);
             tree.read_binary_node(tree.root, 0, &mut r)?;
         }
+        r.finish()?;
         if tree.size() != head.size {
             return Err(Error::Format(format!(
                 "header says {} nodes, data holds {}",
@@ -322,8 +331,8 @@ impl OcTree {
             )));
         }
         let mut tree = OcTree::with_params(head.resolution, params)?;
+        let mut r = Reader { bytes, pos: start };
         if head.size > 0 {
-            let mut r = Reader { bytes, pos: start };
             tree.root = tree.arena.alloc(0.0);
             // (node, depth) in the order the file lists them.
             let mut stack = vec![(tree.root, 0u32)];
@@ -350,6 +359,7 @@ impl OcTree {
                 stack.extend(created.into_iter().rev().map(|c| (c, depth + 1)));
             }
         }
+        r.finish()?;
         if tree.size() != head.size {
             return Err(Error::Format(format!(
                 "header says {} nodes, data holds {}",
@@ -358,5 +368,73 @@ impl OcTree {
             )));
         }
         Ok(tree)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small_tree() -> OcTree {
+        let mut tree = OcTree::new(0.1).unwrap();
+        let points = [[1.0, 0.5, 0.25], [-0.7, 0.3, 1.1], [0.2, -0.9, 0.4]];
+        tree.insert_point_cloud(&points, [0.0; 3], None, false)
+            .unwrap();
+        tree
+    }
+
+    #[test]
+    fn bytes_after_the_tree_are_refused() {
+        let tree = small_tree();
+        let params = OccupancyParams::default();
+        let bt = tree.write_binary_bytes();
+        let ot = tree.write_full_bytes();
+        let empty_bt = OcTree::new(0.1).unwrap().write_binary_bytes();
+        let empty_ot = OcTree::new(0.1).unwrap().write_full_bytes();
+        type Reader = fn(&[u8], OccupancyParams) -> Result<OcTree>;
+        let readers: [(&[u8], Reader); 4] = [
+            (&bt, OcTree::read_binary_bytes),
+            (&ot, OcTree::read_full_bytes),
+            (&empty_bt, OcTree::read_binary_bytes),
+            (&empty_ot, OcTree::read_full_bytes),
+        ];
+        for (bytes, read) in readers {
+            // The file as written reads back to the same bytes.
+            assert!(read(bytes, params).is_ok());
+            // One stray byte, a newline, or a second copy of the whole file.
+            for tail in [&[0u8][..], b"\n", bytes] {
+                let mut longer = bytes.to_vec();
+                longer.extend_from_slice(tail);
+                match read(&longer, params) {
+                    Err(Error::Format(msg)) => {
+                        assert!(
+                            msg.contains(&format!("{} bytes after", tail.len())),
+                            "{msg}"
+                        )
+                    }
+                    other => panic!("{} trailing bytes gave {other:?}", tail.len()),
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn header_resolutions_outside_the_key_range_are_refused() {
+        let ot =
+            String::from_utf8_lossy(&OcTree::new(0.1).unwrap().write_full_bytes()).into_owned();
+        for res in [
+            "1e-100", "1e-19", "2e14", "1e308", "0", "-0.1", "inf", "nan",
+        ] {
+            let bytes = ot.replace("res 0.1", &format!("res {res}"));
+            match OcTree::read_full_bytes(bytes.as_bytes(), OccupancyParams::default()) {
+                Err(Error::Format(msg)) => assert!(msg.contains("resolution"), "{msg}"),
+                other => panic!("res {res} gave {other:?}"),
+            }
+        }
+        for res in ["1e-18", "1e14"] {
+            let bytes = ot.replace("res 0.1", &format!("res {res}"));
+            let tree = OcTree::read_full_bytes(bytes.as_bytes(), OccupancyParams::default());
+            assert!(tree.is_ok(), "res {res}");
+        }
     }
 }
