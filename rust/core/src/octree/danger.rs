@@ -192,6 +192,79 @@ impl DangerMap {
         &self.last_obstacles
     }
 
+    /// Append the whole state (parameters, dangerous cells, the open frame's hits and
+    /// free sightings, the last frame's obstacles) to `out`, sets in sorted order.
+    pub(crate) fn write_state(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.params.alpha.to_le_bytes());
+        out.push(match self.params.mode {
+            DecayMode::Observed => 0,
+            DecayMode::Always => 1,
+        });
+        let cells = self.sorted_cells();
+        out.extend_from_slice(&(cells.len() as u64).to_le_bytes());
+        for (m, c) in cells {
+            out.extend_from_slice(&m.to_le_bytes());
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+        let sorted = |set: &FxHashSet<u64>| {
+            let mut v: Vec<u64> = set.iter().copied().collect();
+            v.sort_unstable();
+            v
+        };
+        for codes in [
+            sorted(&self.frame_hits),
+            sorted(&self.frame_seen_free),
+            self.last_obstacles.clone(),
+        ] {
+            out.extend_from_slice(&(codes.len() as u64).to_le_bytes());
+            for m in codes {
+                out.extend_from_slice(&m.to_le_bytes());
+            }
+        }
+    }
+
+    /// Read what `write_state` wrote, checking every value.
+    pub(crate) fn read_state(r: &mut super::io::Reader<'_>) -> Result<DangerMap> {
+        let bad = |what: String| Error::Format(format!("danger state: {what}"));
+        let alpha = f64::from_le_bytes(r.take::<8>()?);
+        let mode = match r.take::<1>()? {
+            [0] => DecayMode::Observed,
+            [1] => DecayMode::Always,
+            _ => return Err(bad("unknown decay mode".into())),
+        };
+        let mut map = DangerMap::default();
+        map.set_params(DangerParams { alpha, mode })
+            .map_err(|e| bad(e.to_string()))?;
+        // Morton codes of 16-bit keys have 48 bits.
+        let code = |r: &mut super::io::Reader<'_>| {
+            let m = u64::from_le_bytes(r.take::<8>()?);
+            if m >> 48 == 0 {
+                Ok(m)
+            } else {
+                Err(bad(format!("cell code {m:#x} has more than 48 bits")))
+            }
+        };
+        let count = |r: &mut super::io::Reader<'_>| r.take::<8>().map(u64::from_le_bytes);
+        for _ in 0..count(r)? {
+            let m = code(r)?;
+            let c = f32::from_le_bytes(r.take::<4>()?);
+            if !(c > 0.0 && c <= DANGER_ON_HIT) {
+                return Err(bad(format!("danger {c} outside (0, {DANGER_ON_HIT}]")));
+            }
+            map.active.insert(m, c);
+        }
+        let codes = |r: &mut super::io::Reader<'_>| -> Result<Vec<u64>> {
+            (0..count(r)?).map(|_| code(r)).collect()
+        };
+        map.frame_hits = codes(r)?.into_iter().collect();
+        map.frame_seen_free = codes(r)?.into_iter().collect();
+        map.last_obstacles = codes(r)?;
+        if !map.last_obstacles.is_sorted() {
+            return Err(bad("last frame's obstacles are not sorted".into()));
+        }
+        Ok(map)
+    }
+
     /// Bytes held by the map's tables, spare capacity included.
     pub fn memory_usage(&self) -> usize {
         (self.active.capacity() * 12)

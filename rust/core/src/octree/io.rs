@@ -104,13 +104,13 @@ fn truncate(s: &str) -> String {
 }
 
 /// A cursor over the data section that fails cleanly at the end.
-struct Reader<'a> {
+pub(crate) struct Reader<'a> {
     bytes: &'a [u8],
     pos: usize,
 }
 
 impl Reader<'_> {
-    fn take<const N: usize>(&mut self) -> Result<[u8; N]> {
+    pub(crate) fn take<const N: usize>(&mut self) -> Result<[u8; N]> {
         let end = self.pos + N;
         let chunk = self.bytes.get(self.pos..end).ok_or_else(|| {
             Error::Format(format!(
@@ -136,7 +136,59 @@ impl Reader<'_> {
     }
 }
 
+/// First line of [`OcTree::write_state_bytes`]' format.
+const STATE_HEADER: &[u8] = b"earcore OcTree state 1\n";
+
 impl OcTree {
+    /// Everything the tree holds, for pickling: the `.ot` file (nodes and log-odds)
+    /// preceded by what `.ot` does not store, the sensor model and the danger state
+    /// (parameters, dangerous voxels, the open frame's hits and free sightings, the
+    /// last frame's obstacles). [`read_state_bytes`](Self::read_state_bytes) gives an
+    /// equal tree back.
+    pub fn write_state_bytes(&self) -> Vec<u8> {
+        let mut out = STATE_HEADER.to_vec();
+        let p = self.params();
+        for v in [
+            p.prob_hit,
+            p.prob_miss,
+            p.clamping_min,
+            p.clamping_max,
+            p.occupancy_threshold,
+        ] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        self.danger.write_state(&mut out);
+        out.extend_from_slice(&self.write_full_bytes());
+        out
+    }
+
+    /// Parse what [`write_state_bytes`](Self::write_state_bytes) wrote; untrusted
+    /// bytes are checked as for the map files.
+    pub fn read_state_bytes(bytes: &[u8]) -> Result<OcTree> {
+        let rest = bytes.strip_prefix(STATE_HEADER).ok_or_else(|| {
+            Error::Format("not an earcore OcTree state (wrong first line)".into())
+        })?;
+        let mut r = Reader {
+            bytes: rest,
+            pos: 0,
+        };
+        let mut value = || r.take::<8>().map(f64::from_le_bytes);
+        let params = OccupancyParams {
+            prob_hit: value()?,
+            prob_miss: value()?,
+            clamping_min: value()?,
+            clamping_max: value()?,
+            occupancy_threshold: value()?,
+        };
+        params
+            .validate()
+            .map_err(|e| Error::Format(format!("sensor model: {e}")))?;
+        let danger = super::danger::DangerMap::read_state(&mut r)?;
+        let mut tree = OcTree::read_full_bytes(&rest[r.pos..], params)?;
+        tree.danger = danger;
+        Ok(tree)
+    }
+
     /// Serialise as OctoMap's `.bt`. The tree is not modified: the maximum-likelihood
     /// pruning that OctoMap's `writeBinary` applies in place is computed on the side.
     pub fn write_binary_bytes(&self) -> Vec<u8> {
@@ -416,6 +468,51 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn state_bytes_round_trip_and_refuse_damage() {
+        let mut tree = OcTree::with_params(
+            0.1,
+            OccupancyParams {
+                prob_hit: 0.8,
+                ..OccupancyParams::default()
+            },
+        )
+        .unwrap();
+        let scan = [[1.0, 0.5, 0.25], [-0.7, 0.3, 1.1], [0.2, -0.9, 0.4]];
+        tree.insert_point_cloud(&scan, [0.0; 3], None, false)
+            .unwrap();
+        tree.danger_map_mut().end_frame(0.1).unwrap();
+        tree.insert_point_cloud(&scan[..1], [0.0, 0.0, 0.1], None, false)
+            .unwrap();
+        let bytes = tree.write_state_bytes();
+        let back = OcTree::read_state_bytes(&bytes).unwrap();
+        assert_eq!(back.write_full_bytes(), tree.write_full_bytes());
+        assert_eq!(back.params(), tree.params());
+        let (d0, d1) = (tree.danger_map(), back.danger_map());
+        assert_eq!(d0.sorted_cells(), d1.sorted_cells());
+        assert_eq!(d0.current_obstacles(), d1.current_obstacles());
+        assert_eq!(d0.params(), d1.params());
+        // The open frame (hits, free sightings) continues the same way.
+        let (mut a, mut b) = (tree.clone(), back);
+        let ra = a.danger_map_mut().end_frame(0.2).unwrap();
+        let rb = b.danger_map_mut().end_frame(0.2).unwrap();
+        assert_eq!(ra, rb);
+        assert_eq!(a.danger_map().sorted_cells(), b.danger_map().sorted_cells());
+        // Every truncation and a trailing byte are format errors, never a panic.
+        for cut in 0..bytes.len() {
+            assert!(matches!(
+                OcTree::read_state_bytes(&bytes[..cut]),
+                Err(Error::Format(_))
+            ));
+        }
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert!(matches!(
+            OcTree::read_state_bytes(&longer),
+            Err(Error::Format(_))
+        ));
     }
 
     #[test]
