@@ -180,6 +180,15 @@ impl PySurfaceMap {
         self.inner.read().memory_usage()
     }
 
+    /// A surface map has no file format to pickle through; say so rather than fail
+    /// with pickle's generic message.
+    fn __reduce__(&self) -> PyResult<()> {
+        Err(pyo3::exceptions::PyTypeError::new_err(
+            "earcore.SurfaceMap cannot be pickled (it has no serialised form): rebuild it \
+             in the other process by inserting the same points",
+        ))
+    }
+
     fn __repr__(&self) -> String {
         let map = self.inner.read();
         format!(
