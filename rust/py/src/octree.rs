@@ -39,6 +39,10 @@ type Cells<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f32>>);
 type RayHits<'py> = (Bound<'py, PyArray1<bool>>, Bound<'py, PyArray2<f64>>);
 
 /// Occupancy octree with OctoMap's semantics and files, plus per-voxel danger decay.
+///
+/// `resolution` must lie in [1e-18, 1e14] m: points are float32 as in OctoMap, so one
+/// cell's squared length must be a normal float32 and the map's squared diagonal a
+/// finite one. Trees pickle (nodes, sensor model and danger state).
 #[pyclass(name = "OcTree", module = "earcore", frozen)]
 pub struct PyOcTree {
     inner: RwLock<OcTree>,

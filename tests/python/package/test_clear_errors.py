@@ -84,6 +84,10 @@ def tree(scene):
     return t
 
 
+def _plane():
+    return _earcore.PlaneTarget(np.zeros((3, 3)), np.ones((3, 3)))
+
+
 BAD_CALLS = {
     "huge resolution": (lambda t: earcore.OcTree(1e308), ["resolution", "1e308"]),
     "tiny resolution": (lambda t: earcore.OcTree(1e-100), ["resolution", "1e-100"]),
@@ -110,7 +114,7 @@ BAD_CALLS = {
     "origin shape": (lambda t: t.insert_point_cloud([[1, 0, 0]], [0, 0]), ["sensor_origin"]),
     "bbx": (lambda t: t.leaves([0, 0], [1, 1, 1]), ["bbx_min"]),
     "box nan": (lambda t: t.leaves_at_full_depth([np.nan, 0, 0], [1, 1, 1]), ["box", "NaN"]),
-    "pose shape": (lambda t: _earcore.icp_point_to_plane_raw(np.zeros((3, 3)), _earcore.PlaneTarget(np.zeros((3, 3)), np.ones((3, 3))), np.eye(3)), ["initial", "(3, 3)"]),
+    "pose shape": (lambda t: _earcore.icp_point_to_plane_raw(np.zeros((3, 3)), _plane(), np.eye(3)), ["initial", "(3, 3)"]),
     "fit padding": (lambda t: earcore.fit_body(np.zeros((3, 3)), -1e300, "auto"), ["padding", "-1e300"]),
     "fit vertex": (lambda t: earcore.fit_body([[0, 0, 0], [1e300, np.inf, 0]], 0.0, "auto"), ["vertex 1", "not finite"]),
     "beam_spacing": (lambda t: earcore.SurfaceMap(0.05).insert(np.ones((2, 3)), [0, 0, 0], 1e300), ["beam_spacing", "1e300"]),

@@ -273,3 +273,22 @@ def test_mesh_scales_mirror_but_never_flatten(tmp_path):
 def test_zero_sized_primitives_stay_allowed(tmp_path):
     robot = urdf.parse_urdf(_urdf(tmp_path, '<box size="0.2 0 0.4"/>'))
     np.testing.assert_allclose(np.ptp(robot.vertices["base"], axis=0), [0.2, 0, 0.4])
+
+
+def test_cloud_helpers_refuse_what_the_binding_would_misread():
+    """Depth images, per-point values and voxel lookups are converted in Python or by
+    numpy directly: masked and complex inputs are refused there too."""
+    from earcore import cloud
+
+    depth = np.ma.masked_array(np.ones((4, 5)), mask=np.eye(4, 5, dtype=bool))
+    with pytest.raises(TypeError, match="depth is a masked array"):
+        cloud.depth_to_points(depth, 100.0, 100.0, 2.0, 2.0)
+    points = np.random.default_rng(0).uniform(size=(10, 3))
+    with pytest.raises(TypeError, match="values must be real numbers"):
+        cloud.voxel_downsample(points, 0.5, values=np.ones(10) * 1j)
+    with pytest.raises(TypeError, match="points is a masked array"):
+        cloud.voxel_codes(np.ma.masked_array(points), 0.1)
+    with pytest.raises(TypeError, match="box_min must be real numbers"):
+        cloud.box_voxel_centres(np.zeros(3, dtype=complex), np.ones(3), 0.5)
+    # Plain input is read as before: the unmasked image gives every pixel's point.
+    assert len(cloud.depth_to_points(depth.data, 100.0, 100.0, 2.0, 2.0)) == 20
