@@ -8,8 +8,8 @@
 
 use numpy::ndarray::Array2;
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
-    PyUntypedArrayMethods,
+    IntoPyArray, PyArray1, PyArray2, PyArrayDescrMethods, PyArrayMethods, PyReadonlyArray1,
+    PyReadonlyArray2, PyUntypedArrayMethods,
 };
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -40,26 +40,38 @@ pub fn real_array<'py>(
     name: &str,
     what: &str,
 ) -> PyResult<Bound<'py, PyAny>> {
+    // The common case, already a plain ndarray as needed (exactly ndarray: subclasses
+    // such as masked arrays take the checked path), costs no numpy call.
+    if is_plain_f64(obj) {
+        return Ok(obj.clone());
+    }
     let py = obj.py();
     let np = PyModule::import(py, "numpy")?;
-    let ma = np.getattr("ma")?.getattr("MaskedArray")?;
-    if obj.is_instance(&ma)? {
-        return Err(PyTypeError::new_err(format!(
-            "{name} is a masked array: pass plain numbers (e.g. drop the masked rows, or \
-             .filled(np.nan) where NaN is accepted), since the mask cannot be honoured"
-        )));
+    // Only ndarray subclasses can be masked arrays (lists skip the look-up).
+    let is_array = obj.cast::<numpy::PyUntypedArray>().is_ok();
+    if is_array && !obj.is_exact_instance_of::<numpy::PyUntypedArray>() {
+        let ma = np.getattr("ma")?.getattr("MaskedArray")?;
+        if obj.is_instance(&ma)? {
+            return Err(PyTypeError::new_err(format!(
+                "{name} is a masked array: pass plain numbers (e.g. drop the masked rows, or \
+                 .filled(np.nan) where NaN is accepted), since the mask cannot be honoured"
+            )));
+        }
     }
     let arr = np.call_method1("asarray", (obj,)).map_err(|e| {
         PyTypeError::new_err(format!("{name} must be {what}: {}", short(&e.to_string())))
     })?;
-    let kind: String = arr.getattr("dtype")?.getattr("kind")?.extract()?;
-    let why = match kind.as_str() {
-        "f" | "i" | "u" => None,
-        "c" => Some("complex numbers (the imaginary part would be lost)"),
-        "b" => Some("booleans"),
-        "O" => Some("Python objects (dtype=object)"),
-        "U" | "S" => Some("strings"),
-        "M" | "m" => Some("dates or durations"),
+    let kind = arr
+        .cast::<numpy::PyUntypedArray>()
+        .map(|a| a.dtype().kind())
+        .unwrap_or(b'O');
+    let why = match kind {
+        b'f' | b'i' | b'u' => None,
+        b'c' => Some("complex numbers (the imaginary part would be lost)"),
+        b'b' => Some("booleans"),
+        b'O' => Some("Python objects (dtype=object)"),
+        b'U' | b'S' => Some("strings"),
+        b'M' | b'm' => Some("dates or durations"),
         _ => Some("not numbers"),
     };
     if let Some(why) = why {
@@ -67,18 +79,29 @@ pub fn real_array<'py>(
             "{name} must be {what} (real numbers), got {why}"
         )));
     }
+    if is_plain_f64(&arr) {
+        return Ok(arr);
+    }
     let arr = np
         .call_method1("ascontiguousarray", (arr, np.getattr("float64")?))
         .map_err(|e| {
             PyTypeError::new_err(format!("{name} must be {what}: {}", short(&e.to_string())))
         })?;
-    let aligned: bool = arr.getattr("flags")?.getattr("aligned")?.extract()?;
-    if aligned {
+    if is_plain_f64(&arr) {
         Ok(arr)
     } else {
-        // A copy is aligned (numpy allocates aligned memory).
+        // Misaligned data stays misaligned through ascontiguousarray; a copy is
+        // aligned (numpy allocates aligned memory).
         arr.call_method0("copy")
     }
+}
+
+/// Whether `obj` is exactly an ndarray of float64, C-contiguous and aligned.
+fn is_plain_f64(obj: &Bound<'_, PyAny>) -> bool {
+    obj.is_exact_instance_of::<numpy::PyUntypedArray>()
+        && obj
+            .cast::<numpy::PyArrayDyn<f64>>()
+            .is_ok_and(|a| a.is_c_contiguous() && a.is_aligned())
 }
 
 /// The first line of an error text, at most 200 characters (numpy's messages can
@@ -94,11 +117,11 @@ fn short(message: &str) -> String {
 
 /// Accept anything numpy can read as (N, 3) real numbers.
 pub fn points<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Points<'py>> {
-    // The common case, a plain C-contiguous aligned float64 ndarray (exactly
-    // ndarray: subclasses such as masked arrays take the checked path), is borrowed.
-    let fast = obj.cast::<PyArray2<f64>>().ok().filter(|a| {
-        a.is_c_contiguous() && a.is_aligned() && obj.get_type().name().is_ok_and(|n| n == "ndarray")
-    });
+    // The common case, a plain C-contiguous aligned float64 (N, 3) ndarray, is borrowed.
+    let fast = obj
+        .cast::<PyArray2<f64>>()
+        .ok()
+        .filter(|_| is_plain_f64(obj));
     let arr = match fast {
         Some(a) => a.readonly(),
         None => {
