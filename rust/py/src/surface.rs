@@ -66,10 +66,13 @@ impl PySurfaceMap {
         &self,
         py: Python<'_>,
         points: &Bound<'_, PyAny>,
-        sensor_origin: Option<[f64; 3]>,
+        sensor_origin: Option<&Bound<'_, PyAny>>,
         beam_spacing: Option<f64>,
         max_leaf_size: f64,
     ) -> PyResult<usize> {
+        let sensor_origin = sensor_origin
+            .map(|o| crate::convert::vector3(o, "sensor_origin"))
+            .transpose()?;
         let pts = self::points(points, "points")?;
         let slice = pts.as_slice()?;
         py.detach(|| {

@@ -117,6 +117,7 @@ BAD_CALLS = {
     "pose shape": (lambda t: _earcore.icp_point_to_plane_raw(np.zeros((3, 3)), _plane(), np.eye(3)), ["initial", "(3, 3)"]),
     "fit padding": (lambda t: earcore.fit_body(np.zeros((3, 3)), -1e300, "auto"), ["padding", "-1e300"]),
     "fit vertex": (lambda t: earcore.fit_body([[0, 0, 0], [1e300, np.inf, 0]], 0.0, "auto"), ["vertex 1", "not finite"]),
+    "surface origin": (lambda t: earcore.SurfaceMap(0.05).insert(np.ones((2, 3)), [0, 0], 0.03), ["sensor_origin", "2 values"]),
     "beam_spacing": (lambda t: earcore.SurfaceMap(0.05).insert(np.ones((2, 3)), [0, 0, 0], 1e300), ["beam_spacing", "1e300"]),
 }
 
