@@ -13,6 +13,18 @@ from earcore import _earcore
 __all__ = ["box_voxel_centres", "cluster_points", "voxel_codes", "crop", "depth_to_points", "estimate_normals", "remove_statistical_outliers", "voxel_downsample"]
 
 
+def _real(a: npt.ArrayLike, name: str) -> np.ndarray:
+    """`a` as an array of real numbers, for what does not go through the binding's
+    checked conversion: a masked array's mask, a complex array's imaginary part or
+    an object array's Python objects would otherwise be dropped or guessed at."""
+    if isinstance(a, np.ma.MaskedArray):
+        raise TypeError(f"{name} is a masked array: pass plain numbers (the mask cannot be honoured)")
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be real numbers, got dtype {arr.dtype}")
+    return arr
+
+
 def depth_to_points(
     depth: npt.ArrayLike,
     fx: float,
@@ -39,6 +51,7 @@ def depth_to_points(
     Returns the points (N, 3); with `colour` (H, W, C) also the colours (N, C) of the
     same pixels; with `return_pixels` also the flat pixel index (row·W + column) of each.
     """
+    depth = _real(depth, "depth")
     points, pixels = _earcore.depth_to_points_raw(
         depth, fx, fy, cx, cy, distortion, depth_scale, min_depth, max_depth, base_from_camera
     )
@@ -88,6 +101,8 @@ def voxel_downsample(points: npt.ArrayLike, voxel_size: float, values: npt.Array
     """Replace the points of every voxel (edge `voxel_size`, grid anchored at the origin)
     by their centroid. With `values` (N,) or (N, C) (colours, normals...), also return
     their per-voxel means. Voxels come in the order of their first point."""
+    if values is not None:
+        values = _real(values, "values")
     centroids, means = _earcore.voxel_downsample_raw(points, voxel_size, values)
     if values is None or means is None:
         return centroids
@@ -119,12 +134,12 @@ def cluster_points(points, cell: float) -> np.ndarray:
 def voxel_codes(points, resolution: float) -> np.ndarray:
     """One int64 per point naming its voxel (cells of size `resolution`, ±1 M cells per
     axis around the origin), for set operations on voxels with numpy (`np.isin`)."""
-    return _earcore.voxel_codes(np.asarray(points, dtype=np.float64).reshape(-1, 3), resolution)
+    return _earcore.voxel_codes(_real(points, "points").astype(np.float64).reshape(-1, 3), resolution)
 
 
 def box_voxel_centres(box_min, box_max, resolution: float) -> np.ndarray:
     """Centres (M, 3) of the map voxels (cells of size `resolution`) a box
     [box_min, box_max] overlaps, e.g. to put known geometry into a map."""
-    lo, hi = np.asarray(box_min, dtype=np.float64), np.asarray(box_max, dtype=np.float64)
+    lo, hi = _real(box_min, "box_min").astype(np.float64), _real(box_max, "box_max").astype(np.float64)
     axes = [np.arange(np.floor(lo[i] / resolution) + 0.5, np.ceil(hi[i] / resolution), 1.0) * resolution for i in range(3)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)

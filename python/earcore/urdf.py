@@ -262,6 +262,25 @@ def _collada_vertices(data: bytes, path: Path) -> np.ndarray:
         raise UrdfError(f"mesh {path}: malformed COLLADA positions") from None
 
 
+def _sizes(text: str | None, n: int, what: str) -> tuple[float, ...]:
+    """`n` dimensions of a primitive: finite and not negative (a negative size would
+    describe the same points as its absolute value and hide a typo)."""
+    values = _floats(text, n, (0.0,) * n, what)
+    if any(v < 0 for v in values):
+        raise UrdfError(f"{what} must not be negative, got {text!r}")
+    return values
+
+
+def _mesh_scale(text: str | None, what: str) -> tuple[float, ...]:
+    """A mesh's scale: finite and non-zero per axis. A negative factor mirrors the mesh
+    (URDFs use it for left/right parts), which keeps its vertices meaningful; zero
+    would flatten it."""
+    scale = _floats(text, 3, (1.0, 1.0, 1.0), what)
+    if any(v == 0 for v in scale):
+        raise UrdfError(f"{what} must not be zero on any axis, got {text!r}")
+    return scale
+
+
 def _primitive_vertices(geometry: ET.Element, what: str) -> np.ndarray:
     """Points whose enclosing capsule encloses the primitive."""
     shape = next(iter(geometry), None)
@@ -269,19 +288,19 @@ def _primitive_vertices(geometry: ET.Element, what: str) -> np.ndarray:
         raise UrdfError(f"{what}: empty <geometry>")
     ring = np.linspace(0, 2 * np.pi, 64, endpoint=False)
     if shape.tag == "box":
-        sx, sy, sz = _floats(shape.get("size"), 3, (0, 0, 0), f"{what} box size")
+        sx, sy, sz = _sizes(shape.get("size"), 3, f"{what} box size")
         corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
         return corners * [sx / 2, sy / 2, sz / 2]
     if shape.tag in ("cylinder", "capsule"):
-        (r,) = _floats(shape.get("radius"), 1, (0,), f"{what} radius")
-        (length,) = _floats(shape.get("length"), 1, (0,), f"{what} length")
+        (r,) = _sizes(shape.get("radius"), 1, f"{what} {shape.tag} radius")
+        (length,) = _sizes(shape.get("length"), 1, f"{what} {shape.tag} length")
         # The polygon is circumscribed so the cylinder stays inside.
         r_out = r / math.cos(math.pi / len(ring))
         circle = np.stack([r_out * np.cos(ring), r_out * np.sin(ring)], axis=1)
         ends = [length / 2 + (r if shape.tag == "capsule" else 0.0)]
         return np.concatenate([np.column_stack([circle, np.full(len(ring), z)]) for z in (-ends[0], ends[0])])
     if shape.tag == "sphere":
-        (r,) = _floats(shape.get("radius"), 1, (0,), f"{what} sphere radius")
+        (r,) = _sizes(shape.get("radius"), 1, f"{what} sphere radius")
         # The six axis points: their smallest enclosing capsule is the sphere itself.
         return r * np.vstack([np.eye(3), -np.eye(3)])
     raise UrdfError(f"{what}: unsupported geometry <{shape.tag}>")
@@ -374,7 +393,7 @@ def parse_urdf(path: str | Path, *, geometry: str = "collision") -> UrdfRobot:
                 if not filename:
                     raise UrdfError(f"{what}: <mesh> without filename")
                 vertices = read_mesh_vertices(resolve_mesh_path(filename, path))
-                vertices = vertices * np.array(_floats(mesh.get("scale"), 3, (1.0, 1.0, 1.0), f"{what} mesh scale"))
+                vertices = vertices * np.array(_mesh_scale(mesh.get("scale"), f"{what} mesh scale"))
             else:
                 vertices = _primitive_vertices(geom, what)
             xyz, rpy = _origin(part.find("origin"), what)

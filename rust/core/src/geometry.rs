@@ -42,7 +42,9 @@ pub fn check_cell_range(points: &[[f64; 3]], size: f64, what: &str) -> Result<()
         .fold(0.0f64, |m, c| m.max(c.abs()));
     if reach / size > MAX_CELL_INDEX {
         return Err(Error::InvalidArgument(format!(
-            "{what} {size} is too small for coordinates up to {reach}: more than 2^50 cells from the origin"
+            "{what} {} is too small for coordinates up to {}: more than 2^50 cells from the origin",
+            fmt_num(size),
+            fmt_num(reach)
         )));
     }
     Ok(())
@@ -60,11 +62,43 @@ pub fn check_finite(points: &[[f64; 3]], what: &str) -> Result<()> {
     }
     match points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
         Some(i) => Err(Error::InvalidArgument(format!(
-            "{what} {i} {:?} is not finite",
-            points[i]
+            "{what} {i} {} is not finite",
+            fmt_point(&points[i])
         ))),
         None => Ok(()),
     }
+}
+
+/// A number for a message, like C's `%.6g`: six significant digits, exponent notation
+/// outside [1e-4, 1e6), so 1e-100 or 1e308 print as a few characters, not hundreds.
+pub fn fmt_num(x: f64) -> String {
+    if !x.is_finite() || x == 0.0 {
+        return format!("{x}");
+    }
+    let exponent = x.abs().log10().floor() as i32;
+    if (-4..6).contains(&exponent) {
+        let decimals = (5 - exponent).max(0) as usize;
+        let s = format!("{x:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_owned()
+        } else {
+            s
+        }
+    } else {
+        let s = format!("{x:.5e}");
+        match s.split_once('e') {
+            Some((mantissa, exp)) if mantissa.contains('.') => {
+                let mantissa = mantissa.trim_end_matches('0').trim_end_matches('.');
+                format!("{mantissa}e{exp}")
+            }
+            _ => s,
+        }
+    }
+}
+
+/// A point for a message: `(x, y, z)` with [`fmt_num`]'s numbers.
+pub fn fmt_point(p: &[f64; 3]) -> String {
+    format!("({}, {}, {})", fmt_num(p[0]), fmt_num(p[1]), fmt_num(p[2]))
 }
 
 /// Squared Euclidean distance.
@@ -180,6 +214,30 @@ pub fn sort_keyed(items: &mut [(u64, u32)]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn numbers_print_like_percent_six_g() {
+        // The references are C's printf("%.6g") (Python's format(x, ".6g")), apart from
+        // Rust's exponent spelling (no sign padding: 1e-100, not 1e-100 with two digits).
+        for (x, want) in [
+            (0.05, "0.05"),
+            (1638.4, "1638.4"),
+            (-1638.41, "-1638.41"),
+            (1.0 / 3.0, "0.333333"),
+            (123456.0, "123456"),
+            (1234567.0, "1.23457e6"),
+            (1e308, "1e308"),
+            (1e-100, "1e-100"),
+            (0.0001, "0.0001"),
+            (0.00001234, "1.234e-5"),
+            (f64::INFINITY, "inf"),
+            (f64::NAN, "NaN"),
+            (0.0, "0"),
+        ] {
+            assert_eq!(fmt_num(x), want, "{x:e}");
+        }
+        assert_eq!(fmt_point(&[1e300, -0.5, 2.0]), "(1e300, -0.5, 2)");
+    }
 
     #[test]
     fn radix_sort_of_keyed_pairs_equals_comparison_sort() {

@@ -1,13 +1,17 @@
 //! The only numpy ⇄ Rust conversions: inputs are normalised once (dtype float64,
-//! C-contiguous, checked shape) and borrowed without copying; outputs are handed to
-//! numpy without copying.
+//! C-contiguous and aligned, checked shape) and borrowed without copying when they
+//! already are; outputs are handed to numpy without copying.
+//!
+//! Only real numbers pass: masked arrays (whose data would be read with the mask
+//! ignored), complex arrays (whose imaginary part would be dropped), object, string,
+//! boolean and date arrays raise `TypeError` naming the parameter.
 
 use numpy::ndarray::Array2;
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
-    PyUntypedArrayMethods,
+    IntoPyArray, PyArray1, PyArray2, PyArrayDescrMethods, PyArrayMethods, PyReadonlyArray1,
+    PyReadonlyArray2, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyModule;
 
@@ -16,32 +20,112 @@ pub struct Points<'py>(PyReadonlyArray2<'py, f64>);
 
 impl Points<'_> {
     pub fn as_slice(&self) -> PyResult<&[[f64; 3]]> {
-        // Made C-contiguous in `points`; (N, 3) contiguous float64 is N consecutive [f64; 3].
-        let flat = self
-            .0
-            .as_slice()
-            .map_err(|e| PyValueError::new_err(format!("points are not contiguous: {e}")))?;
+        // Made C-contiguous and aligned in `points`; (N, 3) contiguous float64 is N
+        // consecutive [f64; 3].
+        let flat = self.0.as_slice().map_err(|_| {
+            PyValueError::new_err("points must be a C-contiguous, aligned float64 array")
+        })?;
         let (chunks, rest) = flat.as_chunks::<3>();
         debug_assert!(rest.is_empty());
         Ok(chunks)
     }
 }
 
-fn as_contiguous_f64<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
-    let np = PyModule::import(obj.py(), "numpy")?;
-    np.call_method1("ascontiguousarray", (obj, np.getattr("float64")?))
+/// `obj` as a C-contiguous, aligned float64 ndarray (the same object when it already
+/// is one), or a `TypeError` naming `name` and `what` it must be. numpy's
+/// `ascontiguousarray` keeps misaligned arrays as they are and reads masked arrays'
+/// data without their masks, so both are handled here first.
+pub fn real_array<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    what: &str,
+) -> PyResult<Bound<'py, PyAny>> {
+    // The common case, already a plain ndarray as needed (exactly ndarray: subclasses
+    // such as masked arrays take the checked path), costs no numpy call.
+    if is_plain_f64(obj) {
+        return Ok(obj.clone());
+    }
+    let py = obj.py();
+    let np = PyModule::import(py, "numpy")?;
+    // Only ndarray subclasses can be masked arrays (lists skip the look-up).
+    let is_array = obj.cast::<numpy::PyUntypedArray>().is_ok();
+    if is_array && !obj.is_exact_instance_of::<numpy::PyUntypedArray>() {
+        let ma = np.getattr("ma")?.getattr("MaskedArray")?;
+        if obj.is_instance(&ma)? {
+            return Err(PyTypeError::new_err(format!(
+                "{name} is a masked array: pass plain numbers (e.g. drop the masked rows, or \
+                 .filled(np.nan) where NaN is accepted), since the mask cannot be honoured"
+            )));
+        }
+    }
+    let arr = np.call_method1("asarray", (obj,)).map_err(|e| {
+        PyTypeError::new_err(format!("{name} must be {what}: {}", short(&e.to_string())))
+    })?;
+    let kind = arr
+        .cast::<numpy::PyUntypedArray>()
+        .map(|a| a.dtype().kind())
+        .unwrap_or(b'O');
+    let why = match kind {
+        b'f' | b'i' | b'u' => None,
+        b'c' => Some("complex numbers (the imaginary part would be lost)"),
+        b'b' => Some("booleans"),
+        b'O' => Some("Python objects (dtype=object)"),
+        b'U' | b'S' => Some("strings"),
+        b'M' | b'm' => Some("dates or durations"),
+        _ => Some("not numbers"),
+    };
+    if let Some(why) = why {
+        return Err(PyTypeError::new_err(format!(
+            "{name} must be {what} (real numbers), got {why}"
+        )));
+    }
+    if is_plain_f64(&arr) {
+        return Ok(arr);
+    }
+    let arr = np
+        .call_method1("ascontiguousarray", (arr, np.getattr("float64")?))
+        .map_err(|e| {
+            PyTypeError::new_err(format!("{name} must be {what}: {}", short(&e.to_string())))
+        })?;
+    if is_plain_f64(&arr) {
+        Ok(arr)
+    } else {
+        // Misaligned data stays misaligned through ascontiguousarray; a copy is
+        // aligned (numpy allocates aligned memory).
+        arr.call_method0("copy")
+    }
 }
 
-/// Accept anything numpy can read as (N, 3) numbers.
+/// Whether `obj` is exactly an ndarray of float64, C-contiguous and aligned.
+fn is_plain_f64(obj: &Bound<'_, PyAny>) -> bool {
+    obj.is_exact_instance_of::<numpy::PyUntypedArray>()
+        && obj
+            .cast::<numpy::PyArrayDyn<f64>>()
+            .is_ok_and(|a| a.is_c_contiguous() && a.is_aligned())
+}
+
+/// The first line of an error text, at most 200 characters (numpy's messages can
+/// repeat a whole input).
+fn short(message: &str) -> String {
+    let line = message.lines().next().unwrap_or("");
+    if line.chars().count() > 200 {
+        format!("{}…", line.chars().take(200).collect::<String>())
+    } else {
+        line.to_owned()
+    }
+}
+
+/// Accept anything numpy can read as (N, 3) real numbers.
 pub fn points<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Points<'py>> {
-    let arr = match obj.cast::<PyArray2<f64>>() {
-        Ok(a) if a.is_c_contiguous() => a.readonly(),
-        _ => {
-            let converted = as_contiguous_f64(obj).map_err(|e| {
-                pyo3::exceptions::PyTypeError::new_err(format!(
-                    "{name} must be an (N, 3) array of numbers: {e}"
-                ))
-            })?;
+    // The common case, a plain C-contiguous aligned float64 (N, 3) ndarray, is borrowed.
+    let fast = obj
+        .cast::<PyArray2<f64>>()
+        .ok()
+        .filter(|_| is_plain_f64(obj));
+    let arr = match fast {
+        Some(a) => a.readonly(),
+        None => {
+            let converted = real_array(obj, name, "an (N, 3) array of numbers")?;
             match converted.cast::<PyArray2<f64>>() {
                 Ok(a) => a.readonly(),
                 Err(_) => {
@@ -50,7 +134,8 @@ pub fn points<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Points<'py>>
                         .map(|a| a.shape().to_vec())
                         .unwrap_or_default();
                     return Err(PyValueError::new_err(format!(
-                        "{name} must be an (N, 3) array, got shape {shape:?} (use .reshape(-1, 3) for one point)"
+                        "{name} must be an (N, 3) array, got shape {} (use .reshape(-1, 3) for one point)",
+                        fmt_shape(&shape)
                     )));
                 }
             }
@@ -58,21 +143,37 @@ pub fn points<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Points<'py>>
     };
     if arr.shape()[1] != 3 {
         return Err(PyValueError::new_err(format!(
-            "{name} must be an (N, 3) array, got shape {:?}",
-            arr.shape()
+            "{name} must be an (N, 3) array, got shape {}",
+            fmt_shape(arr.shape())
         )));
     }
     Ok(Points(arr))
 }
 
+/// A shape as numpy prints it: `(4, 2)`, `(3,)`, `()`.
+pub fn fmt_shape(shape: &[usize]) -> String {
+    match shape {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(usize::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
 /// One 3-vector (a point or a direction).
 pub fn vector3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f64; 3]> {
-    let converted = as_contiguous_f64(obj).map_err(|e| {
-        pyo3::exceptions::PyTypeError::new_err(format!("{name} must be 3 numbers: {e}"))
+    let converted = real_array(obj, name, "3 numbers (x, y, z)")?;
+    let arr: PyReadonlyArray1<f64> = converted.extract().map_err(|_| {
+        PyValueError::new_err(format!(
+            "{name} must be 3 numbers (x, y, z), got shape {}",
+            shape_of(&converted)
+        ))
     })?;
-    let arr: PyReadonlyArray1<f64> = converted
-        .extract()
-        .map_err(|_| PyValueError::new_err(format!("{name} must be 3 numbers (x, y, z)")))?;
     match arr.as_slice() {
         Ok(&[x, y, z]) => Ok([x, y, z]),
         _ => Err(PyValueError::new_err(format!(
@@ -80,6 +181,12 @@ pub fn vector3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f64; 3]> {
             arr.len()
         ))),
     }
+}
+
+fn shape_of(arr: &Bound<'_, PyAny>) -> String {
+    arr.cast::<numpy::PyUntypedArray>()
+        .map(|a| fmt_shape(a.shape()))
+        .unwrap_or_else(|_| "?".into())
 }
 
 /// Rows of three into an (M, 3) float64 array, without copying.
@@ -109,17 +216,18 @@ pub fn vec_to_array<'py, T: numpy::Element>(py: Python<'py>, v: Vec<T>) -> Bound
 
 /// A (4, 4) float64 rigid transform (checked by the core where it is used).
 pub fn pose(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<earcore_core::na::Matrix4<f64>> {
-    let converted = as_contiguous_f64(obj).map_err(|e| {
-        pyo3::exceptions::PyTypeError::new_err(format!("{name} must be a (4, 4) matrix: {e}"))
+    let converted = real_array(obj, name, "a (4, 4) matrix")?;
+    let arr: PyReadonlyArray2<f64> = converted.extract().map_err(|_| {
+        PyValueError::new_err(format!(
+            "{name} must be a (4, 4) matrix, got shape {}",
+            shape_of(&converted)
+        ))
     })?;
-    let arr: PyReadonlyArray2<f64> = converted
-        .extract()
-        .map_err(|_| PyValueError::new_err(format!("{name} must be a (4, 4) matrix")))?;
     let a = arr.as_array();
     if a.shape() != [4, 4] {
         return Err(PyValueError::new_err(format!(
-            "{name} must be a (4, 4) matrix, got shape {:?}",
-            a.shape()
+            "{name} must be a (4, 4) matrix, got shape {}",
+            fmt_shape(a.shape())
         )));
     }
     Ok(earcore_core::na::Matrix4::from_fn(|r, c| a[[r, c]]))
@@ -127,15 +235,9 @@ pub fn pose(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<earcore_core::na::Ma
 
 /// Numbers as a flat float64 vector (e.g. distortion coefficients).
 pub fn numbers(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<f64>> {
-    let np = PyModule::import(obj.py(), "numpy")?;
-    let a = np
-        .call_method1("ascontiguousarray", (obj, np.getattr("float64")?))
-        .and_then(|a| a.call_method1("ravel", ()))
-        .map_err(|e| {
-            pyo3::exceptions::PyTypeError::new_err(format!("{name} must be numbers: {e}"))
-        })?;
-    let arr: PyReadonlyArray1<f64> = a.extract()?;
-    Ok(arr.as_slice()?.to_vec())
+    let flat = real_array(obj, name, "numbers")?.call_method1("ravel", ())?;
+    let arr: PyReadonlyArray1<f64> = flat.extract()?;
+    Ok(arr.as_array().to_vec())
 }
 
 /// Joint configurations: (dof,) or (K, dof) numbers → (row-major values, K, whether
@@ -145,9 +247,7 @@ pub fn configurations(
     dof: usize,
     name: &str,
 ) -> PyResult<(Vec<f64>, usize, bool)> {
-    let converted = as_contiguous_f64(obj).map_err(|e| {
-        pyo3::exceptions::PyTypeError::new_err(format!("{name} must be joint values: {e}"))
-    })?;
+    let converted = real_array(obj, name, "joint values")?;
     let arr = converted
         .cast::<numpy::PyUntypedArray>()
         .map_err(|_| PyValueError::new_err(format!("{name} must be an array of joint values")))?;
@@ -157,11 +257,12 @@ pub fn configurations(
         [k, n] if *n == dof => (*k, false),
         _ => {
             return Err(PyValueError::new_err(format!(
-                "{name} must have shape ({dof},) or (K, {dof}) for this robot, got {shape:?}"
+                "{name} must have shape ({dof},) or (K, {dof}) for this robot, got {}",
+                fmt_shape(&shape)
             )))
         }
     };
     let flat = converted.call_method1("ravel", ())?;
     let values: PyReadonlyArray1<f64> = flat.extract()?;
-    Ok((values.as_slice()?.to_vec(), k, single))
+    Ok((values.as_array().to_vec(), k, single))
 }

@@ -1,5 +1,6 @@
 //! The one table from core errors to Python exceptions.
 
+use earcore_core::geometry::{fmt_num, fmt_point};
 use earcore_core::Error;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyOSError, PyValueError};
@@ -27,7 +28,13 @@ create_exception!(
 pub fn to_py(e: Error) -> PyErr {
     match e {
         Error::InvalidArgument(msg) => PyValueError::new_err(msg),
-        e @ Error::OutOfBounds { .. } => OutOfMapError::new_err(e.to_string()),
+        // Numbers as %.6g: a limit at an extreme resolution, or a point at 1e300,
+        // would otherwise print hundreds of digits.
+        Error::OutOfBounds { what, point, limit } => OutOfMapError::new_err(format!(
+            "{what} {} lies outside the map (coordinates must stay within ±{} m at this resolution)",
+            fmt_point(&point),
+            fmt_num(limit)
+        )),
         e @ Error::Format(_) => MapFormatError::new_err(e.to_string()),
         Error::Io(msg) => PyOSError::new_err(msg),
     }

@@ -13,7 +13,7 @@ use earcore_core::octree::{
 };
 use numpy::{PyArray1, PyArray2};
 use parking_lot::RwLock;
-use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::exceptions::{PyOSError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyType;
 
@@ -39,6 +39,10 @@ type Cells<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f32>>);
 type RayHits<'py> = (Bound<'py, PyArray1<bool>>, Bound<'py, PyArray2<f64>>);
 
 /// Occupancy octree with OctoMap's semantics and files, plus per-voxel danger decay.
+///
+/// `resolution` must lie in [1e-18, 1e14] m: points are float32 as in OctoMap, so one
+/// cell's squared length must be a normal float32 and the map's squared diagonal a
+/// finite one. Trees pickle (nodes, sensor model and danger state).
 #[pyclass(name = "OcTree", module = "earcore", frozen)]
 pub struct PyOcTree {
     inner: RwLock<OcTree>,
@@ -440,8 +444,8 @@ impl PyOcTree {
         .py()
     }
 
-    /// Integrate one measurement at `point`: `True` a hit, `False` a miss, or a float
-    /// log-odds change (OctoMap's `updateNode`).
+    /// Integrate one measurement at `point`: `True` a hit, `False` a miss (Python or
+    /// numpy bools), or a real number, a log-odds change (OctoMap's `updateNode`).
     fn update_node(
         &self,
         py: Python<'_>,
@@ -449,28 +453,15 @@ impl PyOcTree {
         update: &Bound<'_, PyAny>,
     ) -> PyResult<()> {
         let p = vector3(point, "point")?;
-        let hit = update
-            .cast::<pyo3::types::PyBool>()
-            .ok()
-            .map(|b| b.is_true());
-        let delta: Option<f32> = if hit.is_some() {
-            None
-        } else {
-            Some(update.extract().map_err(|_| {
-                pyo3::exceptions::PyTypeError::new_err(
-                    "update must be a bool (hit/miss) or a float log-odds change",
-                )
-            })?)
-        };
+        let update = hit_or_change(update)?;
         self.with_write(py, |tree| {
             let key = tree.key_of("point", p)?;
-            match (hit, delta) {
-                (Some(h), _) => {
+            match update {
+                Update::Hit(h) => {
                     tree.update_node(key, h);
                     Ok(())
                 }
-                (None, Some(d)) => tree.update_node_log_odds(key, d),
-                (None, None) => unreachable!("one of hit or delta is set"),
+                Update::Change(d) => tree.update_node_log_odds(key, d),
             }
         })
         .py()
@@ -521,7 +512,8 @@ impl PyOcTree {
         let delta32 = delta as f32;
         if !delta32.is_finite() {
             return Err(PyValueError::new_err(format!(
-                "delta must be a finite log-odds change, got {delta}"
+                "delta must be a finite log-odds change (in float32), got {}",
+                earcore_core::geometry::fmt_num(delta)
             )));
         }
         let pts = self::points(points, "points")?;
@@ -577,6 +569,24 @@ impl PyOcTree {
 
     fn __deepcopy__(&self, py: Python<'_>, _memo: &Bound<'_, PyAny>) -> Self {
         self.copy(py)
+    }
+
+    /// Pickling: the tree's `.ot` bytes plus what they do not hold (the sensor model
+    /// and the danger state), so an unpickled tree equals a `copy()`.
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, pyo3::types::PyBytes>,))> {
+        let state = slf.get().with_read(py, |t| t.write_state_bytes());
+        let rebuild = slf.get_type().getattr("_from_state")?;
+        Ok((rebuild, (pyo3::types::PyBytes::new(py, &state),)))
+    }
+
+    /// The tree `__reduce__` saved (bytes are checked as map files are).
+    #[classmethod]
+    fn _from_state(_cls: &Bound<'_, PyType>, py: Python<'_>, state: &[u8]) -> PyResult<Self> {
+        let tree = py.detach(|| OcTree::read_state_bytes(state)).py()?;
+        Ok(Self::wrap(tree))
     }
 
     /// Centres (M, 3) and edge lengths (M,) of the occupied leaves.
@@ -889,6 +899,44 @@ impl PyOcTree {
             Ok((kmin, kmax))
         })
         .py()
+    }
+}
+
+/// What `update_node` was asked to do.
+enum Update {
+    /// A hit (`true`) or a miss.
+    Hit(bool),
+    /// A log-odds change.
+    Change(f32),
+}
+
+/// A bool (Python's or numpy's, which is no Python bool but converts to a float) is a
+/// hit or miss; a real number is a log-odds change.
+fn hit_or_change(update: &Bound<'_, PyAny>) -> PyResult<Update> {
+    let wrong = |got: &str| {
+        PyTypeError::new_err(format!(
+            "update must be a bool (hit/miss) or a real log-odds change, got {got}"
+        ))
+    };
+    if let Ok(b) = update.cast::<pyo3::types::PyBool>() {
+        return Ok(Update::Hit(b.is_true()));
+    }
+    // numpy scalars and arrays: decide by dtype before any float conversion.
+    if let Ok(dtype) = update.getattr("dtype") {
+        let kind: String = dtype.getattr("kind")?.extract()?;
+        let ndim: usize = update.getattr("ndim")?.extract()?;
+        if ndim != 0 {
+            return Err(wrong(&format!("an array of {ndim} dimensions")));
+        }
+        return match kind.as_str() {
+            "b" => Ok(Update::Hit(update.is_truthy()?)),
+            "f" | "i" | "u" => Ok(Update::Change(update.extract::<f64>()? as f32)),
+            _ => Err(wrong(&format!("dtype {}", dtype.str()?))),
+        };
+    }
+    match update.extract::<f64>() {
+        Ok(d) if !update.is_instance_of::<pyo3::types::PyComplex>() => Ok(Update::Change(d as f32)),
+        _ => Err(wrong(&format!("{}", update.get_type().name()?))),
     }
 }
 

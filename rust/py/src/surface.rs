@@ -66,10 +66,13 @@ impl PySurfaceMap {
         &self,
         py: Python<'_>,
         points: &Bound<'_, PyAny>,
-        sensor_origin: Option<[f64; 3]>,
+        sensor_origin: Option<&Bound<'_, PyAny>>,
         beam_spacing: Option<f64>,
         max_leaf_size: f64,
     ) -> PyResult<usize> {
+        let sensor_origin = sensor_origin
+            .map(|o| crate::convert::vector3(o, "sensor_origin"))
+            .transpose()?;
         let pts = self::points(points, "points")?;
         let slice = pts.as_slice()?;
         py.detach(|| {
@@ -178,6 +181,15 @@ impl PySurfaceMap {
 
     fn memory_usage(&self) -> usize {
         self.inner.read().memory_usage()
+    }
+
+    /// A surface map has no file format to pickle through; say so rather than fail
+    /// with pickle's generic message.
+    fn __reduce__(&self) -> PyResult<()> {
+        Err(pyo3::exceptions::PyTypeError::new_err(
+            "earcore.SurfaceMap cannot be pickled (it has no serialised form): rebuild it \
+             in the other process by inserting the same points",
+        ))
     }
 
     fn __repr__(&self) -> String {

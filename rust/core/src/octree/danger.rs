@@ -89,7 +89,7 @@ impl DangerMap {
         if !(params.alpha.is_finite() && params.alpha >= 0.0) {
             return Err(Error::InvalidArgument(format!(
                 "alpha must be finite and ≥ 0, got {}",
-                params.alpha
+                crate::geometry::fmt_num(params.alpha)
             )));
         }
         self.params = params;
@@ -117,7 +117,8 @@ impl DangerMap {
     pub fn end_frame(&mut self, dt: f64) -> Result<FrameReport> {
         if !(dt.is_finite() && dt >= 0.0) {
             return Err(Error::InvalidArgument(format!(
-                "dt must be a finite, non-negative time in seconds, got {dt}"
+                "dt must be a finite, non-negative time in seconds, got {}",
+                crate::geometry::fmt_num(dt)
             )));
         }
         let dt_alpha = dt * self.params.alpha;
@@ -157,7 +158,8 @@ impl DangerMap {
     pub fn set_value(&mut self, m: u64, c: f32) -> Result<()> {
         if !(c.is_finite() && (0.0..=1.0).contains(&c)) {
             return Err(Error::InvalidArgument(format!(
-                "danger must lie in [0, 1], got {c}"
+                "danger must lie in [0, 1], got {}",
+                crate::geometry::fmt_num(f64::from(c))
             )));
         }
         if c > 0.0 {
@@ -188,6 +190,79 @@ impl DangerMap {
     /// Cells hit during the last closed frame.
     pub fn current_obstacles(&self) -> &[u64] {
         &self.last_obstacles
+    }
+
+    /// Append the whole state (parameters, dangerous cells, the open frame's hits and
+    /// free sightings, the last frame's obstacles) to `out`, sets in sorted order.
+    pub(crate) fn write_state(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.params.alpha.to_le_bytes());
+        out.push(match self.params.mode {
+            DecayMode::Observed => 0,
+            DecayMode::Always => 1,
+        });
+        let cells = self.sorted_cells();
+        out.extend_from_slice(&(cells.len() as u64).to_le_bytes());
+        for (m, c) in cells {
+            out.extend_from_slice(&m.to_le_bytes());
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+        let sorted = |set: &FxHashSet<u64>| {
+            let mut v: Vec<u64> = set.iter().copied().collect();
+            v.sort_unstable();
+            v
+        };
+        for codes in [
+            sorted(&self.frame_hits),
+            sorted(&self.frame_seen_free),
+            self.last_obstacles.clone(),
+        ] {
+            out.extend_from_slice(&(codes.len() as u64).to_le_bytes());
+            for m in codes {
+                out.extend_from_slice(&m.to_le_bytes());
+            }
+        }
+    }
+
+    /// Read what `write_state` wrote, checking every value.
+    pub(crate) fn read_state(r: &mut super::io::Reader<'_>) -> Result<DangerMap> {
+        let bad = |what: String| Error::Format(format!("danger state: {what}"));
+        let alpha = f64::from_le_bytes(r.take::<8>()?);
+        let mode = match r.take::<1>()? {
+            [0] => DecayMode::Observed,
+            [1] => DecayMode::Always,
+            _ => return Err(bad("unknown decay mode".into())),
+        };
+        let mut map = DangerMap::default();
+        map.set_params(DangerParams { alpha, mode })
+            .map_err(|e| bad(e.to_string()))?;
+        // Morton codes of 16-bit keys have 48 bits.
+        let code = |r: &mut super::io::Reader<'_>| {
+            let m = u64::from_le_bytes(r.take::<8>()?);
+            if m >> 48 == 0 {
+                Ok(m)
+            } else {
+                Err(bad(format!("cell code {m:#x} has more than 48 bits")))
+            }
+        };
+        let count = |r: &mut super::io::Reader<'_>| r.take::<8>().map(u64::from_le_bytes);
+        for _ in 0..count(r)? {
+            let m = code(r)?;
+            let c = f32::from_le_bytes(r.take::<4>()?);
+            if !(c > 0.0 && c <= DANGER_ON_HIT) {
+                return Err(bad(format!("danger {c} outside (0, {DANGER_ON_HIT}]")));
+            }
+            map.active.insert(m, c);
+        }
+        let codes = |r: &mut super::io::Reader<'_>| -> Result<Vec<u64>> {
+            (0..count(r)?).map(|_| code(r)).collect()
+        };
+        map.frame_hits = codes(r)?.into_iter().collect();
+        map.frame_seen_free = codes(r)?.into_iter().collect();
+        map.last_obstacles = codes(r)?;
+        if !map.last_obstacles.is_sorted() {
+            return Err(bad("last frame's obstacles are not sorted".into()));
+        }
+        Ok(map)
     }
 
     /// Bytes held by the map's tables, spare capacity included.

@@ -88,11 +88,7 @@ fn parse_header(bytes: &[u8], first_line: &str) -> Result<(Header, usize)> {
     let id = id.ok_or_else(|| Error::Format("header has no 'id'".into()))?;
     let size = size.ok_or_else(|| Error::Format("header has no 'size'".into()))?;
     let resolution = resolution.ok_or_else(|| Error::Format("header has no 'res'".into()))?;
-    if !(resolution.is_finite() && resolution > 0.0) {
-        return Err(Error::Format(format!(
-            "resolution must be positive, found {resolution}"
-        )));
-    }
+    super::key::check_resolution(resolution).map_err(|e| Error::Format(e.to_string()))?;
     Ok((
         Header {
             id,
@@ -108,13 +104,13 @@ fn truncate(s: &str) -> String {
 }
 
 /// A cursor over the data section that fails cleanly at the end.
-struct Reader<'a> {
+pub(crate) struct Reader<'a> {
     bytes: &'a [u8],
     pos: usize,
 }
 
 impl Reader<'_> {
-    fn take<const N: usize>(&mut self) -> Result<[u8; N]> {
+    pub(crate) fn take<const N: usize>(&mut self) -> Result<[u8; N]> {
         let end = self.pos + N;
         let chunk = self.bytes.get(self.pos..end).ok_or_else(|| {
             Error::Format(format!(
@@ -126,9 +122,73 @@ impl Reader<'_> {
         self.pos = end;
         Ok(chunk.try_into().expect("slice length is N"))
     }
+
+    /// The tree's data must end the file. OctoMap's readers stop after the tree and
+    /// never look further, but neither writer puts anything there: bytes after the
+    /// tree are a second tree, a concatenation or corruption, not part of this map.
+    fn finish(&self) -> Result<()> {
+        match self.bytes.len() - self.pos.min(self.bytes.len()) {
+            0 => Ok(()),
+            extra => Err(Error::Format(format!(
+                "{extra} bytes after the tree's data (a map file holds one tree and ends with it)"
+            ))),
+        }
+    }
 }
 
+/// First line of [`OcTree::write_state_bytes`]' format.
+const STATE_HEADER: &[u8] = b"earcore OcTree state 1\n";
+
 impl OcTree {
+    /// Everything the tree holds, for pickling: the `.ot` file (nodes and log-odds)
+    /// preceded by what `.ot` does not store, the sensor model and the danger state
+    /// (parameters, dangerous voxels, the open frame's hits and free sightings, the
+    /// last frame's obstacles). [`read_state_bytes`](Self::read_state_bytes) gives an
+    /// equal tree back.
+    pub fn write_state_bytes(&self) -> Vec<u8> {
+        let mut out = STATE_HEADER.to_vec();
+        let p = self.params();
+        for v in [
+            p.prob_hit,
+            p.prob_miss,
+            p.clamping_min,
+            p.clamping_max,
+            p.occupancy_threshold,
+        ] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        self.danger.write_state(&mut out);
+        out.extend_from_slice(&self.write_full_bytes());
+        out
+    }
+
+    /// Parse what [`write_state_bytes`](Self::write_state_bytes) wrote; untrusted
+    /// bytes are checked as for the map files.
+    pub fn read_state_bytes(bytes: &[u8]) -> Result<OcTree> {
+        let rest = bytes.strip_prefix(STATE_HEADER).ok_or_else(|| {
+            Error::Format("not an earcore OcTree state (wrong first line)".into())
+        })?;
+        let mut r = Reader {
+            bytes: rest,
+            pos: 0,
+        };
+        let mut value = || r.take::<8>().map(f64::from_le_bytes);
+        let params = OccupancyParams {
+            prob_hit: value()?,
+            prob_miss: value()?,
+            clamping_min: value()?,
+            clamping_max: value()?,
+            occupancy_threshold: value()?,
+        };
+        params
+            .validate()
+            .map_err(|e| Error::Format(format!("sensor model: {e}")))?;
+        let danger = super::danger::DangerMap::read_state(&mut r)?;
+        let mut tree = OcTree::read_full_bytes(&rest[r.pos..], params)?;
+        tree.danger = danger;
+        Ok(tree)
+    }
+
     /// Serialise as OctoMap's `.bt`. The tree is not modified: the maximum-likelihood
     /// pruning that OctoMap's `writeBinary` applies in place is computed on the side.
     pub fn write_binary_bytes(&self) -> Vec<u8> {
@@ -242,11 +302,12 @@ impl OcTree {
     pub fn read_binary_bytes(bytes: &[u8], params: OccupancyParams) -> Result<OcTree> {
         let (head, start) = parse_header(bytes, BINARY_HEADER)?;
         let mut tree = OcTree::with_params(head.resolution, params)?;
+        let mut r = Reader { bytes, pos: start };
         if head.size > 0 {
-            let mut r = Reader { bytes, pos: start };
             tree.root = tree.arena.alloc(tree.lo.clamp_max);
             tree.read_binary_node(tree.root, 0, &mut r)?;
         }
+        r.finish()?;
         if tree.size() != head.size {
             return Err(Error::Format(format!(
                 "header says {} nodes, data holds {}",
@@ -322,8 +383,8 @@ impl OcTree {
             )));
         }
         let mut tree = OcTree::with_params(head.resolution, params)?;
+        let mut r = Reader { bytes, pos: start };
         if head.size > 0 {
-            let mut r = Reader { bytes, pos: start };
             tree.root = tree.arena.alloc(0.0);
             // (node, depth) in the order the file lists them.
             let mut stack = vec![(tree.root, 0u32)];
@@ -350,6 +411,7 @@ impl OcTree {
                 stack.extend(created.into_iter().rev().map(|c| (c, depth + 1)));
             }
         }
+        r.finish()?;
         if tree.size() != head.size {
             return Err(Error::Format(format!(
                 "header says {} nodes, data holds {}",
@@ -358,5 +420,118 @@ impl OcTree {
             )));
         }
         Ok(tree)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small_tree() -> OcTree {
+        let mut tree = OcTree::new(0.1).unwrap();
+        let points = [[1.0, 0.5, 0.25], [-0.7, 0.3, 1.1], [0.2, -0.9, 0.4]];
+        tree.insert_point_cloud(&points, [0.0; 3], None, false)
+            .unwrap();
+        tree
+    }
+
+    #[test]
+    fn bytes_after_the_tree_are_refused() {
+        let tree = small_tree();
+        let params = OccupancyParams::default();
+        let bt = tree.write_binary_bytes();
+        let ot = tree.write_full_bytes();
+        let empty_bt = OcTree::new(0.1).unwrap().write_binary_bytes();
+        let empty_ot = OcTree::new(0.1).unwrap().write_full_bytes();
+        type Reader = fn(&[u8], OccupancyParams) -> Result<OcTree>;
+        let readers: [(&[u8], Reader); 4] = [
+            (&bt, OcTree::read_binary_bytes),
+            (&ot, OcTree::read_full_bytes),
+            (&empty_bt, OcTree::read_binary_bytes),
+            (&empty_ot, OcTree::read_full_bytes),
+        ];
+        for (bytes, read) in readers {
+            // The file as written reads back to the same bytes.
+            assert!(read(bytes, params).is_ok());
+            // One stray byte, a newline, or a second copy of the whole file.
+            for tail in [&[0u8][..], b"\n", bytes] {
+                let mut longer = bytes.to_vec();
+                longer.extend_from_slice(tail);
+                match read(&longer, params) {
+                    Err(Error::Format(msg)) => {
+                        assert!(
+                            msg.contains(&format!("{} bytes after", tail.len())),
+                            "{msg}"
+                        )
+                    }
+                    other => panic!("{} trailing bytes gave {other:?}", tail.len()),
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn state_bytes_round_trip_and_refuse_damage() {
+        let mut tree = OcTree::with_params(
+            0.1,
+            OccupancyParams {
+                prob_hit: 0.8,
+                ..OccupancyParams::default()
+            },
+        )
+        .unwrap();
+        let scan = [[1.0, 0.5, 0.25], [-0.7, 0.3, 1.1], [0.2, -0.9, 0.4]];
+        tree.insert_point_cloud(&scan, [0.0; 3], None, false)
+            .unwrap();
+        tree.danger_map_mut().end_frame(0.1).unwrap();
+        tree.insert_point_cloud(&scan[..1], [0.0, 0.0, 0.1], None, false)
+            .unwrap();
+        let bytes = tree.write_state_bytes();
+        let back = OcTree::read_state_bytes(&bytes).unwrap();
+        assert_eq!(back.write_full_bytes(), tree.write_full_bytes());
+        assert_eq!(back.params(), tree.params());
+        let (d0, d1) = (tree.danger_map(), back.danger_map());
+        assert_eq!(d0.sorted_cells(), d1.sorted_cells());
+        assert_eq!(d0.current_obstacles(), d1.current_obstacles());
+        assert_eq!(d0.params(), d1.params());
+        // The open frame (hits, free sightings) continues the same way.
+        let (mut a, mut b) = (tree.clone(), back);
+        let ra = a.danger_map_mut().end_frame(0.2).unwrap();
+        let rb = b.danger_map_mut().end_frame(0.2).unwrap();
+        assert_eq!(ra, rb);
+        assert_eq!(a.danger_map().sorted_cells(), b.danger_map().sorted_cells());
+        // Every truncation and a trailing byte are format errors, never a panic.
+        for cut in 0..bytes.len() {
+            assert!(matches!(
+                OcTree::read_state_bytes(&bytes[..cut]),
+                Err(Error::Format(_))
+            ));
+        }
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert!(matches!(
+            OcTree::read_state_bytes(&longer),
+            Err(Error::Format(_))
+        ));
+    }
+
+    #[test]
+    fn header_resolutions_outside_the_key_range_are_refused() {
+        let ot =
+            String::from_utf8_lossy(&OcTree::new(0.1).unwrap().write_full_bytes()).into_owned();
+        for res in [
+            "1e-100", "1e-19", "2e14", "1e308", "0", "-0.1", "inf", "nan",
+        ] {
+            let bytes = ot.replace("res 0.1", &format!("res {res}"));
+            match OcTree::read_full_bytes(bytes.as_bytes(), OccupancyParams::default()) {
+                Err(Error::Format(msg)) => assert!(msg.contains("resolution"), "{msg}"),
+                other => panic!("res {res} gave {other:?}"),
+            }
+        }
+        for res in ["1e-18", "1e14"] {
+            let bytes = ot.replace("res 0.1", &format!("res {res}"));
+            let tree = OcTree::read_full_bytes(bytes.as_bytes(), OccupancyParams::default());
+            assert!(tree.is_ok(), "res {res}");
+        }
     }
 }

@@ -9,6 +9,34 @@ pub const TREE_DEPTH: u32 = 16;
 /// Key of the cell whose lower corner is the origin (OctoMap's `tree_max_val`).
 pub const TREE_MAX_VAL: i32 = 32768;
 
+/// Smallest resolution a map takes, in metres. Points are float32 (OctoMap's
+/// `point3d`) and a ray's length is a float32 sum of squares (`Vector3::norm`), so a
+/// one-cell ray's squared length, `resolution²`, must be a normal float32 (≥ 2^-126,
+/// i.e. resolution ≥ 1.1e-19) or short rays lose their cells; 1e-18 keeps two
+/// decades of margin.
+pub const MIN_RESOLUTION: f64 = 1e-18;
+/// Largest resolution a map takes, in metres: the map's diagonal,
+/// 2·32768·√3·resolution, squared in float32 must stay finite (< 3.4e38, i.e.
+/// resolution < 1.6e14), or long rays get infinite lengths.
+pub const MAX_RESOLUTION: f64 = 1e14;
+
+/// Check a map resolution: a finite number of metres in
+/// [[`MIN_RESOLUTION`], [`MAX_RESOLUTION`]].
+pub fn check_resolution(resolution: f64) -> crate::Result<()> {
+    if resolution.is_finite() && (MIN_RESOLUTION..=MAX_RESOLUTION).contains(&resolution) {
+        return Ok(());
+    }
+    let why = if !(resolution.is_finite() && resolution > 0.0) {
+        "must be a positive number of metres"
+    } else {
+        "is outside what 16-bit keys and float32 points can represent"
+    };
+    Err(crate::Error::InvalidArgument(format!(
+        "resolution {why}: it must lie in [{MIN_RESOLUTION:e}, {MAX_RESOLUTION:e}] m, got {}",
+        crate::geometry::fmt_num(resolution)
+    )))
+}
+
 /// A cell at the finest depth: one 16-bit index per axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
 pub struct OcTreeKey(pub [u16; 3]);
@@ -270,6 +298,7 @@ impl KeyConverter {
 
 #[cfg(test)]
 mod tests {
+    use super::super::ray::compute_ray_keys;
     use super::*;
 
     #[test]
@@ -372,6 +401,95 @@ mod tests {
             with_bad[7][2] = bad;
             with_bad[9][0] = bad;
             assert_eq!(c.morton_keyed(&with_bad), Err(7), "{bad}");
+        }
+    }
+
+    /// Leaves and ray ends of one scan at `resolution`, its coordinates given in cells
+    /// (`scene` scales them by the resolution).
+    type Scan = (Vec<(OcTreeKey, u32, f32)>, Vec<(bool, [f64; 3])>);
+    fn scan_at(resolution: f64, cells: &[[f64; 3]], origin: [f64; 3]) -> Scan {
+        let scale = |p: &[f64; 3]| p.map(|c| c * resolution);
+        let points: Vec<[f64; 3]> = cells.iter().map(scale).collect();
+        let mut tree = crate::OcTree::new(resolution).unwrap();
+        tree.insert_point_cloud(&points, scale(&origin), None, false)
+            .unwrap();
+        let mut leaves = Vec::new();
+        tree.for_each_leaf(|l| leaves.push((l.key, l.depth, l.log_odds)));
+        // Rays cast back along the scan's directions, ends in cells.
+        let rays = cells
+            .iter()
+            .take(50)
+            .map(|p| {
+                let d = [p[0] - origin[0], p[1] - origin[1], p[2] - origin[2]];
+                let hit = tree.cast_ray(scale(&origin), d, None, true).unwrap();
+                (hit.hit, hit.end.map(|c| c / resolution))
+            })
+            .collect();
+        (leaves, rays)
+    }
+
+    #[test]
+    fn scans_are_the_same_at_every_resolution_in_the_range() {
+        // Scaling by a power of two is exact in float and double, so a scene in cells
+        // gives the same keys and values at every resolution the key arithmetic can
+        // represent: long rays across most of the map and rays of a cell or two.
+        let mut rng = crate::synthetic::Rng::new(7);
+        let mut cells: Vec<[f64; 3]> = (0..60)
+            .map(|_| [0; 3].map(|_: i32| rng.uniform(-32000.0, 32000.0)))
+            .collect();
+        cells.extend((0..200).map(|_| [0; 3].map(|_: i32| rng.uniform(-3.0, 3.0))));
+        let origin = [0.3, -0.6, 0.45];
+        let reference = scan_at(1.0, &cells, origin);
+        assert!(reference.0.len() > 100_000, "{}", reference.0.len());
+        let (lo, hi) = (MIN_RESOLUTION.log2().ceil(), MAX_RESOLUTION.log2().floor());
+        for exponent in [lo, lo + 1.0, -30.0, -7.0, 20.0, hi - 1.0, hi] {
+            let res = exponent.exp2();
+            assert!(check_resolution(res).is_ok());
+            assert!(
+                scan_at(res, &cells, origin) == reference,
+                "resolution 2^{exponent}"
+            );
+        }
+        // Beyond the range the float32 arithmetic breaks down, which is why it ends
+        // where it does: above, the map's diagonal has an infinite float length (its
+        // walk never ends: at 2^48 it ran until memory ran out); far below, a ray of
+        // a few cells loses cells.
+        let diagonal = |res: f64| {
+            let corner = (32767.5 * res) as f32;
+            super::super::ray::norm([2.0 * corner; 3])
+        };
+        assert!(diagonal(MAX_RESOLUTION).is_finite());
+        assert!(diagonal(f64::exp2(48.0)).is_infinite());
+        let ray_keys = |res: f64| {
+            let f = |p: [f64; 3]| p.map(|c| (c * res) as f32);
+            let mut keys = Vec::new();
+            compute_ray_keys(
+                &KeyConverter::new(res),
+                f([0.5, 0.5, 0.5]),
+                f([3.5, 2.5, 0.5]),
+                |k| keys.push(k),
+            );
+            keys
+        };
+        assert_eq!(ray_keys(MIN_RESOLUTION), ray_keys(1.0));
+        assert_ne!(ray_keys(f64::exp2(-80.0)), ray_keys(1.0));
+    }
+
+    #[test]
+    fn resolutions_outside_the_range_are_refused_with_the_range() {
+        for res in [
+            1e-100,
+            1e-19,
+            2e14,
+            1e308,
+            0.0,
+            -1.0,
+            f64::NAN,
+            f64::INFINITY,
+        ] {
+            let msg = check_resolution(res).unwrap_err().to_string();
+            assert!(msg.contains("[1e-18, 1e14]"), "{msg}");
+            assert!(msg.len() < 160, "{msg}");
         }
     }
 

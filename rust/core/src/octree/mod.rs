@@ -13,7 +13,10 @@ mod volume;
 mod walk_avx2;
 
 pub use danger::{decay_step, DangerMap, DangerParams, DecayMode, FrameReport, DANGER_ON_HIT};
-pub use key::{KeyConverter, OcTreeKey, TREE_DEPTH, TREE_MAX_VAL};
+pub use key::{
+    check_resolution, KeyConverter, OcTreeKey, MAX_RESOLUTION, MIN_RESOLUTION, TREE_DEPTH,
+    TREE_MAX_VAL,
+};
 pub use occupancy::{logodds, probability, KeyUpdate, Leaf, OcTree, OccupancyParams};
 pub use ray::{cast_ray, compute_ray_keys, walk_ray, Point3f, RayCells, RayHit};
 pub use scan::InsertReport;

@@ -4,6 +4,7 @@ use super::arena::{NodeArena, NONE};
 use super::danger::DangerMap;
 use super::key::{child_runs, KeyConverter, OcTreeKey, TREE_DEPTH};
 use crate::error::{Error, Result};
+use crate::geometry::{fmt_num, fmt_point};
 
 /// Sensor model and thresholds, as probabilities (OctoMap's defaults).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -41,7 +42,8 @@ impl OccupancyParams {
                 Ok(())
             } else {
                 Err(Error::InvalidArgument(format!(
-                    "{name} must be a probability in (0, 1), got {p}"
+                    "{name} must be a probability in (0, 1), got {}",
+                    fmt_num(p)
                 )))
             }
         };
@@ -55,13 +57,15 @@ impl OccupancyParams {
         if self.prob_hit <= 0.5 || self.prob_miss >= 0.5 {
             return Err(Error::InvalidArgument(format!(
                 "prob_hit must be above 0.5 and prob_miss below it, got {} and {}",
-                self.prob_hit, self.prob_miss
+                fmt_num(self.prob_hit),
+                fmt_num(self.prob_miss)
             )));
         }
         if self.clamping_min >= self.clamping_max {
             return Err(Error::InvalidArgument(format!(
                 "clamping_min ({}) must be below clamping_max ({})",
-                self.clamping_min, self.clamping_max
+                fmt_num(self.clamping_min),
+                fmt_num(self.clamping_max)
             )));
         }
         Ok(())
@@ -143,19 +147,19 @@ pub struct OcTree {
 
 impl OcTree {
     /// An empty tree with cells of `resolution` metres and OctoMap's default parameters.
-    /// Errors when `resolution` is not a positive number.
+    /// Errors when `resolution` is outside
+    /// [[`MIN_RESOLUTION`](crate::octree::MIN_RESOLUTION),
+    /// [`MAX_RESOLUTION`](crate::octree::MAX_RESOLUTION)].
     pub fn new(resolution: f64) -> Result<Self> {
         Self::with_params(resolution, OccupancyParams::default())
     }
 
     /// An empty tree with cells of `resolution` metres and the given sensor model.
-    /// Errors when `resolution` is not a positive number or `params` are invalid.
+    /// Errors when `resolution` is outside
+    /// [[`MIN_RESOLUTION`](crate::octree::MIN_RESOLUTION),
+    /// [`MAX_RESOLUTION`](crate::octree::MAX_RESOLUTION)] or `params` are invalid.
     pub fn with_params(resolution: f64, params: OccupancyParams) -> Result<Self> {
-        if !(resolution.is_finite() && resolution > 0.0) {
-            return Err(Error::InvalidArgument(format!(
-                "resolution must be a positive number of metres, got {resolution}"
-            )));
-        }
+        super::key::check_resolution(resolution)?;
         params.validate()?;
         Ok(OcTree {
             conv: KeyConverter::new(resolution),
@@ -608,7 +612,9 @@ impl OcTree {
     ) -> Result<Vec<(OcTreeKey, f32)>> {
         if lo.iter().chain(&hi).any(|c| c.is_nan()) {
             return Err(Error::InvalidArgument(format!(
-                "box bounds must not be NaN, got {lo:?} to {hi:?}"
+                "box bounds must not be NaN, got {} to {}",
+                fmt_point(&lo),
+                fmt_point(&hi)
             )));
         }
         // Per axis, the keys of the cells whose centres lie in [lo, hi] (centres grow
@@ -678,7 +684,8 @@ impl OcTree {
     pub fn key_of(&self, what: &'static str, p: [f64; 3]) -> Result<OcTreeKey> {
         if !p.iter().all(|c| c.is_finite()) {
             return Err(Error::InvalidArgument(format!(
-                "{what} {p:?} is not finite"
+                "{what} {} is not finite",
+                fmt_point(&p)
             )));
         }
         self.conv

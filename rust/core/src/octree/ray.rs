@@ -409,16 +409,19 @@ impl super::occupancy::OcTree {
         max_range: Option<f64>,
         ignore_unknown: bool,
     ) -> crate::Result<RayHit> {
+        use crate::geometry::{fmt_num, fmt_point};
         use crate::Error;
         if !direction.iter().all(|c| c.is_finite()) || direction == [0.0; 3] {
             return Err(Error::InvalidArgument(format!(
-                "direction {direction:?} must be finite and non-zero"
+                "direction {} must be finite and non-zero",
+                fmt_point(&direction)
             )));
         }
         if let Some(r) = max_range {
             if !(r.is_finite() && r > 0.0) {
                 return Err(Error::InvalidArgument(format!(
-                    "max_range must be a positive distance in metres, got {r}"
+                    "max_range must be a positive distance in metres, got {}",
+                    fmt_num(r)
                 )));
             }
         }
@@ -430,8 +433,20 @@ impl super::occupancy::OcTree {
             direction[2] as f32,
         ];
         let occupancy = |k: OcTreeKey| self.search(k, 0).map(|l| self.is_occupied_log_odds(l));
-        cast_ray(self.key_converter(), o, d, ignore_unknown, max_range.unwrap_or(-1.0), occupancy).ok_or_else(|| {
-            Error::InvalidArgument(format!("cannot cast a ray from {origin:?} along {direction:?} (off the map or zero in float precision)"))
+        cast_ray(
+            self.key_converter(),
+            o,
+            d,
+            ignore_unknown,
+            max_range.unwrap_or(-1.0),
+            occupancy,
+        )
+        .ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "cannot cast a ray from {} along {} (off the map or zero in float precision)",
+                fmt_point(&origin),
+                fmt_point(&direction)
+            ))
         })
     }
 }

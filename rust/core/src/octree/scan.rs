@@ -10,6 +10,7 @@ use super::ray::{
 };
 use super::volume::KeyVolume;
 use crate::error::{Error, Result};
+use crate::geometry::{fmt_num, fmt_point};
 use crate::threads;
 
 /// What one insertion did.
@@ -101,7 +102,8 @@ impl OcTree {
         if let Some(r) = max_range {
             if !(r.is_finite() && r > 0.0) {
                 return Err(Error::InvalidArgument(format!(
-                    "max_range must be a positive distance in metres, got {r}"
+                    "max_range must be a positive distance in metres, got {}",
+                    fmt_num(r)
                 )));
             }
         }
@@ -124,7 +126,8 @@ impl OcTree {
         for (i, &p) in points.iter().enumerate() {
             if !p.iter().all(|c| c.is_finite()) {
                 return Err(Error::InvalidArgument(format!(
-                    "point {i} {p:?} is not finite"
+                    "point {i} {} is not finite",
+                    fmt_point(&p)
                 )));
             }
             if !self.conv.has_key(to_f32(p)) {

@@ -24,6 +24,7 @@ use super::arena::{NodeArena, NONE};
 use super::key::{child_runs, KeyConverter, OcTreeKey, TREE_DEPTH};
 use super::occupancy::{logodds, probability};
 use crate::error::{Error, Result};
+use crate::geometry::{fmt_num, fmt_point};
 use crate::na::{Matrix3, Vector3};
 
 /// One node of the surface map.
@@ -111,24 +112,36 @@ pub struct SurfaceSample {
 
 impl SurfaceMap {
     /// An empty map with finest cells of `resolution` metres. Errors when `resolution`
-    /// is not a positive number or a parameter is out of range (probabilities in (0, 1),
-    /// `prob_hit` ≤ `clamping_max`, `position_memory` not `Some(0)`).
+    /// is outside [[`MIN_RESOLUTION`](crate::octree::MIN_RESOLUTION),
+    /// [`MAX_RESOLUTION`](crate::octree::MAX_RESOLUTION)] or a parameter is out of range
+    /// (probabilities in (0, 1), `prob_hit` ≤ `clamping_max`, `position_memory` not
+    /// `Some(0)`).
     pub fn new(resolution: f64, params: SurfaceParams) -> Result<Self> {
-        if !(resolution.is_finite() && resolution > 0.0) {
+        super::key::check_resolution(resolution)?;
+        let ok = |p: f64| p.is_finite() && p > 0.0 && p < 1.0;
+        for (name, value) in [
+            ("prob_hit", params.prob_hit),
+            ("clamping_max", params.clamping_max),
+            ("similar", params.similar),
+        ] {
+            if !ok(value) {
+                return Err(Error::InvalidArgument(format!(
+                    "{name} must lie strictly between 0 and 1, got {}",
+                    fmt_num(value)
+                )));
+            }
+        }
+        if params.prob_hit > params.clamping_max {
             return Err(Error::InvalidArgument(format!(
-                "resolution must be a positive number of metres, got {resolution}"
+                "prob_hit ({}) must not exceed clamping_max ({})",
+                fmt_num(params.prob_hit),
+                fmt_num(params.clamping_max)
             )));
         }
-        let ok = |p: f64| p.is_finite() && p > 0.0 && p < 1.0;
-        if !(ok(params.prob_hit)
-            && ok(params.clamping_max)
-            && params.prob_hit <= params.clamping_max
-            && ok(params.similar)
-            && params.position_memory != Some(0))
-        {
-            return Err(Error::InvalidArgument(format!(
-                "surface map parameters out of range: {params:?}"
-            )));
+        if params.position_memory == Some(0) {
+            return Err(Error::InvalidArgument(
+                "position_memory must be at least 1 point (or None for the paper's blend)".into(),
+            ));
         }
         Ok(SurfaceMap {
             conv: KeyConverter::new(resolution),
@@ -179,17 +192,20 @@ impl SurfaceMap {
     ) -> Result<Vec<u8>> {
         if !(beam_spacing.is_finite() && beam_spacing > 0.0 && beam_spacing < 1.0) {
             return Err(Error::InvalidArgument(format!(
-                "beam_spacing must be an angle in radians in (0, 1), got {beam_spacing}"
+                "beam_spacing must be an angle in radians in (0, 1), got {}",
+                fmt_num(beam_spacing)
             )));
         }
         if !origin.iter().all(|c| c.is_finite()) {
             return Err(Error::InvalidArgument(format!(
-                "sensor origin {origin:?} is not finite"
+                "sensor_origin {} is not finite",
+                fmt_point(&origin)
             )));
         }
         if !(max_leaf_size.is_finite() && max_leaf_size > 0.0) {
             return Err(Error::InvalidArgument(format!(
-                "max_leaf_size must be a positive number of metres, got {max_leaf_size}"
+                "max_leaf_size must be a positive number of metres, got {}",
+                fmt_num(max_leaf_size)
             )));
         }
         let res = self.resolution();
@@ -242,7 +258,7 @@ impl SurfaceMap {
             let p = points[i];
             // NaN has no key either: say which it is.
             if !p.iter().all(|c| c.is_finite()) {
-                Error::InvalidArgument(format!("point {i} {p:?} is not finite"))
+                Error::InvalidArgument(format!("point {i} {} is not finite", fmt_point(&p)))
             } else {
                 Error::OutOfBounds {
                     what: "a point",

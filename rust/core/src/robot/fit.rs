@@ -42,6 +42,15 @@ pub fn fit_body(vertices: &[[f64; 3]], padding: f64, shape: FitShape) -> Result<
 /// `padding` in radius and at both ends.
 pub fn fit_cylinder(vertices: &[[f64; 3]], padding: f64) -> Result<Body> {
     let axes = candidate_axes(vertices, padding)?;
+    // Flat cylinders tie at volume zero: vertices on a segment fit both a cylinder
+    // along it (radius 0) and a disc across it (length 0). Comparing volumes grown by
+    // a sliver of the vertices' extent breaks such ties by surface, then by length
+    // (Steiner's formula), and leaves the order of bodies of real volume unchanged.
+    let sliver = 1e-6 * bounding_extent(vertices);
+    let grown_volume = |b: &Body| {
+        let r = b.radius() + sliver;
+        std::f64::consts::PI * r * r * (b.axis.length() + 2.0 * sliver)
+    };
     let mut best: Option<Body> = None;
     for axis in axes {
         let (u, w) = across_basis(&axis);
@@ -64,16 +73,32 @@ pub fn fit_cylinder(vertices: &[[f64; 3]], padding: f64) -> Result<Body> {
             let p = u * centre.x + w * centre.y + axis * t;
             [p.x, p.y, p.z]
         };
+        // Vertices on the fitted surface stay inside despite the change of basis.
+        let slack = ROUNDING_SLACK * (1.0 + radius + lo.abs().max(hi.abs()));
         let body = Body::cylinder(
-            on_axis(lo - padding),
-            on_axis(hi + padding),
-            radius + padding,
+            on_axis(lo - padding - slack),
+            on_axis(hi + padding + slack),
+            radius + padding + slack,
         );
-        if best.is_none_or(|b| body.volume() < b.volume()) {
+        if best.is_none_or(|b| grown_volume(&body) < grown_volume(&b)) {
             best = Some(body);
         }
     }
     best.ok_or_else(|| Error::InvalidArgument("no cylinder fitted".into()))
+}
+
+/// The longest edge of the vertices' axis-aligned bounding box.
+fn bounding_extent(vertices: &[[f64; 3]]) -> f64 {
+    (0..3)
+        .map(|a| {
+            let (lo, hi) = vertices
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                    (lo.min(v[a]), hi.max(v[a]))
+                });
+            hi - lo
+        })
+        .fold(0.0, f64::max)
 }
 
 /// Check the inputs; the link axes and the vertices' principal axes.
@@ -86,7 +111,8 @@ fn candidate_axes(vertices: &[[f64; 3]], padding: f64) -> Result<Vec<Vector3<f64
     crate::geometry::check_finite(vertices, "vertex")?;
     if !(padding.is_finite() && padding >= 0.0) {
         return Err(Error::InvalidArgument(format!(
-            "padding must be finite and ≥ 0, got {padding}"
+            "padding must be finite and ≥ 0, got {}",
+            crate::geometry::fmt_num(padding)
         )));
     }
     let n = vertices.len() as f64;
@@ -314,6 +340,80 @@ mod tests {
         let body = fit_body(&rod, 0.0, FitShape::Auto).unwrap();
         assert_eq!(body.shape, BodyShape::Capsule);
         assert!(rod.iter().all(|p| body.contains_point(p)));
+    }
+
+    #[test]
+    fn vertices_on_a_segment_fit_the_segment_along_any_direction() {
+        // The analytic answer: a cylinder (or capsule) of radius `padding` whose axis
+        // is the segment, lengthened by `padding` at each end for the cylinder.
+        let s = 1.0 / 3f64.sqrt();
+        let directions = [
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [s, s, s],
+            [0.6, 0.0, 0.8],
+            [0.0, -0.28, 0.96],
+        ];
+        let start = [0.1, -0.2, 0.3];
+        let length = 0.7;
+        for d in directions {
+            let at = |t: f64| [0, 1, 2].map(|i| start[i] + d[i] * t);
+            let pts: Vec<[f64; 3]> = (0..=20).map(|i| at(length * f64::from(i) / 20.0)).collect();
+            for padding in [0.0, 0.01] {
+                let cyl = fit_cylinder(&pts, padding).unwrap();
+                let (a, b) = (cyl.axis.a, cyl.axis.b);
+                // Either orientation of the axis is the same cylinder.
+                let (a, b) = if crate::geometry::distance_squared(&a, &at(-padding))
+                    < crate::geometry::distance_squared(&b, &at(-padding))
+                {
+                    (a, b)
+                } else {
+                    (b, a)
+                };
+                let tol = 1e-9;
+                assert!(
+                    cyl.radius() >= padding && cyl.radius() < padding + tol,
+                    "{d:?}: radius {}",
+                    cyl.radius()
+                );
+                assert!(
+                    crate::geometry::distance_squared(&a, &at(-padding)).sqrt() < tol,
+                    "{d:?}: {a:?}"
+                );
+                assert!(
+                    crate::geometry::distance_squared(&b, &at(length + padding)).sqrt() < tol,
+                    "{d:?}: {b:?}"
+                );
+                assert!(pts.iter().all(|p| cyl.contains_point(p)));
+                let cap = fit_capsule(&pts, padding).unwrap();
+                assert!(
+                    (cap.length() - length).abs() < tol,
+                    "{d:?}: capsule length {}",
+                    cap.length()
+                );
+                assert!(cap.radius >= padding && cap.radius < padding + tol);
+                let auto = fit_body(&pts, padding, FitShape::Auto).unwrap();
+                assert!(auto.radius() < padding + tol, "{d:?}: {auto:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn vertices_on_a_disc_fit_a_flat_cylinder() {
+        // Points on a circle of radius 0.2 in the plane z = 0.5: a cylinder of radius
+        // 0.2 and length 0 along z (the only body of zero volume).
+        let pts: Vec<[f64; 3]> = (0..64)
+            .map(|i| {
+                let a = f64::from(i) / 64.0 * std::f64::consts::TAU;
+                [0.2 * a.cos(), 0.2 * a.sin(), 0.5]
+            })
+            .collect();
+        let cyl = fit_cylinder(&pts, 0.0).unwrap();
+        assert!((cyl.radius() - 0.2).abs() < 1e-9, "{cyl:?}");
+        assert!(cyl.axis.length() < 1e-9, "{cyl:?}");
+        assert!((cyl.axis.a[2] - 0.5).abs() < 1e-9);
     }
 
     #[test]
