@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bump", nargs="*", default=[], help="simulation: move these cameras 10 cm / 10° first")
     parser.add_argument("--seed", type=count, default=0)
     parser.add_argument("--camera-scale", type=positive, default=1.0, help="camera resolution factor (1 = the sensors' own)")
-    parser.add_argument("--max-frames", type=lambda text: count(text, 3), default=20,
+    parser.add_argument("--max-frames", type=lambda text: count(text, 8), default=20,
                         help="frames per camera (default 20: three cameras in under 3 minutes of motion; Paper I: ~30)")
     parser.add_argument("--full", action="store_true", help="the whole trajectory (both distances, every position)")
     parser.add_argument("--no-tilt", action="store_true", help="no tilting along the trajectory")

@@ -45,6 +45,15 @@ class RunConfig:
         return self
 
 
+#: Keys of `[planning]` that were renamed to the keyword arguments they feed.
+RENAMED = {
+    "motion_resolution": "resolution",
+    "risk_beta": "beta",
+    "risk_threshold": "threshold",
+    "straight_acceleration_share": "straight_share",
+}
+
+
 def _dataclass_in(hint) -> Any:
     """The dataclass a field holds (`X`) or lists (`list[X]`), if any."""
     if is_dataclass(hint):
@@ -69,7 +78,9 @@ def _build(cls, data: dict[str, Any], where: str):
     known = {f.name: f for f in fields(cls)}
     unknown = set(data) - set(known)
     if unknown:
-        raise ConfigError(f"{where or 'the top level'}: unknown keys {sorted(unknown)}; known: {sorted(known)}")
+        renamed = [f"{k} is now {RENAMED[k]}" for k in sorted(unknown) if k in RENAMED]
+        hint = f" ({'; '.join(renamed)})" if renamed else ""
+        raise ConfigError(f"{where or 'the top level'}: unknown keys {sorted(unknown)}{hint}; known: {sorted(known)}")
     hints = typing.get_type_hints(cls)
     kwargs = {}
     for name, value in data.items():

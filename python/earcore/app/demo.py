@@ -1,8 +1,6 @@
 """The map demo: a synthetic cell scanned by three depth cameras while an obstacle
 (a forearm-sized sphere) sweeps through and leaves; the danger it left behind
 decays frame by frame (Paper II, Eq. 1). Writes a PNG and prints one line.
-
-This is the main job until the simulated pybullet cell exists.
 """
 
 from __future__ import annotations

@@ -322,7 +322,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def config_main(argv: list[str]) -> int:
-    if argv[:1] == ["dump"]:
+    if argv in (["--help"], ["-h"], ["dump", "--help"], ["dump", "-h"]):
+        print("usage: earcore config dump   (prints every option of `earcore run` with its default, as TOML)")
+        return 0
+    if argv == ["dump"]:
         sys.stdout.write(dump_toml(RunConfig()))
         return 0
     return fail("earcore config", "the only command is `earcore config dump` (every option with its default, as TOML)")

@@ -5,7 +5,7 @@ A new plan usually starts while the robot still moves along the old one. The new
 path is timed from the robot's position with only the speed it has along the path's
 first direction; the rest of its velocity the follower brakes away within the
 acceleration limit, and meanwhile the robot is off the path that was checked (up to
-7 cm at the tool in the experiments before the executive checked it). The control
+7 cm at the tool in the experiments). The control
 law is deterministic, so the executive rolls it out (`Follower.rollout`) and checks
 the states the robot will really pass through.
 """

@@ -309,7 +309,7 @@ def _velocity_weights(times: list[float]) -> tuple[list[float] | None, list[floa
     """Both velocities of `_velocities` are linear in the positions: the weights of
     the least-squares slope and of the constant-acceleration fit's velocity at the
     newest sample (None where there are too few samples or distinct times). In plain
-    floats: for a handful of samples numpy's per-call cost was most of the reflex
+    floats: for a handful of samples numpy's per-call cost would be most of the reflex
     layer's tracking time."""
     n = len(times)
     if n < 2 or max(times) == min(times):  # (t - mean need not round to 0 then)

@@ -47,6 +47,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from earcore.depth_error import DepthBias, radius2_grid
+from earcore.transforms import rotation_xyz
 
 __all__ = ["SENSORS", "ColourSensor", "DepthBias", "SensorModel", "radius2_grid"]
 
@@ -87,13 +88,8 @@ class ColourSensor:
     @property
     def depth_from_colour(self) -> np.ndarray:
         """4×4 pose of the colour camera in the depth camera's frame."""
-        rx, ry, rz = np.radians(self.rotation_deg)
-        cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
-        r_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-        r_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-        r_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
         m = np.eye(4)
-        m[:3, :3] = r_z @ r_y @ r_x
+        m[:3, :3] = rotation_xyz(*np.radians(self.rotation_deg))
         m[:3, 3] = self.translation
         return m
 

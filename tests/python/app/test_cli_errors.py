@@ -38,7 +38,7 @@ BAD_OPTIONS = [
     (["experiment", "nonsense"], "name"),
     (["experiment", "calibration", "--camera-scale", "0"], "--camera-scale"),
     (["calibrate", "--camera-scale", "0"], "--camera-scale"),
-    (["calibrate", "--max-frames", "2"], "--max-frames"),
+    (["calibrate", "--max-frames", "7"], "--max-frames"),
     (["demo", "--resolution", "-0.05"], "--resolution"),
     (["demo", "--after", "nan"], "--after"),
     (["config", "nonsense"], "config dump"),

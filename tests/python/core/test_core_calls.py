@@ -329,8 +329,8 @@ def test_leaves_at_full_depth_equals_the_old_box_loop(seed):
         assert centres.shape == (len(log_odds), 3) and centres.dtype == np.float64 and log_odds.dtype == np.float32
         assert ((centres >= lo) & (centres <= hi)).all()
         old = old_box_cells(tree, lo, hi)
-        # The old loop also took cells up to half a cell outside the box (its ball
-        # filter dropped them); within the box the two agree exactly.
+        # The replaced loop also took cells up to half a cell outside the box (its
+        # ball filter dropped them); within the box the two agree exactly.
         old = old[((old >= lo) & (old <= hi)).all(axis=1)]
         assert cell_keys(centres, res) == cell_keys(old, res)
         assert len(centres) == len(cell_keys(centres, res)), "each cell once"

@@ -1,4 +1,4 @@
-"""Errors a user can act on (issue 36, item 5): misaligned arrays are simply read,
+"""Errors a user can act on: misaligned arrays are simply read,
 messages name the parameter with numbers of sane length and no Rust internals, and
 pickling either works (OcTree) or says plainly that it does not."""
 
@@ -33,7 +33,7 @@ def scene():
 
 def test_misaligned_arrays_are_read_like_aligned_ones(scene):
     """numpy's ascontiguousarray keeps such arrays as they are; the binding copies them
-    (they used to be refused as "not contiguous")."""
+    rather than refusing them as "not contiguous")."""
     a, b = earcore.OcTree(0.05), earcore.OcTree(0.05)
     a.insert_point_cloud(scene, [0, 0, 0])
     b.insert_point_cloud(misaligned(scene), misaligned(np.zeros(3)))

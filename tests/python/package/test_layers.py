@@ -24,17 +24,27 @@ def area_of(module: str) -> str:
     return parts[1]
 
 
-def imported_modules(source: str, module: str) -> list[tuple[int, str]]:
-    """(line, module) of every earcore import in `source` (of `module`), relative
-    imports resolved and `from earcore import sub` read as `earcore.sub`."""
+def imported_modules(source: str, module: str, *, package: bool = False) -> list[tuple[int, str]]:
+    """(line, module) of every earcore import in `source` (of `module`; `package`: the
+    source is the package's `__init__.py`), relative imports resolved, `from earcore
+    import sub` read as `earcore.sub`, and `importlib.import_module("earcore...")` /
+    `__import__("earcore...")` with a literal name counted too."""
     found = []
     for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant):
+            func = node.func
+            name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            target = node.args[0].value
+            if name in ("import_module", "__import__") and isinstance(target, str) and target.split(".")[0] == "earcore":
+                found.append((node.lineno, target))
         if isinstance(node, ast.Import):
             found += [(node.lineno, a.name) for a in node.names if a.name.split(".")[0] == "earcore"]
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
-                parent = module.split(".")[: -node.level]
+                # A package's `from . import x` is relative to the package itself.
+                parts = module.split(".")
+                parent = parts[: len(parts) - node.level + (1 if package else 0)]
                 base = ".".join(parent + ([base] if base else []))
             if base.split(".")[0] != "earcore":
                 continue
@@ -44,10 +54,10 @@ def imported_modules(source: str, module: str) -> list[tuple[int, str]]:
     return found
 
 
-def violations(source: str, module: str) -> list[str]:
+def violations(source: str, module: str, *, package: bool = False) -> list[str]:
     own = area_of(module)
     bad = []
-    for line, target in imported_modules(source, module):
+    for line, target in imported_modules(source, module, package=package):
         theirs = area_of(target)
         if theirs == own:
             continue
@@ -73,7 +83,9 @@ def test_every_area_is_found():
 
 
 def test_no_module_imports_upward():
-    bad = [v for module, path in package_modules() for v in violations(path.read_text(), module)]
+    bad = [
+        v for module, path in package_modules() for v in violations(path.read_text(), module, package=path.name == "__init__.py")
+    ]
     assert not bad, "upward imports:\n" + "\n".join(bad)
 
 
@@ -85,3 +97,8 @@ def test_the_check_catches_upward_and_sideways_imports():
     assert violations("from earcore.perception import PerceptionPipeline", "earcore.planning.reflex")
     assert not violations("from earcore.planning.ik import solve_ik", "earcore.calibration.procedure")
     assert not violations("import earcore\nfrom earcore.transforms import look_at", "earcore.sim.cell")
+    assert violations("from ..sim import cell", "earcore.planning", package=True)
+    assert violations("from . import app", "earcore", package=True)
+    assert not violations("from . import transforms", "earcore", package=True)
+    assert violations("import importlib\nimportlib.import_module('earcore.app.run')", "earcore.perception.pipeline")
+    assert violations("__import__('earcore.sim')", "earcore.planning.rrt")

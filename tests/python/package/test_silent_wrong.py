@@ -1,5 +1,5 @@
-"""Inputs that used to give a wrong answer without a word (issue 36, item 3) now give
-the right answer or a clear error; each answer is checked against an independent
+"""Inputs that could give a wrong answer without a word give the right answer or a
+clear error; each answer is checked against an independent
 reference (the sensor model's log-odds, a scaled scene, analytic geometry, the file
 as OctoMap writes it)."""
 

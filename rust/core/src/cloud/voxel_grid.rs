@@ -78,8 +78,9 @@ pub fn voxel_downsample(
     if let Some((v, s)) = values {
         if v.len() != points.len() * s {
             return Err(Error::InvalidArgument(format!(
-                "values must have one row per point ({} rows of {s})",
-                points.len()
+                "values must have one row per point: {} points, but {} values in rows of {s}",
+                points.len(),
+                v.len()
             )));
         }
     }
