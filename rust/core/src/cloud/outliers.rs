@@ -94,6 +94,9 @@ pub fn statistical_outliers_interruptible(
     Ok(Some((inliers, mean_distance)))
 }
 
+/// Beyond this many neighbours the k-d tree answers (see `mean_knn_distances`).
+const LARGE_K: usize = 256;
+
 /// Every point's mean distance to its `k` nearest neighbours (itself excluded).
 ///
 /// Points are bucketed in a dense grid of cubic cells (`CellGrid`). The candidates
@@ -116,6 +119,12 @@ fn mean_knn_distances(
     let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
     if extent == 0.0 {
         return Some(vec![0.0; n]); // every point is the same point
+    }
+    if k > LARGE_K {
+        // Neighbourhoods that large span most of the cloud: the grid's cells would hold
+        // thousands of points each (one cell a round of minutes); the k-d tree's rounds
+        // are a few points each.
+        return kd_tree_means(points, k, interrupt);
     }
     let (Some(first_cell), Some(finest_cell)) = (
         coarse_cell(lo, hi, extent, 4 * n),
@@ -756,6 +765,9 @@ mod tests {
             .map(|_| [rng.unit(), rng.unit(), rng.unit()])
             .collect();
         assert_same(&cube, 20, "uniform cube");
+        // Beyond LARGE_K the k-d tree answers, up to k = N - 1.
+        assert_same(&cube[..700], LARGE_K + 1, "large k");
+        assert_same(&cube[..700], 699, "k = N - 1");
         let flat: Vec<[f64; 3]> = (0..1500).map(|_| [rng.unit(), rng.unit(), 0.25]).collect();
         assert_same(&flat, 20, "one plane");
         let line: Vec<[f64; 3]> = (0..800).map(|_| [rng.unit(), 2.0, -1.0]).collect();
