@@ -16,7 +16,10 @@ __all__ = ["ConfigError", "count", "finite", "fraction", "non_negative", "one_of
 def _number(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{where} must be a number, got {value!r}")
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:
+        raise ConfigError(f"{where} is too large: {str(value)[:12]}... ({len(str(value))} digits)") from None
 
 
 def finite(value: Any, where: str) -> float:

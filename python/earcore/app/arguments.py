@@ -9,7 +9,7 @@ import sys
 from collections.abc import Callable
 from typing import NoReturn
 
-__all__ = ["Parser", "count", "positive", "positive_int"]
+__all__ = ["Parser", "count", "fail", "positive", "positive_int", "scale", "seconds"]
 
 
 class Parser(argparse.ArgumentParser):
@@ -38,19 +38,35 @@ def positive(text: str) -> float:
     return value
 
 
+def scale(text: str) -> float:
+    """A camera resolution factor in [0.05, 4]."""
+    value = _number(float, text)
+    if not 0.05 <= value <= 4.0:
+        raise argparse.ArgumentTypeError(f"must be in [0.05, 4], got {text!r}")
+    return value
+
+
+def seconds(text: str) -> float:
+    """A duration in seconds, > 0 and at most a day."""
+    value = positive(text)
+    if value > 86400:
+        raise argparse.ArgumentTypeError(f"must be at most 86400 (a day), got {text!r}")
+    return value
+
+
 def positive_int(text: str) -> int:
     """A whole number >= 1."""
     return count(text, 1)
 
 
 def count(text: str, minimum: int = 0) -> int:
-    """A whole number >= `minimum` (0 by default)."""
+    """A whole number >= `minimum` (0 by default) and below 2^31."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < minimum:
-        raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {text!r}")
+    if not minimum <= value < 2**31:
+        raise argparse.ArgumentTypeError(f"must be in [{minimum}, 2^31), got {text!r}")
     return value
 
 

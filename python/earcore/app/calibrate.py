@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from earcore.app.arguments import Parser, count, fail, positive
+from earcore.app.arguments import Parser, count, fail, scale
 
 __all__ = ["main"]
 
@@ -42,12 +42,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--check", action="store_true", help="only check the cameras in --out against the board")
     parser.add_argument("--bump", nargs="*", default=[], help="simulation: move these cameras 10 cm / 10° first")
     parser.add_argument("--seed", type=count, default=0)
-    parser.add_argument("--camera-scale", type=positive, default=1.0, help="camera resolution factor (1 = the sensors' own)")
+    parser.add_argument("--camera-scale", type=scale, default=1.0, help="camera resolution factor (1 = the sensors' own)")
     parser.add_argument("--max-frames", type=lambda text: count(text, 8), default=20,
                         help="frames per camera (default 20: three cameras in under 3 minutes of motion; Paper I: ~30)")
     parser.add_argument("--full", action="store_true", help="the whole trajectory (both distances, every position)")
     parser.add_argument("--no-tilt", action="store_true", help="no tilting along the trajectory")
     args = parser.parse_args(argv)
+    if args.camera_scale < 0.25:
+        parser.error(f"argument --camera-scale: the board's corners are not found below 0.25, got {args.camera_scale:g}")
 
     cell, true_mount = calibration_cell(calibration_cell_config(args.seed, args.camera_scale), seed=args.seed)
     bump_rng = np.random.default_rng([args.seed, 99])

@@ -16,7 +16,7 @@ def _is_user_error(exc: BaseException) -> bool:
     a camera that never saw the board): reported in one line, not as a traceback."""
     from earcore.errors import EarcoreError
 
-    return isinstance(exc, (ValueError, TypeError, OSError, EarcoreError))
+    return isinstance(exc, (ValueError, TypeError, OSError, OverflowError, EarcoreError))
 
 
 def _version() -> int:

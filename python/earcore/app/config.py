@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import tomllib
 import typing
-from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -82,7 +82,7 @@ def _build(cls, data: dict[str, Any], where: str):
         hint = f" ({'; '.join(renamed)})" if renamed else ""
         raise ConfigError(f"{where or 'the top level'}: unknown keys {sorted(unknown)}{hint}; known: {sorted(known)}")
     hints = typing.get_type_hints(cls)
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     for name, value in data.items():
         hint = hints[name]
         key = f"{where}.{name}" if where else name
@@ -97,7 +97,14 @@ def _build(cls, data: dict[str, Any], where: str):
             value = [tuple(_list(v, f"{key}[{i}]")) for i, v in enumerate(_list(value, key))]
         elif typing.get_origin(hint) is list:
             value = _list(value, key)
+        elif hint is bool and not isinstance(value, bool):
+            raise ConfigError(f"{key} must be true or false, got {value!r}")
+        elif hint is str and not isinstance(value, str):
+            raise ConfigError(f"{key} must be a string, got {value!r}")
         kwargs[name] = value
+    missing = [f.name for f in fields(cls) if f.name not in kwargs and f.default is MISSING and f.default_factory is MISSING]
+    if missing:
+        raise ConfigError(f"{where or 'the top level'}: missing {', '.join(missing)}")
     return cls(**kwargs)
 
 

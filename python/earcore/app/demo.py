@@ -161,11 +161,11 @@ def draw_map(png: Path, occupied: np.ndarray, snapshots: dict, history: np.ndarr
 
 
 def main(argv: list[str] | None = None) -> int:
-    from earcore.app.arguments import Parser, positive
+    from earcore.app.arguments import Parser, positive, seconds
 
     p = Parser(prog="earcore demo", description=__doc__)
     p.add_argument("--resolution", type=positive, default=DemoConfig.resolution, help="voxel size in metres")
-    p.add_argument("--after", type=positive, default=DemoConfig.after_s, help="seconds simulated after the obstacle left")
+    p.add_argument("--after", type=seconds, default=DemoConfig.after_s, help="seconds simulated after the obstacle left")
     p.add_argument("--out", type=Path, default=DemoConfig.out_dir, help="output folder for the PNG and map.bt")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)

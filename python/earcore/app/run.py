@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from earcore.app.arguments import Parser, count, fail, positive
+from earcore.app.arguments import Parser, count, fail, scale, seconds
 from earcore.app.config import RunConfig, dump_toml, load_config
 from earcore.errors import ConfigError
 
@@ -287,10 +287,10 @@ def draw_snapshot(png: Path, pipeline, cell) -> Path:
 def main(argv: list[str] | None = None) -> int:
     parser = Parser(prog="earcore run", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", type=Path, help="TOML file (see `earcore config dump`); missing keys keep defaults")
-    parser.add_argument("--duration", type=positive, help="simulated seconds (default 30)")
+    parser.add_argument("--duration", type=seconds, help="simulated seconds (default 30)")
     parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default ./out)")
     parser.add_argument("--seed", type=count, help="random seed of the cell (noise, random reaches)")
-    parser.add_argument("--camera-scale", type=positive, help="render every camera at this fraction of its resolution")
+    parser.add_argument("--camera-scale", type=scale, help="render every camera at this fraction of its resolution")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--no-recording", action="store_true", help="skip the rerun recording (out/cell.rrd)")
     args = parser.parse_args(argv)

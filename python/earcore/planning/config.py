@@ -74,6 +74,8 @@ class PlanningConfig:
         positive(self.time_limit, f"{where}.time_limit")
         count(self.attempts, f"{where}.attempts")
         positive(self.resolution, f"{where}.resolution", at_most=3.15)
+        if self.resolution < 1e-4:
+            raise ConfigError(f"{where}.resolution must be at least 0.0001 rad, got {self.resolution!r}")
         non_negative(self.replan_period, f"{where}.replan_period")
         v = finite(self.replan_gain, f"{where}.replan_gain")
         if not 0 <= v < 1:

@@ -169,13 +169,15 @@ class CellConfig:
         """Raise `ConfigError` naming the first setting out of its range; returns self."""
         from earcore.robots import BUILTIN_MODELS
 
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ConfigError(f"{where}.seed must be a whole number >= 0, got {self.seed!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**31:
+            raise ConfigError(f"{where}.seed must be a whole number in [0, 2^31), got {self.seed!r}")
         one_of(self.robot, sorted(BUILTIN_MODELS), f"{where}.robot")
         non_negative(self.padding, f"{where}.padding")
+        if self.padding > 0.5:
+            raise ConfigError(f"{where}.padding must be at most 0.5 m, got {self.padding!r}")
         for i, v in enumerate(vector(self.table_size, f"{where}.table_size", 2)):
-            positive(v, f"{where}.table_size[{i}]")
-        positive(self.table_height, f"{where}.table_height")
+            positive(v, f"{where}.table_size[{i}]", at_most=100.0)
+        positive(self.table_height, f"{where}.table_height", at_most=10.0)
         for i, box in enumerate(self.boxes):
             b = vector(box, f"{where}.boxes[{i}]", 6)
             if not all(b[k] < b[k + 3] for k in range(3)):
@@ -186,12 +188,18 @@ class CellConfig:
         for i, camera in enumerate(self.cameras):
             camera.validate(f"{where}.cameras[{i}]")
         positive(self.camera_scale, f"{where}.camera_scale", at_most=4.0)
+        if self.camera_scale < 0.05:
+            raise ConfigError(f"{where}.camera_scale must be at least 0.05, got {self.camera_scale!r}")
         positive(self.colour_scale, f"{where}.colour_scale", at_most=4.0)
         count(self.supersample, f"{where}.supersample")
+        if self.supersample > 8:
+            raise ConfigError(f"{where}.supersample must be at most 8 (8×8 samples per pixel), got {self.supersample!r}")
         one_of(self.robot_meshes, ("visual", "collision"), f"{where}.robot_meshes")
         self.person.validate(f"{where}.person")
         fraction(self.speed_fraction, f"{where}.speed_fraction", zero=False)
         fraction(self.acceleration_fraction, f"{where}.acceleration_fraction", zero=False)
         positive(self.max_acceleration, f"{where}.max_acceleration")
         positive(self.time_step, f"{where}.time_step", at_most=0.1)
+        if self.time_step < 1e-4:
+            raise ConfigError(f"{where}.time_step must be at least 0.0001 s, got {self.time_step!r}")
         return self

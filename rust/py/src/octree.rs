@@ -144,14 +144,28 @@ fn read_file(path: &PathBuf) -> PyResult<Vec<u8>> {
 /// Write through a temporary file and rename, so a failed write never leaves a
 /// half-written map where a good one was.
 fn write_file(path: &PathBuf, bytes: &[u8]) -> PyResult<()> {
-    let mut tmp = path.clone().into_os_string();
+    let error =
+        |e: std::io::Error| PyOSError::new_err(format!("cannot write {}: {e}", path.display()));
+    // Through a symbolic link to its target; a device or pipe is written as it is (no
+    // temporary beside it can replace it).
+    let target = std::fs::canonicalize(path).unwrap_or_else(|_| path.clone());
+    let existing = std::fs::metadata(&target).ok();
+    if existing.as_ref().is_some_and(|m| !m.is_file()) {
+        return std::fs::write(&target, bytes).map_err(error);
+    }
+    let mut tmp = target.clone().into_os_string();
     tmp.push(".earcore-tmp");
     let tmp = PathBuf::from(tmp);
     std::fs::write(&tmp, bytes)
-        .and_then(|_| std::fs::rename(&tmp, path))
+        // A file that was there keeps its permissions.
+        .and_then(|_| match &existing {
+            Some(m) => std::fs::set_permissions(&tmp, m.permissions()),
+            None => Ok(()),
+        })
+        .and_then(|_| std::fs::rename(&tmp, &target))
         .map_err(|e| {
             let _ = std::fs::remove_file(&tmp);
-            PyOSError::new_err(format!("cannot write {}: {e}", path.display()))
+            error(e)
         })
 }
 

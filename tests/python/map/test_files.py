@@ -152,3 +152,26 @@ def test_corrupted_bytes_load_or_raise_never_crash(sample_files, tmp_path, kind,
     centres, _, _ = tree.leaves()
     np.testing.assert_array_equal(again.log_odds(centres), tree.log_odds(centres))
     assert again.num_leaf_nodes() <= tree.num_leaf_nodes()
+
+
+def test_writing_through_a_link_keeps_the_link_and_the_files_mode(tmp_path):
+    """A map written to a symbolic link lands in the link's target (the link stays),
+    an existing file keeps its permissions, and a device is written, not replaced."""
+    import os
+    import stat
+
+    tree = earcore.OcTree(0.1)
+    tree.insert_point_cloud(np.array([[0.3, 0.2, 0.1]]), [0.0, 0.0, 0.0])
+    target = tmp_path / "real.bt"
+    target.write_bytes(b"old")
+    os.chmod(target, 0o600)
+    link = tmp_path / "link.bt"
+    link.symlink_to(target)
+    tree.write_binary(link)
+    assert link.is_symlink() and stat.S_IMODE(target.stat().st_mode) == 0o600
+    assert earcore.OcTree.read_binary(target).size() == tree.size()
+    assert not list(tmp_path.glob("*.earcore-tmp"))
+    if os.path.exists("/dev/full"):
+        with pytest.raises(OSError):
+            tree.write_binary("/dev/full")  # a full device: an error, and the device stays
+        assert stat.S_ISCHR(os.stat("/dev/full").st_mode)

@@ -164,13 +164,15 @@ def format_table(result: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    from earcore.app.arguments import Parser, count, positive
+    from earcore.app.arguments import Parser, count, scale
 
     parser = Parser(prog="earcore experiment calibration", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seed", type=count, default=0)
-    parser.add_argument("--camera-scale", type=positive, default=1.0, help="camera resolution factor")
+    parser.add_argument("--camera-scale", type=scale, default=1.0, help="camera resolution factor")
     parser.add_argument("--out", type=Path, default=Path("out/calibration"))
     args = parser.parse_args(argv)
+    if args.camera_scale < 0.25:
+        parser.error(f"argument --camera-scale: the board's corners are not found below 0.25, got {args.camera_scale:g}")
     result = calibration_table(args.seed, args.camera_scale, args.out,
                                progress=lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", flush=True))
     print(format_table(result))

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from earcore import DANGER_ON_HIT
-from earcore.app.arguments import Parser, count, positive, positive_int
+from earcore.app.arguments import Parser, count, positive_int, scale
 from earcore.app.config import RunConfig
 
 __all__ = ["CirclesDriver", "experiment_configs", "fig7", "main", "table2"]
@@ -372,7 +372,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repetitions", type=positive_int, default=20, help="fig7: repetitions of the three circles (default 20)")
     parser.add_argument("--trips", type=positive_int, default=15, help="A-B-A return trips per experiment (default 15)")
     parser.add_argument("--seed", type=count, default=0)
-    parser.add_argument("--camera-scale", type=positive, default=0.25, help="camera resolution factor (rendering dominates the run time)")
+    parser.add_argument("--camera-scale", type=scale, default=0.25, help="camera resolution factor (rendering dominates the run time)")
     parser.add_argument("--only", nargs="*", help="run only these experiments, e.g. 'Exp. 3' Direct")
     parser.add_argument("--out", type=Path, default=Path("out/table2"), help="output folder (fig7: out/fig7)")
     if argv and argv[0] == "calibration":
