@@ -14,9 +14,9 @@ __all__ = ["box_voxel_centres", "cluster_points", "voxel_codes", "crop", "depth_
 
 
 def _real(a: npt.ArrayLike, name: str) -> np.ndarray:
-    """`a` as an array of real numbers, for what does not go through the binding's
-    checked conversion: a masked array's mask, a complex array's imaginary part or
-    an object array's Python objects would otherwise be dropped or guessed at."""
+    """`a` as an array of real numbers, for what numpy computes here without the
+    binding (a box's corners): a masked array's mask, a complex array's imaginary
+    part or an object array's Python objects would otherwise be dropped or guessed at."""
     if isinstance(a, np.ma.MaskedArray):
         raise TypeError(f"{name} is a masked array: pass plain numbers (the mask cannot be honoured)")
     arr = np.asarray(a)
@@ -51,7 +51,6 @@ def depth_to_points(
     Returns the points (N, 3); with `colour` (H, W, C) also the colours (N, C) of the
     same pixels; with `return_pixels` also the flat pixel index (row·W + column) of each.
     """
-    depth = _real(depth, "depth")
     points, pixels = _earcore.depth_to_points_raw(
         depth, fx, fy, cx, cy, distortion, depth_scale, min_depth, max_depth, base_from_camera
     )
@@ -101,8 +100,6 @@ def voxel_downsample(points: npt.ArrayLike, voxel_size: float, values: npt.Array
     """Replace the points of every voxel (edge `voxel_size`, grid anchored at the origin)
     by their centroid. With `values` (N,) or (N, C) (colours, normals...), also return
     their per-voxel means. Voxels come in the order of their first point."""
-    if values is not None:
-        values = _real(values, "values")
     centroids, means = _earcore.voxel_downsample_raw(points, voxel_size, values)
     if values is None or means is None:
         return centroids
@@ -134,7 +131,8 @@ def cluster_points(points, cell: float) -> np.ndarray:
 def voxel_codes(points, resolution: float) -> np.ndarray:
     """One int64 per point naming its voxel (cells of size `resolution`, ±1 M cells per
     axis around the origin), for set operations on voxels with numpy (`np.isin`)."""
-    return _earcore.voxel_codes(_real(points, "points").astype(np.float64).reshape(-1, 3), resolution)
+    # np.reshape keeps a masked or complex array what it is, for the binding to refuse.
+    return _earcore.voxel_codes(np.reshape(points, (-1, 3)), resolution)
 
 
 def box_voxel_centres(box_min, box_max, resolution: float) -> np.ndarray:

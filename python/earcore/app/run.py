@@ -302,7 +302,6 @@ def main(argv: list[str] | None = None) -> int:
         config.cell.seed = args.seed
     if args.camera_scale is not None:
         config.cell.camera_scale = args.camera_scale
-    config.validate()
     record = not args.no_recording
     if record:
         try:

@@ -172,6 +172,13 @@ pub fn map_parts<T: Sync, R: Send>(parts: &[T], f: impl Fn(&T) -> R + Sync + Sen
 /// that Ctrl-C stops the call.
 pub type Interrupt<'a> = dyn FnMut() -> bool + 'a;
 
+/// Items per part for a parallel map whose items cost about `cost` units each (e.g.
+/// a neighbour count): about `budget` units a part, at least one item, at most `most`,
+/// so that a round of [`map_parts_interruptible`] stays short whatever the cost.
+pub fn items_per_part(cost: usize, budget: usize, most: usize) -> usize {
+    (budget / cost.max(1)).clamp(1, most)
+}
+
 /// [`map_parts`] in rounds of a few parts per thread, asking `interrupt` on the
 /// calling thread after each round; `None` when it asked to stop (the parts left
 /// are not computed). Size the parts so that a round takes milliseconds.

@@ -39,8 +39,9 @@ pub fn depth_to_points_raw<'py>(
     base_from_camera: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<PointsAndIndex<'py>> {
     let np = PyModule::import(py, "numpy")?;
+    let depth = crate::convert::real_array(depth, "depth", "an (H, W) array of numbers")?;
     let img = np
-        .call_method1("ascontiguousarray", (depth, np.getattr("float32")?))
+        .call_method1("ascontiguousarray", (depth.clone(), np.getattr("float32")?))
         .map_err(|e| {
             pyo3::exceptions::PyTypeError::new_err(format!(
                 "depth must be an (H, W) array of numbers: {e}"
@@ -178,11 +179,10 @@ pub fn voxel_downsample_raw<'py>(
 ) -> PyResult<Centroids<'py>> {
     let pts = self::points(points, "points")?;
     let slice = pts.as_slice()?;
-    let np = PyModule::import(py, "numpy")?;
     let vals = match values {
         None => None,
         Some(v) => {
-            let a = np.call_method1("ascontiguousarray", (v, np.getattr("float64")?))?;
+            let a = crate::convert::real_array(v, "values", "real numbers, one row per point")?;
             let a = if a.getattr("ndim")?.extract::<usize>()? == 1 {
                 a.call_method1("reshape", (-1, 1))?
             } else {

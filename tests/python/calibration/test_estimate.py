@@ -82,7 +82,6 @@ def test_estimation_recovers_pose_lens_and_mount_from_depth_and_pixels():
     assert np.linalg.norm(cal.flange_from_board[:3, 3] - MOUNT[:3, 3]) < 1e-3
     assert np.abs(cal.depth_K - K_TRUE).max() < 0.5
     assert cal.frames == 24 and cal.depth_reprojection_rms < 0.2
-    assert estimator.solver_time > 0
 
 
 def test_estimation_of_a_colour_only_camera_uses_the_board_poses():

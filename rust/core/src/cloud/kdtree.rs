@@ -183,7 +183,7 @@ impl KdTree {
             return;
         }
         let mut heap = std::collections::BinaryHeap::with_capacity(k.min(self.len()));
-        self.search_heap(0, q, k, exclude, &mut heap);
+        self.search(0, q, k, exclude, &mut heap);
         out.extend(
             heap.into_sorted_vec()
                 .into_iter()
@@ -191,87 +191,24 @@ impl KdTree {
         );
     }
 
-    /// `search` for large k: the k best so far in a max-heap of (distance bits,
-    /// index), where an insertion costs O(log k) instead of shifting up to k entries
-    /// (which made k near N quadratic per query). Squared distances are never
-    /// negative, so their bits order as the numbers do.
-    fn search_heap(
+    /// Depth-first search for the `k` nearest to `q`, gathering them in `best`: the
+    /// far side of a split is visited while it can hold a point nearer than the
+    /// worst kept.
+    fn search<C: Candidates>(
         &self,
         node: u32,
         q: [f64; 3],
         k: usize,
         exclude: Option<u32>,
-        best: &mut std::collections::BinaryHeap<(u64, u32)>,
+        best: &mut C,
     ) {
         match self.nodes[node as usize] {
             Node::Leaf { start, end } => {
                 let (start, end) = (start as usize, end as usize);
                 for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
-                    if Some(i) == exclude {
-                        continue;
+                    if Some(i) != exclude {
+                        best.offer(distance_squared(p, &q), i, k);
                     }
-                    let entry = (distance_squared(p, &q).to_bits(), i);
-                    if best.len() < k {
-                        best.push(entry);
-                    } else if best.peek().is_some_and(|&worst| entry < worst) {
-                        best.pop();
-                        best.push(entry);
-                    }
-                }
-            }
-            Node::Split {
-                axis,
-                value,
-                left,
-                right,
-            } => {
-                let diff = q[axis as usize] - value;
-                let (near, far) = if diff < 0.0 {
-                    (left, right)
-                } else {
-                    (right, left)
-                };
-                self.search_heap(near, q, k, exclude, best);
-                let worst = best
-                    .peek()
-                    .map_or(f64::INFINITY, |&(d, _)| f64::from_bits(d));
-                if best.len() < k || diff * diff <= worst {
-                    self.search_heap(far, q, k, exclude, best);
-                }
-            }
-        }
-    }
-
-    fn search(
-        &self,
-        node: u32,
-        q: [f64; 3],
-        k: usize,
-        exclude: Option<u32>,
-        best: &mut Vec<(f64, u32)>,
-    ) {
-        match self.nodes[node as usize] {
-            Node::Leaf { start, end } => {
-                let (start, end) = (start as usize, end as usize);
-                for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
-                    if Some(i) == exclude {
-                        continue;
-                    }
-                    let d = distance_squared(p, &q);
-                    let full = best.len() == k;
-                    if full && (d, i) >= best[k - 1] {
-                        continue;
-                    }
-                    // Insert in order, shifting by hand (k is small: no heap, no memmove call).
-                    if !full {
-                        best.push((d, i));
-                    }
-                    let mut at = best.len() - 1;
-                    while at > 0 && best[at - 1] > (d, i) {
-                        best[at] = best[at - 1];
-                        at -= 1;
-                    }
-                    best[at] = (d, i);
                 }
             }
             Node::Split {
@@ -287,11 +224,66 @@ impl KdTree {
                     (right, left)
                 };
                 self.search(near, q, k, exclude, best);
-                if best.len() < k || diff * diff <= best[best.len() - 1].0 {
+                if best.worst(k).is_none_or(|worst| diff * diff <= worst) {
                     self.search(far, q, k, exclude, best);
                 }
             }
         }
+    }
+}
+
+/// The k best candidates of a search so far.
+trait Candidates {
+    /// Keep (squared distance `d`, index `i`) if it is among the `k` best so far
+    /// (ties by index).
+    fn offer(&mut self, d: f64, i: u32, k: usize);
+    /// The worst kept squared distance once `k` are kept; `None` before.
+    fn worst(&self, k: usize) -> Option<f64>;
+}
+
+/// For small k: the best in order in a vector, inserted by shifting by hand (no
+/// heap, no memmove call).
+impl Candidates for Vec<(f64, u32)> {
+    fn offer(&mut self, d: f64, i: u32, k: usize) {
+        let full = self.len() == k;
+        if full && (d, i) >= self[k - 1] {
+            return;
+        }
+        if !full {
+            self.push((d, i));
+        }
+        let mut at = self.len() - 1;
+        while at > 0 && self[at - 1] > (d, i) {
+            self[at] = self[at - 1];
+            at -= 1;
+        }
+        self[at] = (d, i);
+    }
+
+    fn worst(&self, k: usize) -> Option<f64> {
+        (self.len() == k).then(|| self[k - 1].0)
+    }
+}
+
+/// For large k: a max-heap of (distance bits, index), where an insertion costs
+/// O(log k) instead of shifting up to k entries (which made k near N quadratic per
+/// query). Squared distances are never negative, so their bits order as the numbers do.
+impl Candidates for std::collections::BinaryHeap<(u64, u32)> {
+    fn offer(&mut self, d: f64, i: u32, k: usize) {
+        let entry = (d.to_bits(), i);
+        if self.len() < k {
+            self.push(entry);
+        } else if self.peek().is_some_and(|&worst| entry < worst) {
+            self.pop();
+            self.push(entry);
+        }
+    }
+
+    fn worst(&self, k: usize) -> Option<f64> {
+        if self.len() < k {
+            return None;
+        }
+        self.peek().map(|&(d, _)| f64::from_bits(d))
     }
 }
 

@@ -51,9 +51,7 @@ pub fn estimate_normals_interruptible(
     let tree = KdTree::new(points);
     // Queries in Morton order hit the tree's memory coherently; results go back in place.
     let order = crate::geometry::morton_order(points);
-    // A chunk's work grows with k: fewer points per chunk keep a round of chunks
-    // to milliseconds, so an interrupt is seen soon whatever k is.
-    let chunk = ((1usize << 17) / k).clamp(1, 4096);
+    let chunk = threads::items_per_part(k, 1 << 17, 4096);
     let chunks: Vec<&[u32]> = order.chunks(chunk).collect();
     let mapped = threads::map_parts_interruptible(
         &chunks,

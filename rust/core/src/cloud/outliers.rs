@@ -162,8 +162,9 @@ fn mean_knn_distances(
     let occupied: Vec<u32> = (0..grid.cells() as u32)
         .filter(|&j| grid.starts[j as usize] < grid.starts[j as usize + 1])
         .collect();
-    // Fewer cells per part for large k, so that a round stays short.
-    let chunks: Vec<&[u32]> = occupied.chunks((16384 / k).clamp(1, 256)).collect();
+    let chunks: Vec<&[u32]> = occupied
+        .chunks(threads::items_per_part(k, 16384, 256))
+        .collect();
     let parts = threads::map_parts_interruptible(
         &chunks,
         |chunk| {
@@ -201,7 +202,9 @@ fn kd_tree_means(
 ) -> Option<Vec<f64>> {
     let tree = KdTree::new(points);
     let indices: Vec<u32> = (0..points.len() as u32).collect();
-    let chunks: Vec<&[u32]> = indices.chunks((65536 / k).clamp(1, 1024)).collect();
+    let chunks: Vec<&[u32]> = indices
+        .chunks(threads::items_per_part(k, 65536, 1024))
+        .collect();
     let parts = threads::map_parts_interruptible(
         &chunks,
         |chunk| {
