@@ -7,6 +7,8 @@ Heavy numeric work runs in Rust (``earcore._earcore``) without holding the GIL.
 
 from __future__ import annotations
 
+_CORE_HINT = "Reinstall the wheel (`pip install --force-reinstall earcore`) or rebuild with `make develop`."
+
 try:
     from earcore._earcore import (
         DANGER_ON_HIT,
@@ -20,33 +22,38 @@ try:
         __version__,
         fit_body,
     )
-except ImportError as exc:  # pragma: no cover - exercised by `earcore --version` on a broken install
-    raise ImportError(
-        "earcore's compiled extension (earcore._earcore) failed to load: "
-        f"{exc}. Reinstall the wheel (`pip install --force-reinstall earcore`) or rebuild with `make develop`."
-    ) from exc
+except ImportError as _core_error:
+    # Without the compiled core, the pure-Python parts (earcore.learning and the pose
+    # networks' training, e.g. on a GPU machine with another Python) still import;
+    # anything that needs the core raises this on first use.
+    _CORE_MISSING = ImportError(f"earcore's compiled extension (earcore._earcore) failed to load: {_core_error}. {_CORE_HINT}")
 
-from earcore import errors, interfaces, robots, synthetic, transforms  # noqa: E402  (light: numpy and the extension only)
-from earcore.cloud import (  # noqa: E402
-    cluster_points,
-    crop,
-    depth_to_points,
-    estimate_normals,
-    remove_statistical_outliers,
-    voxel_downsample,
-)
-from earcore.lidar_odometry import LidarOdometry, OdometrySettings  # noqa: E402
-from earcore.parallel import get_num_threads, set_num_threads, threads  # noqa: E402
-from earcore.registration import (  # noqa: E402
-    DegenerateAlignmentWarning,
-    IcpResult,
-    PlaneTarget,
-    icp_point_to_plane,
-    refine_camera_poses,
-    rigid_fit,
-    rigid_fit_ransac,
-)
-from earcore.robots import RobotModel  # noqa: E402
+    def __getattr__(name: str):
+        if name.startswith("__") and name != "__version__":  # probes like __wrapped__ stay AttributeErrors
+            raise AttributeError(name)
+        raise _CORE_MISSING
+else:
+    from earcore import errors, interfaces, robots, synthetic, transforms  # light: numpy and the extension only
+    from earcore.cloud import (
+        cluster_points,
+        crop,
+        depth_to_points,
+        estimate_normals,
+        remove_statistical_outliers,
+        voxel_downsample,
+    )
+    from earcore.lidar_odometry import LidarOdometry, OdometrySettings
+    from earcore.parallel import get_num_threads, set_num_threads, threads
+    from earcore.registration import (
+        DegenerateAlignmentWarning,
+        IcpResult,
+        PlaneTarget,
+        icp_point_to_plane,
+        refine_camera_poses,
+        rigid_fit,
+        rigid_fit_ransac,
+    )
+    from earcore.robots import RobotModel
 
 __all__ = [
     "DANGER_ON_HIT",

@@ -17,7 +17,19 @@ The core's errors are raised by the extension; each area defines its own below t
 
 from __future__ import annotations
 
-from earcore._earcore import EarcoreError, MapFormatError, OutOfMapError
+try:
+    from earcore._earcore import EarcoreError, MapFormatError, OutOfMapError
+except ImportError:  # the pure-Python parts run without the core; nothing raises the core's errors then
+
+    class EarcoreError(Exception):  # type: ignore[no-redef]
+        """Base of every error earcore reports."""
+
+    class OutOfMapError(EarcoreError):  # type: ignore[no-redef]
+        """A point outside the octree's addressable cube."""
+
+    class MapFormatError(EarcoreError):  # type: ignore[no-redef]
+        """A map file that is not a valid map."""
+
 
 __all__ = ["ConfigError", "EarcoreError", "MapFormatError", "OutOfMapError", "UrdfError"]
 

@@ -22,10 +22,12 @@ def _is_user_error(exc: BaseException) -> bool:
 def _version() -> int:
     try:
         import earcore
+
+        version = earcore.__version__
     except ImportError as exc:
         print(f"earcore: the compiled extension failed to load:\n  {exc}", file=sys.stderr)
         return 1
-    print(f"earcore {earcore.__version__} (extension {earcore._earcore.__file__})")
+    print(f"earcore {version} (extension {earcore._earcore.__file__})")
     return 0
 
 
