@@ -48,6 +48,14 @@ def _command(name: str, rest: list[str]) -> int:
         from earcore.app.experiments.planning import main as experiment_main
 
         return experiment_main(rest)
+    if name == "dataset":
+        from earcore.app.dataset import main as dataset_main
+
+        return dataset_main(rest)
+    if name in ("train", "evaluate", "export"):
+        from earcore.app import pose
+
+        return {"train": pose.train_main, "evaluate": pose.evaluate_main, "export": pose.export_main}[name](rest)
     from earcore.app.demo import main as demo_main
 
     return demo_main(rest)
@@ -64,6 +72,10 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("config", help="`earcore config dump`: every option of `earcore run` as TOML", add_help=False)
     sub.add_parser("calibrate", help="Paper I's automatic camera calibration in the simulated cell (YAML file)", add_help=False)
     sub.add_parser("experiment", help="the papers' experiments, e.g. `earcore experiment table2` (Paper II)", add_help=False)
+    sub.add_parser("dataset", help="labelled images from the simulator, e.g. `earcore dataset robots --out data`", add_help=False)
+    sub.add_parser("train", help="train a network, e.g. `earcore train pose --data data --out run`", add_help=False)
+    sub.add_parser("evaluate", help="evaluate a trained network on held-out images (`earcore evaluate pose`)", add_help=False)
+    sub.add_parser("export", help="export a trained network to ONNX (`earcore export pose`)", add_help=False)
     args, rest = parser.parse_known_args(argv)
     if args.version:
         return _version()
