@@ -43,8 +43,12 @@ def _parser() -> Parser:
     parser.add_argument("kind", choices=["robots"], help="what to generate (robots: robot pose images)")
     parser.add_argument("--out", type=Path, required=True, help="the dataset folder (created; resumed if it exists)")
     parser.add_argument("--robots", default="ur3,ur5,ur10", help="comma-separated, class order (default ur3,ur5,ur10; also iiwa, panda)")
-    parser.add_argument("--mode", choices=["recordings", "random"], default="recordings",
-                        help="recordings: a fixed camera per recording while the joints sweep (the papers); random: a new camera per image")
+    parser.add_argument(
+        "--mode",
+        choices=["recordings", "random"],
+        default="recordings",
+        help="recordings: a fixed camera per recording while the joints sweep (the papers); random: a new camera per image",
+    )
     sizes = parser.add_mutually_exclusive_group()
     sizes.add_argument("--scale", type=positive, default=None, help="the papers' recording sizes times this (default 1)")
     sizes.add_argument("--count", type=positive_int, default=None, help="images per robot instead")
@@ -143,9 +147,17 @@ def main(argv: list[str] | None = None) -> int:
     width, height = args.size
     try:
         options = RobotImageOptions(
-            robots=tuple(r.strip().lower() for r in args.robots.split(",") if r.strip()), mode=args.mode, width=width, height=height,
-            seed=args.seed, scale=1.0 if args.scale is None else args.scale, count=args.count, meshes=args.meshes,
-            distractors=not args.no_distractors, person=args.person, shard_size=args.shard_size,
+            robots=tuple(r.strip().lower() for r in args.robots.split(",") if r.strip()),
+            mode=args.mode,
+            width=width,
+            height=height,
+            seed=args.seed,
+            scale=1.0 if args.scale is None else args.scale,
+            count=args.count,
+            meshes=args.meshes,
+            distractors=not args.no_distractors,
+            person=args.person,
+            shard_size=args.shard_size,
         ).validate()
     except ConfigError as exc:
         return fail(PROG, str(exc))
@@ -162,8 +174,10 @@ def main(argv: list[str] | None = None) -> int:
         if existing != manifest:
             theirs, ours = existing.get("generator", {}), manifest["generator"]
             changed = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k)) or ["format"]
-            return fail(PROG, f"{folder} holds a dataset made with other options ({', '.join(changed)} differ); "
-                              "rerun with its options to complete it, or choose another --out")
+            return fail(
+                PROG,
+                f"{folder} holds a dataset made with other options ({', '.join(changed)} differ); rerun with its options to complete it, or choose another --out",
+            )
     elif folder.exists() and any(folder.iterdir()):
         return fail(PROG, f"{folder} exists and is not a dataset folder; choose an empty or new --out")
     folder.mkdir(parents=True, exist_ok=True)

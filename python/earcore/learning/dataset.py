@@ -44,9 +44,7 @@ class ImageDataset(torch.utils.data.Dataset):
     """Samples of an "earcore-images" folder (see the module doc); `split` is "train",
     "test" or None (both), `robots` a subset of the manifest's robots (None: all)."""
 
-    def __init__(
-        self, folder: str | Path, split: str | None = "train", robots: list[str] | None = None, noise: bool = True, seed: int = 0
-    ) -> None:
+    def __init__(self, folder: str | Path, split: str | None = "train", robots: list[str] | None = None, noise: bool = True, seed: int = 0) -> None:
         if split is not None and split not in SPLITS:
             raise ValueError(f"split must be 'train', 'test' or None, got {split!r}")
         self.folder = Path(folder)

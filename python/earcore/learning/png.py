@@ -12,6 +12,7 @@ from __future__ import annotations
 import struct
 import zlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -111,6 +112,7 @@ def decode(data: bytes, name: str = "PNG data") -> np.ndarray:
 
 
 def _fallback(data: bytes, name: str) -> np.ndarray:
+    cv2: Any
     try:
         import cv2
     except ImportError:
@@ -128,8 +130,7 @@ def _fallback(data: bytes, name: str) -> np.ndarray:
         from PIL import Image
     except ImportError:
         raise DatasetError(
-            f"{name}: this PNG (filtered rows, a palette, interlacing or not 8-bit) needs OpenCV or Pillow to read; "
-            "earcore's own PNGs do not"
+            f"{name}: this PNG (filtered rows, a palette, interlacing or not 8-bit) needs OpenCV or Pillow to read; earcore's own PNGs do not"
         ) from None
     try:
         with Image.open(io.BytesIO(data)) as img:

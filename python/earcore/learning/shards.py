@@ -47,8 +47,7 @@ FORMAT = "earcore-images"
 VERSION = 1
 MANIFEST = "manifest.json"
 #: Keys every manifest has.
-MANIFEST_KEYS = ("format", "version", "kind", "width", "height", "seed", "mode", "robots", "keypoints", "num_keypoints",
-                 "links", "max_dof", "shards", "generator")
+MANIFEST_KEYS = ("format", "version", "kind", "width", "height", "seed", "mode", "robots", "keypoints", "num_keypoints", "links", "max_dof", "shards", "generator")
 BASE_COLUMNS = ("base_x", "base_y", "base_z", "base_qw", "base_qx", "base_qy", "base_qz")
 
 
@@ -167,11 +166,11 @@ def read_shard(folder: str | Path, name: str, width: int, height: int, required:
     files: dict[str, bytes] = {}
     try:
         with tarfile.open(tar_path, mode="r:") as tar:
-            for member in tar:
-                if member.isfile():
-                    extracted = tar.extractfile(member)
+            for entry in tar:
+                if entry.isfile():
+                    extracted = tar.extractfile(entry)
                     if extracted is not None:
-                        files[member.name] = extracted.read()
+                        files[entry.name] = extracted.read()
     except FileNotFoundError:
         raise DatasetError(f"{tar_path}: missing (the manifest lists shard {name})") from None
     except (tarfile.TarError, EOFError, OSError) as exc:

@@ -13,6 +13,7 @@ import colorsys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -27,7 +28,7 @@ TABLES = ((0.8, 0.6), (0.6, 0.45), (1.0, 0.7))
 STAND = (0.2, 0.2)
 #: Distractor shapes: (kind, size) with size = half extents of a box, (radius, length)
 #: of a cylinder, radius of a sphere.
-DISTRACTORS = (
+DISTRACTORS: tuple[tuple[str, Any], ...] = (
     ("box", (0.08, 0.06, 0.05)),
     ("box", (0.15, 0.1, 0.12)),
     ("box", (0.04, 0.2, 0.03)),
@@ -112,8 +113,9 @@ def procedural_texture(rng: np.random.Generator, size: int = 64) -> np.ndarray:
     return np.clip(np.rint(255 * image), 0, 255).astype(np.uint8)
 
 
-def draw_layout(rng: np.random.Generator, reach: float, camera_xy: np.ndarray, links: int, textures: int, *,
-                distractors: bool = True, person: float = 0.3, shadow: float = 0.3) -> SceneLayout:
+def draw_layout(
+    rng: np.random.Generator, reach: float, camera_xy: np.ndarray, links: int, textures: int, *, distractors: bool = True, person: float = 0.3, shadow: float = 0.3
+) -> SceneLayout:
     """A random layout around a robot of this reach (m) seen from `camera_xy` (base
     frame): `person` and `shadow` are the probabilities of an arm in view and of shadows."""
     layout = SceneLayout()
@@ -133,8 +135,9 @@ def draw_layout(rng: np.random.Generator, reach: float, camera_xy: np.ndarray, l
         c, s = np.cos(turn), np.sin(turn)
         d = np.array([c * away[0] - s * away[1], s * away[0] + c * away[1]])
         centre = d * rng.uniform(1.2, 3.0) * max(reach, 0.6)
-        layout.walls.append((float(centre[0]), float(centre[1]), float(np.arctan2(d[1], d[0])), _colour(rng),
-                             int(rng.integers(textures)) if rng.random() < 0.5 else -1))
+        layout.walls.append(
+            (float(centre[0]), float(centre[1]), float(np.arctan2(d[1], d[0])), _colour(rng), int(rng.integers(textures)) if rng.random() < 0.5 else -1)
+        )
     if distractors:
         count = int(rng.integers(0, 6))
         for index in rng.permutation(len(DISTRACTORS))[:count]:
@@ -148,7 +151,8 @@ def draw_layout(rng: np.random.Generator, reach: float, camera_xy: np.ndarray, l
     main, accent = _colour(rng, (0.0, 0.6), (0.3, 1.0)), _colour(rng)
     for _ in range(links):
         base = accent if rng.random() < 0.3 else main
-        layout.link_colours.append(tuple(float(v) for v in np.clip(np.array(base) + rng.normal(0, 0.04, 3), 0, 1)))  # type: ignore[misc]
+        r, g, b = (float(v) for v in np.clip(np.array(base) + rng.normal(0, 0.04, 3), 0, 1))
+        layout.link_colours.append((r, g, b))
     elevation, azimuth = rng.uniform(0.3, 1.4), rng.uniform(0, 2 * np.pi)
     layout.lighting = Lighting(
         direction=(float(np.cos(elevation) * np.cos(azimuth)), float(np.cos(elevation) * np.sin(azimuth)), float(np.sin(elevation))),
@@ -235,7 +239,7 @@ class ImageScene:
             if i in placed:
                 (x, y, z), colour = placed[i]
                 kind, size = DISTRACTORS[i]
-                lift = size[2] if kind == "box" else (size[1] / 2 if kind == "cylinder" else size)  # type: ignore[index, operator]
+                lift = size[2] if kind == "box" else (size[1] / 2 if kind == "cylinder" else size)
                 p.resetBasePositionAndOrientation(body, [x, y, z + lift], [0, 0, 0, 1])
                 p.changeVisualShape(body, -1, rgbaColor=[*colour, 1.0])
             else:

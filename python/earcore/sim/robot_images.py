@@ -124,16 +124,16 @@ class RobotImageOptions:
             raise ConfigError(f"count must be a whole number >= 1, got {self.count!r}")
         if self.meshes not in ("visual", "collision"):
             raise ConfigError(f"meshes must be 'visual' or 'collision', got {self.meshes!r}")
-        for name, value in (("person", self.person), ("shadow", self.shadow), ("test_fraction", self.test_fraction)):
-            if not 0 <= value <= 1:
-                raise ConfigError(f"{name} must be in [0, 1], got {value!r}")
+        for label, chance in (("person", self.person), ("shadow", self.shadow), ("test_fraction", self.test_fraction)):
+            if not 0 <= chance <= 1:
+                raise ConfigError(f"{label} must be in [0, 1], got {chance!r}")
         if not 0 <= self.seed < 2**32:
             raise ConfigError(f"seed must be in [0, 2^32), got {self.seed!r}")
         return self
 
     def recordings(self) -> dict[str, tuple[int, ...]]:
         """Images per recording per robot (random mode: one entry, the robot's total)."""
-        out = {}
+        out: dict[str, tuple[int, ...]] = {}
         for r in self.robots:
             paper = PAPER_RECORDINGS[r]
             if self.count is not None:
@@ -141,9 +141,9 @@ class RobotImageOptions:
                     out[r] = (self.count,)
                     continue
                 shares = np.array(paper, dtype=float) / sum(paper) * self.count
-                sizes = np.floor(shares).astype(int)
-                sizes[np.argsort(-(shares - sizes))[: self.count - sizes.sum()]] += 1
-                out[r] = tuple(int(s) for s in sizes if s > 0)
+                floor = np.floor(shares).astype(int)
+                floor[np.argsort(-(shares - floor))[: self.count - floor.sum()]] += 1
+                out[r] = tuple(int(s) for s in floor if s > 0)
             else:
                 sizes = [max(1, round(n * self.scale)) for n in paper]
                 out[r] = (sum(sizes),) if self.mode == "random" else tuple(sizes)
@@ -254,32 +254,36 @@ def joint_ranges(model: RobotModel) -> np.ndarray:
 
 def collision_free(model: RobotModel, qs: np.ndarray, clearance: float = 0.005) -> np.ndarray:
     """(K,) True where a configuration has no self-collision (the core's check on padded
-    link bodies, adjacent links excluded) and every link that moves up or down keeps
-    its body's axis half its radius plus `clearance` above the table top (z = 0 of the
-    base frame): the fitted bodies are fat enough that a UR's upper arm, held level at
-    shoulder height as the real one can be, would touch it. Links that only turn about
-    the vertical (the base, a UR's shoulder) stand on the table as mounted."""
+    link bodies, adjacent links excluded) and the arm stays above the table top (z = 0
+    of the base frame): every link body that moves up or down keeps `clearance` above
+    it, except the first such link (a UR's upper arm, the iiwa's and Panda's link 2),
+    which turns about a pivot above the table and whose fitted body, fatter than the
+    link, would touch it when upright: its axis must stay above the table. Links that
+    only turn about the vertical stand on the table as mounted."""
     qs = np.atleast_2d(qs)
     ok = ~np.asarray(model.self_collisions(qs), dtype=bool).reshape(len(qs))
     root = np.linalg.inv(model.base)
     probe = model.random_configurations(16, seed=0)
-    for link, (a, b), radius, z in _body_heights(model, root, np.concatenate([probe, qs])):
+    first = True
+    for _, radius, z in _body_heights(model, root, np.concatenate([probe, qs])):
         z_probe, z_qs = z[:, : len(probe)], z[:, len(probe) :]
         if np.ptp(z_probe, axis=1).max() < 1e-9:
             continue  # this body never moves vertically
-        ok &= (z_qs.min(axis=0) - 0.5 * radius) > clearance
+        ok &= (z_qs.min(axis=0) - (0.0 if first else radius)) > clearance
+        first = False
     return ok
 
 
 def _body_heights(model: RobotModel, root: np.ndarray, qs: np.ndarray):
-    """(link, ends, radius, z of both ends (2, K)) of each link body at configurations qs."""
+    """(link, radius, z of both ends of its axis (2, K)) of each link body, in chain
+    order, at configurations qs."""
     poses = root[None, None] @ model.fk(qs).reshape(len(qs), -1, 4, 4)
     for link, body in enumerate(model.link_bodies):
         if body is None:
             continue
         a, b, radius, _ = body
         z = np.stack([poses[:, link, 2, :3] @ np.asarray(end) + poses[:, link, 2, 3] for end in (a, b)])
-        yield link, (a, b), radius, z
+        yield link, radius, z
 
 
 def sweep(model: RobotModel, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -409,8 +413,15 @@ class RobotImageRenderer:
         tip = poses[:, model.link_names.index(flange)] @ offsets[-1]
         reach = float(np.linalg.norm(tip[:, :3] - model.base[:3, 3], axis=1).max())
         self.robot = _Robot(
-            robot, body, model, [by_joint[n] for n in model.joint_names], [*links, model.link_names.index(flange)], offsets, lut,
-            [-1, *range(len(infos))], reach,
+            robot,
+            body,
+            model,
+            [by_joint[n] for n in model.joint_names],
+            [*links, model.link_names.index(flange)],
+            offsets,
+            lut,
+            [-1, *range(len(infos))],
+            reach,
         )
         return self.robot
 
@@ -493,8 +504,7 @@ class RobotImageRenderer:
         K = self._intrinsics(scene_rng)
         world_from_camera = self._camera(scene_rng, robot, self._aim(robot, poses_seen))
         camera_xy = (np.linalg.inv(robot.model.base) @ world_from_camera)[:2, 3]
-        layout = draw_layout(scene_rng, robot.reach, camera_xy, len(robot.links), len(self.scene.textures),
-                             distractors=o.distractors, person=0.0, shadow=o.shadow)
+        layout = draw_layout(scene_rng, robot.reach, camera_xy, len(robot.links), len(self.scene.textures), distractors=o.distractors, person=0.0, shadow=o.shadow)
         if frame_rng.random() < o.person:
             layout.person = draw_person(frame_rng, robot.reach, camera_xy)
         p = self.p
@@ -503,8 +513,13 @@ class RobotImageRenderer:
         self.scene.apply(layout, robot.body, robot.links)
         w, h = o.width, o.height
         _, _, rgba, _, seg = p.getCameraImage(
-            w, h, opengl_view(world_from_camera), opengl_projection(K, w, h, NEAR, FAR),
-            renderer=p.ER_TINY_RENDERER, flags=p.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX, **layout.lighting.arguments(),
+            w,
+            h,
+            opengl_view(world_from_camera),
+            opengl_projection(K, w, h, NEAR, FAR),
+            renderer=p.ER_TINY_RENDERER,
+            flags=p.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+            **layout.lighting.arguments(),
         )
         rgb = np.ascontiguousarray(np.reshape(rgba, (h, w, 4))[..., :3], dtype=np.uint8)
         seg = np.reshape(seg, (h, w)).astype(np.int64)
@@ -526,16 +541,29 @@ class RobotImageRenderer:
         base = camera_from_world @ robot.model.base
         qx, qy, qz, qw = quaternion(base[:3, :3])
         row: dict[str, Any] = {
-            "robot": spec.robot, "robot_class": self.classes[spec.robot], "recording": spec.recording, "split": spec.split,
-            "width": w, "height": h, "fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
-            "base_x": base[0, 3], "base_y": base[1, 3], "base_z": base[2, 3], "base_qw": qw, "base_qx": qx, "base_qy": qy, "base_qz": qz,
+            "robot": spec.robot,
+            "robot_class": self.classes[spec.robot],
+            "recording": spec.recording,
+            "split": spec.split,
+            "width": w,
+            "height": h,
+            "fx": K[0, 0],
+            "fy": K[1, 1],
+            "cx": K[0, 2],
+            "cy": K[1, 2],
+            "base_x": base[0, 3],
+            "base_y": base[1, 3],
+            "base_z": base[2, 3],
+            "base_qw": qw,
+            "base_qx": qx,
+            "base_qy": qy,
+            "base_qz": qz,
             "coverage": float((links > 0).mean()),
         }
         for i, value in enumerate(q):
             row[f"q{i}"] = float(value)
         for i in range(len(world)):
-            row.update({f"kp{i}_x": cam[i, 0], f"kp{i}_y": cam[i, 1], f"kp{i}_z": cam[i, 2],
-                        f"kp{i}_u": u[i], f"kp{i}_v": v[i], f"kp{i}_in_image": int(inside[i])})
+            row.update({f"kp{i}_x": cam[i, 0], f"kp{i}_y": cam[i, 1], f"kp{i}_z": cam[i, 2], f"kp{i}_u": u[i], f"kp{i}_v": v[i], f"kp{i}_in_image": int(inside[i])})
         return row
 
 

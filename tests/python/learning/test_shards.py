@@ -98,9 +98,22 @@ def test_damage_is_reported_with_the_file(tmp_path):
 
 
 def manifest():
-    return {"format": "earcore-images", "version": 1, "kind": "robots", "width": W, "height": H, "seed": 0, "mode": "random",
-            "robots": ["ur5"], "keypoints": {"ur5": ["a"]}, "num_keypoints": 1, "links": {"ur5": ["l"]}, "max_dof": 1,
-            "shards": [{"name": "shard-00000", "samples": 3}], "generator": {}}
+    return {
+        "format": "earcore-images",
+        "version": 1,
+        "kind": "robots",
+        "width": W,
+        "height": H,
+        "seed": 0,
+        "mode": "random",
+        "robots": ["ur5"],
+        "keypoints": {"ur5": ["a"]},
+        "num_keypoints": 1,
+        "links": {"ur5": ["l"]},
+        "max_dof": 1,
+        "shards": [{"name": "shard-00000", "samples": 3}],
+        "generator": {},
+    }
 
 
 def test_manifests_are_checked(tmp_path):
