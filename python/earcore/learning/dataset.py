@@ -1,0 +1,184 @@
+"""The torch dataset over an "earcore-images" folder (`earcore.learning.shards`).
+
+    from earcore.learning.dataset import ImageDataset
+    train = ImageDataset("data/robots", split="train", noise=True, seed=0)
+    sample = train[0]          # dict of tensors: image (3, H, W) in [0, 1], mask, links, keypoints, ...
+
+The shards are read into uint8 arrays once, on first use. Images are stored clean;
+with `noise=True` each item gets a camera's colour noise (per-pixel Gaussian noise,
+white-balance gains, brightness and contrast jitter), the same for the same
+(seed, epoch, index): `set_epoch` draws new noise for a new epoch.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from earcore.learning.errors import DatasetError
+from earcore.learning.shards import BASE_COLUMNS, columns, read_manifest, read_shard
+
+__all__ = ["ImageDataset", "colour_noise"]
+
+SPLITS = ("train", "test")
+
+
+def colour_noise(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A float32 (H, W, 3) image in [0, 1] as a colour camera might deliver it: contrast
+    ×0.85-1.15 about the image mean, brightness ±0.06, per-channel gains ±4 % (white
+    balance), then Gaussian noise of σ 0.004-0.02 per pixel and channel."""
+    contrast = rng.uniform(0.85, 1.15)
+    brightness = rng.uniform(-0.06, 0.06)
+    gains = rng.uniform(0.96, 1.04, 3).astype(np.float32)
+    sigma = rng.uniform(0.004, 0.02)
+    mean = float(image.mean())
+    out = ((image - mean) * contrast + mean + brightness) * gains
+    out += rng.standard_normal(image.shape, dtype=np.float32) * np.float32(sigma)
+    return np.clip(out, 0.0, 1.0, out=out)
+
+
+class ImageDataset(torch.utils.data.Dataset):
+    """Samples of an "earcore-images" folder (see the module doc); `split` is "train",
+    "test" or None (both), `robots` a subset of the manifest's robots (None: all)."""
+
+    def __init__(self, folder: str | Path, split: str | None = "train", robots: list[str] | None = None, noise: bool = True, seed: int = 0) -> None:
+        if split is not None and split not in SPLITS:
+            raise ValueError(f"split must be 'train', 'test' or None, got {split!r}")
+        self.folder = Path(folder)
+        self.manifest: dict[str, Any] = read_manifest(self.folder)
+        self.robots: list[str] = list(self.manifest["robots"])
+        if robots is not None:
+            unknown = sorted(set(robots) - set(self.robots))
+            if unknown:
+                raise ValueError(f"robots {unknown} are not in {self.folder / 'manifest.json'} (it has {self.robots})")
+        self.split = split
+        self.selected = list(robots) if robots is not None else list(self.robots)
+        self.noise = noise
+        self.seed = int(seed)
+        self.epoch = 0
+        self.num_keypoints: int = self.manifest["num_keypoints"]
+        self.max_dof: int = self.manifest["max_dof"]
+        self.image_size: tuple[int, int] = (self.manifest["width"], self.manifest["height"])
+        self._arrays: dict[str, np.ndarray] | None = None
+
+    def set_epoch(self, epoch: int) -> None:
+        """Draw the noise of this epoch (the same epoch gives the same noise)."""
+        self.epoch = int(epoch)
+
+    # --- loading --------------------------------------------------------------
+
+    def _load(self) -> dict[str, np.ndarray]:
+        if self._arrays is not None:
+            return self._arrays
+        w, h = self.image_size
+        k, d = self.num_keypoints, self.max_dof
+        required = [c for c in columns(d, k) if c != "key"]
+        parts: dict[str, list[np.ndarray]] = {}
+        for entry in self.manifest["shards"]:
+            name = str(entry["name"])
+            shard = read_shard(self.folder, name, w, h, required)
+            path = self.folder / f"{name}.csv"
+            robot_names = np.array(shard.text["robot"])
+            unknown = sorted(set(robot_names.tolist()) - set(self.robots))
+            if unknown:
+                raise DatasetError(f"{path}: robots {unknown} are not in the manifest's {self.robots}")
+            keep = np.isin(robot_names, self.selected)
+            if self.split is not None:
+                splits = np.array(shard.text["split"])
+                bad = sorted(set(splits.tolist()) - set(SPLITS))
+                if bad:
+                    raise DatasetError(f"{path}: split values {bad}; expected 'train' or 'test'")
+                keep &= splits == self.split
+            if not keep.any():
+                continue
+            num = {c: shard.numbers(c, path)[keep] for c in required if c not in ("robot", "split")}
+            robot = np.array([self.robots.index(r) for r in robot_names[keep]], dtype=np.int64)
+            xyz = np.stack([np.stack([num[f"kp{i}_{c}"] for c in "xyz"], -1) for i in range(k)], 1) if k else np.zeros((len(robot), 0, 3))
+            uv = np.stack([np.stack([num[f"kp{i}_{c}"] for c in "uv"], -1) for i in range(k)], 1) if k else np.zeros((len(robot), 0, 2))
+            inside = np.stack([num[f"kp{i}_in_image"] for i in range(k)], 1) if k else np.zeros((len(robot), 0))
+            counts = np.array([len(self.manifest["keypoints"][self.robots[r]]) for r in robot])
+            valid = np.arange(k)[None, :] < counts[:, None]
+            rows = np.flatnonzero(keep)
+            holes = valid & (np.isnan(xyz).any(-1) | np.isnan(uv).any(-1) | np.isnan(inside))
+            base = np.stack([num[c] for c in BASE_COLUMNS], -1)
+            scalars = np.stack([num[c] for c in ("fx", "fy", "cx", "cy")], -1)
+            for what, bad_rows in (
+                ("a keypoint", holes.any(1)),
+                ("the base pose", np.isnan(base).any(1)),
+                ("the intrinsics", np.isnan(scalars).any(1)),
+            ):
+                if bad_rows.any():
+                    raise DatasetError(f"{path}: row {rows[np.argmax(bad_rows)] + 2} lacks {what} (an empty label)")
+            q = np.stack([num[f"q{i}"] for i in range(d)], -1) if d else np.zeros((len(robot), 0))
+            quat = base[:, 3:] / np.linalg.norm(base[:, 3:], axis=1, keepdims=True)
+            intrinsics = np.zeros((len(robot), 3, 3))
+            intrinsics[:, 0, 0], intrinsics[:, 1, 1], intrinsics[:, 0, 2], intrinsics[:, 1, 2] = scalars.T
+            intrinsics[:, 2, 2] = 1.0
+            for key, value in (
+                ("rgb", shard.rgb[keep]),
+                ("links", shard.links[keep]),
+                ("keypoints", np.where(valid[..., None], xyz, 0.0).astype(np.float32)),
+                ("pixels", np.where(valid[..., None], uv, 0.0).astype(np.float32)),
+                ("keypoint_valid", valid),
+                ("keypoint_in_image", valid & (np.nan_to_num(inside) > 0.5)),
+                ("base", base[:, :3].astype(np.float32)),
+                ("base_rotation", _rotations(quat).astype(np.float32)),
+                ("robot", robot),
+                ("intrinsics", intrinsics.astype(np.float32)),
+                ("joints", np.nan_to_num(q).astype(np.float32)),
+                ("coverage", num["coverage"].astype(np.float32)),
+            ):
+                parts.setdefault(key, []).append(value)
+        if not parts:
+            self._arrays = {"rgb": np.zeros((0, h, w, 3), np.uint8)}
+        else:
+            self._arrays = {key: np.concatenate(v) for key, v in parts.items()}
+        return self._arrays
+
+    # --- access ---------------------------------------------------------------
+
+    def __len__(self) -> int:
+        return len(self._load()["rgb"])
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        a = self._load()
+        n = len(a["rgb"])
+        if not -n <= index < n:
+            raise IndexError(f"index {index} out of range for {n} samples")
+        i = index % n
+        image = a["rgb"][i].astype(np.float32) / np.float32(255.0)
+        if self.noise:
+            image = colour_noise(image, np.random.default_rng([self.seed, self.epoch, i]))
+        links = a["links"][i]
+        return {
+            "image": torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))),
+            "mask": torch.from_numpy((links > 0).astype(np.float32)[None]),
+            "links": torch.from_numpy(links.astype(np.int64)),
+            "keypoints": torch.from_numpy(a["keypoints"][i]),
+            "keypoint_valid": torch.from_numpy(a["keypoint_valid"][i]),
+            "keypoint_in_image": torch.from_numpy(a["keypoint_in_image"][i]),
+            "pixels": torch.from_numpy(a["pixels"][i]),
+            "base": torch.from_numpy(a["base"][i]),
+            "base_rotation": torch.from_numpy(a["base_rotation"][i]),
+            "robot": torch.tensor(a["robot"][i], dtype=torch.int64),
+            "intrinsics": torch.from_numpy(a["intrinsics"][i]),
+            "joints": torch.from_numpy(a["joints"][i]),
+            "coverage": torch.tensor(a["coverage"][i]),
+            "index": torch.tensor(i, dtype=torch.int64),
+        }
+
+
+def _rotations(q: np.ndarray) -> np.ndarray:
+    """3×3 rotations of unit quaternions (w, x, y, z), (N, 4) → (N, 3, 3)."""
+    w, x, y, z = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )

@@ -1,0 +1,227 @@
+"""The "earcore-images" format (version 1): labelled images in shards that any tool can
+read (a tar of PNGs and a CSV per shard, a JSON manifest).
+
+    DATASET/
+      manifest.json        format, version, kind, width, height, seed, mode, robots,
+                           keypoints, num_keypoints, links, max_dof, shards, generator
+      shard-00000.tar      <key>.rgb.png (H×W×3) and <key>.links.png (H×W; 0 = not the
+                           robot, i >= 1 = link i-1 of manifest["links"][robot])
+      shard-00000.csv      one row per sample (`columns`)
+
+Shards are written atomically (a temporary name, then a rename; the CSV last), so a
+shard whose CSV exists is complete and an interrupted run resumes by skipping it.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tarfile
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from earcore.learning import png
+from earcore.learning.errors import DatasetError
+
+__all__ = [
+    "FORMAT",
+    "VERSION",
+    "Sample",
+    "Shard",
+    "columns",
+    "complete_shards",
+    "read_manifest",
+    "read_shard",
+    "shard_name",
+    "write_manifest",
+    "write_shard",
+]
+
+FORMAT = "earcore-images"
+VERSION = 1
+MANIFEST = "manifest.json"
+#: Keys every manifest has.
+MANIFEST_KEYS = ("format", "version", "kind", "width", "height", "seed", "mode", "robots", "keypoints", "num_keypoints", "links", "max_dof", "shards", "generator")
+BASE_COLUMNS = ("base_x", "base_y", "base_z", "base_qw", "base_qx", "base_qy", "base_qz")
+
+
+def shard_name(index: int) -> str:
+    return f"shard-{index:05d}"
+
+
+def columns(max_dof: int, num_keypoints: int) -> list[str]:
+    """The CSV's columns, in order."""
+    names = ["key", "robot", "robot_class", "recording", "split", "width", "height", "fx", "fy", "cx", "cy"]
+    names += [f"q{i}" for i in range(max_dof)]
+    for i in range(num_keypoints):
+        names += [f"kp{i}_{c}" for c in ("x", "y", "z", "u", "v", "in_image")]
+    return names + list(BASE_COLUMNS) + ["coverage"]
+
+
+@dataclass
+class Sample:
+    """One labelled image: `rgb` (H, W, 3) uint8, `links` (H, W) uint8 and its CSV row
+    (column → value; None or missing for an empty cell)."""
+
+    key: str
+    rgb: np.ndarray
+    links: np.ndarray
+    row: dict[str, Any]
+
+
+@dataclass
+class Shard:
+    """A shard read into memory: images (N, H, W, 3), links (N, H, W), and the CSV's
+    columns as strings (`text`) in row order."""
+
+    rgb: np.ndarray
+    links: np.ndarray
+    text: dict[str, list[str]]
+
+    def numbers(self, column: str, path: Path | str = "") -> np.ndarray:
+        """A column as float64 (NaN for empty cells)."""
+        if column not in self.text:
+            raise DatasetError(f"{path}: missing column {column!r}")
+        try:
+            return np.array([float(v) if v != "" else np.nan for v in self.text[column]], dtype=np.float64)
+        except ValueError as exc:
+            raise DatasetError(f"{path}: column {column!r} holds a value that is not a number ({exc})") from None
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _format_cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, (float, np.floating)):
+        return "" if not np.isfinite(value) else repr(float(value))
+    return str(value)
+
+
+def write_shard(folder: str | Path, name: str, samples: Sequence[Sample], header: Sequence[str], level: int = 6) -> None:
+    """Write `name`.tar and `name`.csv into `folder`, each atomically, the CSV last."""
+    folder = Path(folder)
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w", format=tarfile.USTAR_FORMAT) as tar:
+        for s in samples:
+            for suffix, image in (("rgb", s.rgb), ("links", s.links)):
+                data = png.encode(image, level)
+                info = tarfile.TarInfo(f"{s.key}.{suffix}.png")
+                info.size = len(data)
+                info.mode = 0o644
+                tar.addfile(info, io.BytesIO(data))
+    _atomic_write(folder / f"{name}.tar", buffer.getvalue())
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(header)
+    for s in samples:
+        unknown = set(s.row) - set(header)
+        if unknown:
+            raise ValueError(f"sample {s.key}: columns {sorted(unknown)} are not in the header")
+        writer.writerow([_format_cell(s.key if c == "key" else s.row.get(c)) for c in header])
+    _atomic_write(folder / f"{name}.csv", text.getvalue().encode())
+
+
+def complete_shards(folder: str | Path) -> set[str]:
+    """Names of the shards whose CSV and tar are both there (the CSV is written last)."""
+    folder = Path(folder)
+    return {p.stem for p in folder.glob("shard-*.csv") if (folder / f"{p.stem}.tar").is_file()}
+
+
+def read_shard(folder: str | Path, name: str, width: int, height: int, required: Iterable[str] = ()) -> Shard:
+    """Read a shard: every CSV row's two PNGs from the tar, checked against the image
+    size; `required` columns must be present. Raises `DatasetError` naming the file."""
+    folder = Path(folder)
+    csv_path, tar_path = folder / f"{name}.csv", folder / f"{name}.tar"
+    try:
+        with open(csv_path, newline="") as f:
+            rows = list(csv.reader(f))
+    except FileNotFoundError:
+        raise DatasetError(f"{csv_path}: missing (the manifest lists shard {name})") from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise DatasetError(f"{csv_path}: not a readable CSV ({exc})") from None
+    if not rows:
+        raise DatasetError(f"{csv_path}: empty (no header)")
+    header, body = rows[0], rows[1:]
+    missing = [c for c in ["key", *required] if c not in header]
+    if missing:
+        raise DatasetError(f"{csv_path}: missing column{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))}")
+    for i, r in enumerate(body):
+        if len(r) != len(header):
+            raise DatasetError(f"{csv_path}: row {i + 2} has {len(r)} cells, the header {len(header)}")
+    text = {c: [r[j] for r in body] for j, c in enumerate(header)}
+    files: dict[str, bytes] = {}
+    try:
+        with tarfile.open(tar_path, mode="r:") as tar:
+            for entry in tar:
+                if entry.isfile():
+                    extracted = tar.extractfile(entry)
+                    if extracted is not None:
+                        files[entry.name] = extracted.read()
+    except FileNotFoundError:
+        raise DatasetError(f"{tar_path}: missing (the manifest lists shard {name})") from None
+    except (tarfile.TarError, EOFError, OSError) as exc:
+        raise DatasetError(f"{tar_path}: corrupt or truncated tar ({exc})") from None
+    n = len(body)
+    rgb = np.empty((n, height, width, 3), dtype=np.uint8)
+    links = np.empty((n, height, width), dtype=np.uint8)
+    for i, key in enumerate(text["key"]):
+        for suffix, out, shape in (("rgb", rgb, (height, width, 3)), ("links", links, (height, width))):
+            member = f"{key}.{suffix}.png"
+            if member not in files:
+                raise DatasetError(f"{tar_path}: no {member} for the CSV's row {i + 2}")
+            image = png.decode(files[member], f"{tar_path}:{member}")
+            if image.shape != shape or image.dtype != np.uint8:
+                raise DatasetError(f"{tar_path}:{member}: {image.shape} {image.dtype} image, expected {shape} uint8")
+            out[i] = image
+    return Shard(rgb, links, text)
+
+
+def write_manifest(folder: str | Path, manifest: dict[str, Any]) -> None:
+    missing = [k for k in MANIFEST_KEYS if k not in manifest]
+    if missing:
+        raise ValueError(f"manifest lacks {missing}")
+    _atomic_write(Path(folder) / MANIFEST, (json.dumps(manifest, indent=1, sort_keys=False) + "\n").encode())
+
+
+def read_manifest(folder: str | Path) -> dict[str, Any]:
+    """The manifest of a dataset folder, checked for the format, version and keys."""
+    folder = Path(folder)
+    path = folder / MANIFEST
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: no such dataset folder")
+    try:
+        manifest = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: missing (not an {FORMAT} dataset folder)") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        found = manifest.get("format") if isinstance(manifest, dict) else type(manifest).__name__
+        raise DatasetError(f"{path}: format {found!r}, expected {FORMAT!r}")
+    if manifest.get("version") != VERSION:
+        raise DatasetError(f"{path}: format version {manifest.get('version')!r}; this earcore reads version {VERSION}")
+    missing = [k for k in MANIFEST_KEYS if k not in manifest]
+    if missing:
+        raise DatasetError(f"{path}: missing {', '.join(missing)}")
+    for key in ("width", "height", "num_keypoints", "max_dof"):
+        v = manifest[key]
+        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if key in ("width", "height") else 0):
+            raise DatasetError(f"{path}: {key} must be a whole number, got {v!r}")
+    shards = manifest["shards"]
+    if not isinstance(shards, list) or not all(isinstance(s, dict) and "name" in s and "samples" in s for s in shards):
+        raise DatasetError(f"{path}: shards must be a list of {{name, samples}}")
+    return manifest
