@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from earcore import validate
+import earcore.validate as validate  # not `from earcore import`: without the core, the package's __getattr__ answers first
 from earcore.errors import ConfigError
 
 __all__ = ["TrainConfig", "load_config"]

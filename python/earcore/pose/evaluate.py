@@ -59,7 +59,9 @@ class Evaluation:
         return "\n".join(lines) + "\n"
 
     def to_dict(self) -> dict[str, Any]:
-        return {"metrics": self.metrics, "per_keypoint_cm": self.per_keypoint_cm, "keypoint_names": self.keypoint_names}
+        """Plain JSON: what was not measured (NaN) is null."""
+        metrics = {robot: {k: (v if np.isfinite(v) else None) for k, v in values.items()} for robot, values in self.metrics.items()}
+        return {"metrics": metrics, "per_keypoint_cm": self.per_keypoint_cm, "keypoint_names": self.keypoint_names}
 
     def save(self, folder: str | Path, stem: str = "results", title: str = "") -> tuple[Path, Path]:
         folder = Path(folder)

@@ -344,7 +344,8 @@ class KeypointNet(PoseNetwork):
     training mean), and the 3D keypoints the pixels back-projected at those depths
     through the intrinsics (the network's own, `set_camera`, or per image). An encoder of
     strided and dilated convolutions to 1/8 with a coarse-to-fine merge at the heatmap
-    stride; the mask from the same features, upsampled; the type from pooled features."""
+    stride; the mask at 1/2 from the stem's and the merged features, upsampled; the type
+    from pooled features."""
 
     name = "keypoint"
 
@@ -361,10 +362,11 @@ class KeypointNet(PoseNetwork):
         k1 = o.num_keypoints + 1
         self.heat = nn.Conv2d(c64, k1, 1)
         self.depth = nn.Conv2d(c64, k1, 1)
-        self.mask_out = nn.Conv2d(c64, 1, 1)
+        # The mask at 1/2 from the stem's features and the merged ones (thin links vanish at 1/4).
+        self.mask_out = nn.Sequential(conv(o, c32 + c64, c32, 3, 1), nn.Conv2d(c32, 1, 3, padding=1))
         self.type_head = nn.Sequential(nn.Linear(c128, o.head), _activation(o), nn.Linear(o.head, o.num_robots))
 
-    def _features(self, x: Tensor) -> tuple[Tensor, Tensor]:
+    def _features(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         half = self.stem(x)
         quarter = self.down4(half)
         eighth = self.down8(quarter)
@@ -373,13 +375,13 @@ class KeypointNet(PoseNetwork):
         fine = self.merge(torch.cat([quarter, up8], 1))
         if target is not quarter:
             fine = F.interpolate(fine, size=target.shape[2:], mode="bilinear", align_corners=False)
-        return fine, eighth
+        return fine, eighth, half
 
     def forward(self, image: Tensor, mask: Tensor | None = None, intrinsics: Tensor | None = None) -> dict[str, Tensor]:
         x = self.check(image)
         n = image.shape[0]
         w, h = self.options.input_size
-        fine, coarse = self._features(x)
+        fine, coarse, half = self._features(x)
         hh, ww = fine.shape[2], fine.shape[3]
         heat = self.heat(fine).flatten(2)  # (N, K+1, hh·ww)
         prob = torch.softmax(heat, dim=2)
@@ -401,7 +403,7 @@ class KeypointNet(PoseNetwork):
         points = torch.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], dim=2)
         pooled = coarse.mean(dim=(2, 3))
         return {
-            "mask_logits": self.upsample(self.mask_out(fine)),
+            "mask_logits": self.upsample(self.mask_out(torch.cat([half, F.interpolate(fine, size=half.shape[2:], mode="bilinear", align_corners=False)], 1))),
             "keypoints": points[:, : self.K],
             "base": points[:, self.K],
             "type_logits": self.type_head(pooled),
