@@ -17,7 +17,9 @@ joint-range midpoint, then random configurations) guard against local minima.
 
 What keypoints cannot show stays at its start: a joint whose rotation moves no
 keypoint (a UR's last joint turns tool0 about its own axis), and the split between
-the first joint and the base's rotation about it.
+the first joint and the base's rotation about it. Without the base observation, the
+base's tilt about the first keypoint also trades against the shoulder angle (the
+keypoints still fit; the angles do not): pass the network's base.
 """
 
 from __future__ import annotations
