@@ -1,0 +1,93 @@
+"""Training metrics as JSON lines (one object per record: `kind` "train" or "eval",
+`step`, `seconds` of training, `wall` time since the run began, then the values) and
+their curves as PNG (matplotlib, imported only when plotting)."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+__all__ = ["MetricsLog", "plot_metrics", "read_metrics"]
+
+
+def _plain(value: Any) -> Any:
+    if hasattr(value, "item") and getattr(value, "ndim", 0) == 0:
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)  # JSON has no NaN/inf; keep them readable
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+class MetricsLog:
+    """Appends records to `path` (`metrics.jsonl`); a resumed run appends to the same file."""
+
+    def __init__(self, path: str | Path, *, enabled: bool = True):
+        self.path = Path(path)
+        self.enabled = enabled
+        if enabled:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+
+    def write(self, kind: str, step: int, seconds: float, values: Mapping[str, Any]) -> None:
+        if not self.enabled:
+            return
+        record = {"kind": kind, "step": int(step), "seconds": round(float(seconds), 3), "time": round(time.time(), 3), **_plain(dict(values))}
+        with self.path.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+
+
+def read_metrics(path: str | Path) -> list[dict[str, Any]]:
+    """Every record of a metrics file (a truncated last line, from a killed run, is skipped)."""
+    out = []
+    for line in Path(path).read_text().splitlines():
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return out
+
+
+def plot_metrics(path: str | Path, out: str | Path | None = None) -> list[Path]:
+    """Curves of a metrics file: `losses.png` (training losses against step) and
+    `eval.png` (each evaluation metric against training minutes: the accuracy-vs-time
+    curve). Returns the files written; none if matplotlib is not installed."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    path = Path(path)
+    if not path.is_file():
+        return []
+    folder = Path(out) if out is not None else path.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    records = read_metrics(path)
+    written = []
+    for kind, x_key, name in (("train", "step", "losses.png"), ("eval", "seconds", "eval.png")):
+        rows = [r for r in records if r.get("kind") == kind]
+        keys = sorted({k for r in rows for k, v in r.items() if k not in ("kind", "step", "seconds", "time") and isinstance(v, (int, float))})
+        if not rows or not keys:
+            continue
+        fig, axes = plt.subplots(len(keys), 1, figsize=(7, 1.8 * len(keys)), sharex=True, squeeze=False)
+        for ax, key in zip(axes[:, 0], keys):
+            pts = [(r[x_key], r[key]) for r in rows if isinstance(r.get(key), (int, float))]
+            xs = [p[0] / 60.0 if x_key == "seconds" else p[0] for p in pts]
+            ax.plot(xs, [p[1] for p in pts], lw=1)
+            ax.set_ylabel(key, fontsize=8)
+            ax.grid(alpha=0.3)
+        axes[-1, 0].set_xlabel("training minutes" if x_key == "seconds" else "step")
+        fig.tight_layout()
+        target = folder / name
+        fig.savefig(target, dpi=90)
+        plt.close(fig)
+        written.append(target)
+    return written

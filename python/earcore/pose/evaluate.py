@@ -1,0 +1,180 @@
+"""Per-robot results in the papers' terms: mask pixel accuracy (the thresholded mask,
+logit > 0, against the ground truth) and IoU (which an all-background mask cannot
+game), joint error (per image the mean 3D distance over the robot's keypoints; mean
+and median over images, cm), base error (cm, mean and median), type accuracy,
+per-keypoint errors and inference time; a table with one column per robot (Paper IV's
+Table II layout), as markdown and JSON."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from earcore.learning.train import collate, to_device
+
+__all__ = ["Evaluation", "evaluate", "evaluator", "inference_ms", "predict"]
+
+ROWS = (
+    ("mask_accuracy", "Mask pixel accuracy", "{:.1%}"),
+    ("mask_iou", "Mask IoU", "{:.1%}"),
+    ("type_accuracy", "Robot type accuracy", "{:.1%}"),
+    ("joints_mean_cm", "Joint error, mean (cm)", "{:.2f}"),
+    ("joints_median_cm", "Joint error, median (cm)", "{:.2f}"),
+    ("base_mean_cm", "Base error, mean (cm)", "{:.2f}"),
+    ("base_median_cm", "Base error, median (cm)", "{:.2f}"),
+    ("inference_ms", "Inference (ms per image)", "{:.1f}"),
+    ("samples", "Test images", "{:d}"),
+)
+
+
+@dataclass
+class Evaluation:
+    """Per robot name (and "all"): the metrics; per robot: the per-keypoint mean errors (cm)."""
+
+    metrics: dict[str, dict[str, float]]
+    per_keypoint_cm: dict[str, list[float]] = field(default_factory=dict)
+    keypoint_names: dict[str, list[str]] = field(default_factory=dict)
+
+    def markdown(self, title: str = "") -> str:
+        columns = list(self.metrics)
+        lines = [f"### {title}", ""] if title else []
+        lines += ["| | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
+        for key, label, fmt in ROWS:
+            cells = []
+            for c in columns:
+                value = self.metrics[c].get(key)
+                cells.append("—" if value is None or (isinstance(value, float) and not np.isfinite(value)) else fmt.format(int(value) if fmt == "{:d}" else value))
+            if any(cell != "—" for cell in cells):
+                lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        for robot, errors in self.per_keypoint_cm.items():
+            names = self.keypoint_names.get(robot) or [f"kp{i}" for i in range(len(errors))]
+            lines += ["", f"Per keypoint, {robot} (mean cm): " + ", ".join(f"{n} {e:.2f}" for n, e in zip(names, errors))]
+        return "\n".join(lines) + "\n"
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON: what was not measured (NaN) is null."""
+        metrics = {robot: {k: (v if np.isfinite(v) else None) for k, v in values.items()} for robot, values in self.metrics.items()}
+        return {"metrics": metrics, "per_keypoint_cm": self.per_keypoint_cm, "keypoint_names": self.keypoint_names}
+
+    def save(self, folder: str | Path, stem: str = "results", title: str = "") -> tuple[Path, Path]:
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        md, js = folder / f"{stem}.md", folder / f"{stem}.json"
+        md.write_text(self.markdown(title))
+        js.write_text(json.dumps(self.to_dict(), indent=2, allow_nan=False, default=float) + "\n")
+        return md, js
+
+
+def predict(model: torch.nn.Module, dataset: Any, device: torch.device, limit: int | None = None, batch_size: int = 32) -> dict[str, np.ndarray]:
+    """The model's outputs over (the first `limit` images of) `dataset` beside the labels,
+    as numpy arrays (the mask thresholded)."""
+    n = len(dataset) if limit is None else min(limit, len(dataset))
+    keep: dict[str, list[np.ndarray]] = {}
+    was = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            for start in range(0, n, batch_size):
+                batch = to_device(collate([dataset[i] for i in range(start, min(n, start + batch_size))]), device)
+                out = model(batch["image"], None, batch["intrinsics"])
+                parts = {
+                    "mask": (out["mask_logits"] > 0)[:, 0],
+                    "mask_true": batch["mask"][:, 0] > 0.5,
+                    "keypoints": out["keypoints"],
+                    "keypoints_true": batch["keypoints"],
+                    "valid": batch["keypoint_valid"],
+                    "base": out["base"],
+                    "base_true": batch["base"],
+                    "robot": batch["robot"],
+                }
+                if "type_logits" in out:
+                    parts["type"] = out["type_logits"].argmax(1)
+                for k, v in parts.items():
+                    keep.setdefault(k, []).append(v.cpu().numpy())
+    finally:
+        model.train(was)
+    return {k: np.concatenate(v) for k, v in keep.items()}
+
+
+def _metrics(p: dict[str, np.ndarray], rows: np.ndarray) -> tuple[dict[str, float], list[float]]:
+    mask, truth = p["mask"][rows], p["mask_true"][rows]
+    inter = np.logical_and(mask, truth).sum()
+    union = np.logical_or(mask, truth).sum()
+    d = np.linalg.norm(p["keypoints"][rows] - p["keypoints_true"][rows], axis=-1)
+    valid = p["valid"][rows]
+    per_image = (d * valid).sum(1) / np.maximum(valid.sum(1), 1)
+    per_image = per_image[valid.any(1)]
+    base = np.linalg.norm(p["base"][rows] - p["base_true"][rows], axis=-1)
+    out = {
+        "samples": int(rows.sum()),
+        "mask_accuracy": float((mask == truth).mean()),
+        "mask_iou": float(inter / union) if union else 1.0,
+        "joints_mean_cm": float(100 * per_image.mean()) if per_image.size else float("nan"),
+        "joints_median_cm": float(100 * np.median(per_image)) if per_image.size else float("nan"),
+        "base_mean_cm": float(100 * base.mean()),
+        "base_median_cm": float(100 * np.median(base)),
+    }
+    if "type" in p:
+        out["type_accuracy"] = float((p["type"][rows] == p["robot"][rows]).mean())
+    per_kp = (d * valid).sum(0) / np.maximum(valid.sum(0), 1)
+    return out, [float(100 * e) for e, c in zip(per_kp, valid.sum(0)) if c > 0]
+
+
+def inference_ms(model: torch.nn.Module, image_shape: Sequence[int], device: torch.device, repeats: int = 20) -> float:
+    """Median time of one forward pass on one image (torch, eval mode)."""
+    x = torch.rand(1, *image_shape, device=device)
+    was = model.training
+    model.eval()
+    times = []
+    try:
+        with torch.no_grad():
+            for i in range(repeats + 3):
+                t = time.perf_counter()
+                model(x)
+                if device.type == "cuda":
+                    torch.cuda.synchronize(device)
+                if i >= 3:
+                    times.append(time.perf_counter() - t)
+    finally:
+        model.train(was)
+    return float(1000 * np.median(times))
+
+
+def evaluate(
+    model: torch.nn.Module,
+    dataset: Any,
+    device: torch.device | str = "cpu",
+    *,
+    limit: int | None = None,
+    robots: Sequence[str] | None = None,
+    keypoint_names: dict[str, list[str]] | None = None,
+    timing: bool = True,
+) -> Evaluation:
+    """Metrics per robot and over all images of `dataset` (robot names from
+    `robots`, else the dataset's `.robots`)."""
+    device = torch.device(device)
+    p = predict(model, dataset, device, limit)
+    names = list(robots if robots is not None else getattr(dataset, "robots", []))
+    ms = inference_ms(model, dataset[0]["image"].shape, device) if timing else float("nan")
+    metrics: dict[str, dict[str, float]] = {}
+    per_keypoint: dict[str, list[float]] = {}
+    for r in sorted(set(p["robot"].tolist())):
+        name = names[r] if r < len(names) else f"robot {r}"
+        metrics[name], per_keypoint[name] = _metrics(p, p["robot"] == r)
+        metrics[name]["inference_ms"] = ms
+    metrics["all"], _ = _metrics(p, np.ones(len(p["robot"]), bool))
+    metrics["all"]["inference_ms"] = ms
+    return Evaluation(metrics, per_keypoint, dict(keypoint_names or {}))
+
+
+def evaluator(model: torch.nn.Module, dataset: Any, device: torch.device, limit: int | None) -> dict[str, float]:
+    """For the training loop's periodic evaluation: the "all" metrics (no timing)."""
+    result = evaluate(model, dataset, device, limit=limit, timing=False).metrics["all"]
+    return {k: float(v) for k, v in result.items() if k not in ("inference_ms",)}

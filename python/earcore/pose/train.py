@@ -1,0 +1,205 @@
+"""Training a pose network on an earcore-images dataset, runnable from the source tree
+with only Python, numpy and torch (no compiled core, no OpenCV, no matplotlib needed):
+
+    PYTHONPATH=python python -m earcore.pose.train --data DATA --network multi --out runs/multi --minutes 60
+    torchrun --nproc_per_node 2 -m earcore.pose.train --data DATA --out runs/multi ...   # DDP
+
+The run folder gets config.json, checkpoint.pt, metrics.jsonl, curves (if matplotlib is
+installed) and results.md / results.json (the test split's table, per robot).
+`earcore train pose ...` is the same command through the earcore CLI.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from earcore.errors import ConfigError
+from earcore.learning.checkpoint import load_checkpoint
+from earcore.learning.config import TrainConfig, load_config
+from earcore.learning.losses import FixedWeights
+from earcore.learning.train import TrainResult, train
+from earcore.pose.evaluate import Evaluation, evaluate, evaluator
+from earcore.pose.networks import NETWORKS, PRESETS, PoseNetwork, build_network
+from earcore.pose.objectives import default_weights, objective_for
+
+__all__ = ["build_parser", "fit_statistics", "load_trained", "main", "run"]
+
+
+def fit_statistics(network: PoseNetwork, dataset: Any, samples: int = 256) -> None:
+    """Set the network's output scaling (mean and spread of the keypoints and bases, per
+    axis) and its camera (the median intrinsics) from the first `samples` images."""
+    n = min(samples, len(dataset))
+    if n < 1:
+        raise ValueError("the training set is empty")
+    points, intrinsics = [], []
+    for i in range(n):
+        item = dataset[i]
+        points.append(item["keypoints"][item["keypoint_valid"]])
+        points.append(item["base"][None])
+        intrinsics.append(item["intrinsics"])
+    p = torch.cat(points).double()
+    network.set_output_statistics(p.mean(0).float(), p.std(0).clamp(min=0.05).float() if len(p) > 1 else torch.full((3,), 0.5))
+    network.set_camera(torch.stack(intrinsics).median(0).values)
+
+
+def load_trained(path: str | Path, device: str | torch.device = "cpu") -> tuple[PoseNetwork, dict[str, Any]]:
+    """A trained network (eval mode) and its checkpoint's meta (network, options,
+    robots, keypoint names, input size) from a run folder or checkpoint file."""
+    state = load_checkpoint(path)
+    meta = state.meta
+    if "network" not in meta or "options" not in meta:
+        raise ConfigError(f"{path}: the checkpoint does not say which network it holds")
+    network = build_network(meta["network"], meta["options"])
+    network.load_state_dict(state.model)
+    return network.to(device).eval(), meta
+
+
+def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser, prog: str = "python -m earcore.pose.train") -> argparse.ArgumentParser:
+    p = parser_class(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", type=Path, required=True, help="an earcore-images dataset folder")
+    p.add_argument("--network", choices=NETWORKS, default=None, help="multi (Paper V, default), cascade (Paper IV) or keypoint")
+    p.add_argument("--out", type=Path, required=True, help="the run folder (config, checkpoint, metrics, results)")
+    p.add_argument("--preset", choices=sorted(PRESETS), default=None, help="network shape: small (shipped, default) or paper")
+    p.add_argument("--minutes", type=float, default=None, help="training time budget (default 60 unless --steps)")
+    p.add_argument("--steps", type=int, default=None, help="optimiser steps")
+    p.add_argument("--batch", type=int, default=None, help="global batch size (default 64, Paper V)")
+    p.add_argument("--lr", type=float, nargs=2, default=None, metavar=("START", "END"), help="learning rate from START to END (default 1e-3 1e-6)")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
+    p.add_argument("--workers", type=int, default=None, help="data-loading worker processes (default 0)")
+    p.add_argument("--device", choices=("cpu", "cuda", "auto"), default=None)
+    p.add_argument("--robots", nargs="*", default=None, help="train on these robots only")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--eval-minutes", type=float, default=None, help="evaluate on the test split every this many training minutes (default 5)")
+    p.add_argument("--option", action="append", default=[], metavar="KEY=JSON", help="a network option, e.g. --option width=0.75 --option mask_stride=1")
+    p.add_argument("--config", type=Path, default=None, help="a TrainConfig JSON file (the command line's options override it)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+def _config(args: argparse.Namespace) -> TrainConfig:
+    base: dict[str, Any] = {}
+    if args.config is not None:
+        base = load_config(args.config).to_dict()
+    elif args.resume and (args.out / "config.json").is_file():
+        base = load_config(args.out / "config.json").to_dict()
+    changes: dict[str, Any] = {}
+    for key, value in (
+        ("network", args.network),
+        ("batch_size", args.batch),
+        ("threads", args.threads),
+        ("workers", args.workers),
+        ("device", args.device),
+        ("seed", args.seed),
+        ("eval_every_minutes", args.eval_minutes),
+    ):
+        if value is not None:
+            changes[key] = value
+    if args.lr is not None:
+        changes["lr_start"], changes["lr_end"] = args.lr
+    if args.steps is not None or args.minutes is not None:
+        changes["steps"], changes["minutes"] = args.steps, args.minutes
+    options = dict(base.get("network_options", {}))
+    if args.preset is not None:
+        options.update(PRESETS[args.preset])
+    elif not base:
+        options.update(PRESETS["small"])
+    for item in args.option:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--option must be KEY=VALUE, got {item!r}")
+        try:
+            options[key] = json.loads(text)
+        except json.JSONDecodeError:
+            options[key] = text
+    changes["network_options"] = options
+    notes = dict(base.get("notes", {}))
+    notes.update({"data": str(args.data), "robots": args.robots, "preset": args.preset or notes.get("preset", "small")})
+    changes["notes"] = notes
+    merged = {**base, **changes}
+    if not base and "network" not in changes:
+        merged["network"] = "multi"
+    return TrainConfig.from_dict(merged)
+
+
+def run(
+    config: TrainConfig,
+    data: Path,
+    out: Path,
+    *,
+    robots: list[str] | None = None,
+    resume: bool = False,
+    progress: bool = True,
+    datasets: tuple[Any, Any] | None = None,
+) -> tuple[TrainResult, Evaluation | None]:
+    """Train `config.network` on `data`'s train split, evaluate on its test split
+    (`datasets`: a (train, test) pair of Datasets instead)."""
+    if datasets is None:
+        from earcore.learning.dataset import ImageDataset  # the Dataset over the earcore-images format
+
+        train_set = ImageDataset(data, split="train", robots=robots, noise=True, seed=config.seed)
+        test_set = ImageDataset(data, split="test", robots=robots, noise=False, seed=config.seed)
+    else:
+        train_set, test_set = datasets
+    options = dict(config.network_options)
+    options["input_size"] = list(train_set.image_size)
+    options["num_keypoints"] = int(train_set.num_keypoints)
+    options["num_robots"] = len(train_set.robots)
+    network = build_network(config.network, options)
+    config = config.replace(network_options=network.options.to_dict())
+    fit_statistics(network, train_set)
+    weights = {**default_weights(config.network), **config.loss_weights}
+    manifest = getattr(train_set, "manifest", {})
+    meta = {
+        "network": config.network,
+        "options": network.options.to_dict(),
+        "robots": list(train_set.robots),
+        "keypoints": manifest.get("keypoints", {}),
+        "input_size": list(train_set.image_size),
+        "data": str(data),
+    }
+    result = train(
+        network,
+        objective_for(config.network, seed=config.seed),
+        train_set,
+        config,
+        out,
+        combiner=FixedWeights(weights),
+        val_set=test_set if len(test_set) else None,
+        evaluate=evaluator,
+        meta=meta,
+        resume=resume,
+        progress=progress,
+    )
+    if not len(test_set):
+        return result, None
+    import earcore.learning.distributed as dist_env
+
+    if not dist_env.from_environment().main:
+        return result, None
+    trained, _ = load_trained(out, "cpu")
+    table = evaluate(trained, test_set, "cpu", robots=train_set.robots, keypoint_names=meta["keypoints"])
+    table.save(out, "results", f"{config.network} after {result.steps} steps ({result.seconds / 60:.1f} training minutes), test split")
+    return result, table
+
+
+def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser, prog: str = "python -m earcore.pose.train") -> int:
+    parser = build_parser(parser_class, prog)
+    args = parser.parse_args(argv)
+    try:
+        config = _config(args)
+    except ConfigError as exc:
+        parser.error(str(exc))
+    _, table = run(config, args.data, args.out, robots=args.robots, resume=args.resume, progress=not args.no_progress)
+    if table is not None:
+        print(table.markdown())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
