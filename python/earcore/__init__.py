@@ -7,6 +7,8 @@ Heavy numeric work runs in Rust (``earcore._earcore``) without holding the GIL.
 
 from __future__ import annotations
 
+#: Submodules named in __all__ (importable without the core's names).
+_SUBMODULES = {"errors", "interfaces", "robots", "synthetic", "transforms"}
 _CORE_HINT = "Reinstall the wheel (`pip install --force-reinstall earcore`) or rebuild with `make develop`."
 
 try:
@@ -29,9 +31,12 @@ except ImportError as _core_error:
     _CORE_MISSING = ImportError(f"earcore's compiled extension (earcore._earcore) failed to load: {_core_error}. {_CORE_HINT}")
 
     def __getattr__(name: str):
-        if name.startswith("__") and name != "__version__":  # probes like __wrapped__ stay AttributeErrors
-            raise AttributeError(name)
-        raise _CORE_MISSING
+        # Only the core's names raise; anything else (a submodule asked for by
+        # `from earcore import validate`, a probe like __wrapped__) stays an AttributeError,
+        # so the import system goes on to load the submodule.
+        if name == "__version__" or (name in __all__ and name not in _SUBMODULES):
+            raise _CORE_MISSING
+        raise AttributeError(f"module 'earcore' has no attribute {name!r}")
 else:
     from earcore import errors, interfaces, robots, synthetic, transforms  # light: numpy and the extension only
     from earcore.cloud import (
