@@ -53,9 +53,9 @@ def _command(name: str, rest: list[str]) -> int:
 
         return dataset_main(rest)
     if name in ("train", "evaluate", "export"):
-        from earcore.app import pose
+        from earcore.app.pose import evaluate_main, export_main, train_main
 
-        return {"train": pose.train_main, "evaluate": pose.evaluate_main, "export": pose.export_main}[name](rest)
+        return {"train": train_main, "evaluate": evaluate_main, "export": export_main}[name](rest)
     from earcore.app.demo import main as demo_main
 
     return demo_main(rest)
