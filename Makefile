@@ -12,7 +12,7 @@ PIP_FLAGS := --disable-pip-version-check -q
 LINT_TOOLS := "ruff>=0.17,<0.18" "mypy>=1.10"
 export PIP_CACHE_DIR ?= $(HOME)/.cache/pip
 
-.PHONY: help demo map-demo test test-rust test-python develop wheel bench bench-python lint fuzz clean system-deps
+.PHONY: help demo pose bench-pose map-demo test test-rust test-python develop wheel bench bench-python lint fuzz clean system-deps
 
 help: ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-14s %s\n", $$1, $$2}'
@@ -30,11 +30,23 @@ $(VENV)/.ready: pyproject.toml | system-deps
 	$(PY) -m pip install $(PIP_FLAGS) $(LINT_TOOLS)
 	touch $@
 
+# Training the networks: torch from PyPI (the CUDA build, ~3.3 GB of downloads, runs on the CPU).
+$(VENV)/.learning: $(VENV)/.ready
+	$(PY) -m pip install $(PIP_FLAGS) "torch>=2.2" "onnx>=1.15" "onnxruntime>=1.17" "tqdm>=4.60" "ray>=2.40"
+	touch $@
+
 develop: $(VENV)/.ready ## build the extension (release) into .venv, editable
 	$(VENV)/bin/maturin develop --release -q
 
 demo: develop ## the main job: the simulated cell (UR5, 4 cameras, a person reaching in) -> out/ PNGs + summary.json
 	$(VENV)/bin/earcore run --out out
+
+pose: develop $(VENV)/.learning ## robot pose from one colour image, small: images, training, evaluation, ONNX -> out/pose (~10 min)
+	$(VENV)/bin/earcore dataset robots --out out/robots --scale 0.5 --quiet
+	$(VENV)/bin/earcore dataset robots --out out/robots-heldout --scale 0.1 --seed 1001 --quiet
+	$(VENV)/bin/earcore train pose --data out/robots --out out/pose --minutes 5 --no-progress
+	$(VENV)/bin/earcore evaluate pose --checkpoint out/pose --data out/robots-heldout --split all --out out/pose/heldout
+	$(VENV)/bin/earcore export pose --checkpoint out/pose --out out/pose/pose.onnx
 
 map-demo: develop ## the quick map demo (synthetic scene, 3 cameras, danger decay) -> out/map_danger.png
 	$(VENV)/bin/earcore demo --out out
@@ -58,6 +70,12 @@ bench: develop ## criterion benches, then the side-by-side comparisons with Octo
 	cargo bench
 	$(MAKE) bench-python
 
+bench-pose: develop $(VENV)/.learning ## labelled-image speed; the three pose networks, 60 min each, side by side; ships the multi network (~3.5 h)
+	$(PY) benches/dataset_generation.py
+	$(VENV)/bin/earcore dataset robots --out benches/out/data/ur --quiet
+	$(VENV)/bin/earcore dataset robots --out benches/out/data/ur-heldout --seed 1001 --scale 0.2 --quiet
+	$(PY) benches/pose_accuracy.py --data benches/out/data/ur --heldout benches/out/data/ur-heldout --minutes 60 --out benches/out/pose --ship
+
 bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python-fcl, open3d-cpu + pyoctomap, small_gicp)
 	@ldconfig -p | grep -q libusb-1.0 || { echo "installing libusb-1.0-0 (open3d needs it)"; \
 	  (apt-get update -qq && apt-get install -y -qq libusb-1.0-0) >/dev/null; }
@@ -70,7 +88,7 @@ bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python
 	$(PY) benches/bench_icp_vs_peers.py
 	$(PY) benches/bench_surface_map.py
 
-lint: $(VENV)/.ready ## rustfmt, clippy (missing docs included), ruff, mypy
+lint: $(VENV)/.learning ## rustfmt, clippy (missing docs included), ruff, mypy
 	cargo fmt --all --check
 	cargo clippy --workspace --all-targets -q -- -D warnings
 	$(VENV)/bin/ruff check python tests benches

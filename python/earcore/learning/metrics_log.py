@@ -54,6 +54,15 @@ def read_metrics(path: str | Path) -> list[dict[str, Any]]:
     return out
 
 
+#: Fields of a record that are not curves (loss weights, "w_*", are left out too).
+BOOKKEEPING = ("kind", "step", "seconds", "time", "samples", "eval_seconds")
+
+
+def curve_keys(rows: list[dict]) -> list[str]:
+    """The numeric fields of `rows` worth a curve, sorted."""
+    return sorted({k for r in rows for k, v in r.items() if k not in BOOKKEEPING and not k.startswith("w_") and isinstance(v, (int, float))})
+
+
 def plot_metrics(path: str | Path, out: str | Path | None = None) -> list[Path]:
     """Curves of a metrics file: `losses.png` (training losses against step) and
     `eval.png` (each evaluation metric against training minutes: the accuracy-vs-time
@@ -74,7 +83,7 @@ def plot_metrics(path: str | Path, out: str | Path | None = None) -> list[Path]:
     written = []
     for kind, x_key, name in (("train", "step", "losses.png"), ("eval", "seconds", "eval.png")):
         rows = [r for r in records if r.get("kind") == kind]
-        keys = sorted({k for r in rows for k, v in r.items() if k not in ("kind", "step", "seconds", "time") and isinstance(v, (int, float))})
+        keys = curve_keys(rows)
         if not rows or not keys:
             continue
         fig, axes = plt.subplots(len(keys), 1, figsize=(7, 1.8 * len(keys)), sharex=True, squeeze=False)

@@ -20,7 +20,7 @@ import torch
 
 from earcore.errors import ConfigError
 from earcore.learning.checkpoint import load_checkpoint
-from earcore.learning.config import TrainConfig, load_config
+from earcore.learning.config import SCHEDULES, TrainConfig, load_config
 from earcore.learning.losses import FixedWeights
 from earcore.learning.train import TrainResult, train
 from earcore.pose.evaluate import Evaluation, evaluate, evaluator
@@ -69,6 +69,7 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     p.add_argument("--steps", type=int, default=None, help="optimiser steps")
     p.add_argument("--batch", type=int, default=None, help="global batch size (default 64, Paper V)")
     p.add_argument("--lr", type=float, nargs=2, default=None, metavar=("START", "END"), help="learning rate from START to END (default 1e-3 1e-6)")
+    p.add_argument("--schedule", choices=SCHEDULES, default=None, help="learning-rate schedule from START to END (default exponential)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     p.add_argument("--workers", type=int, default=None, help="data-loading worker processes (default 0)")
     p.add_argument("--device", choices=("cpu", "cuda", "auto"), default=None)
@@ -82,7 +83,7 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     return p
 
 
-def _config(args: argparse.Namespace) -> TrainConfig:
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
     base: dict[str, Any] = {}
     if args.config is not None:
         base = load_config(args.config).to_dict()
@@ -92,6 +93,7 @@ def _config(args: argparse.Namespace) -> TrainConfig:
     for key, value in (
         ("network", args.network),
         ("batch_size", args.batch),
+        ("schedule", args.schedule),
         ("threads", args.threads),
         ("workers", args.workers),
         ("device", args.device),
@@ -192,7 +194,7 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
     parser = build_parser(parser_class, prog)
     args = parser.parse_args(argv)
     try:
-        config = _config(args)
+        config = config_from_args(args)
     except ConfigError as exc:
         parser.error(str(exc))
     _, table = run(config, args.data, args.out, robots=args.robots, resume=args.resume, progress=not args.no_progress)

@@ -1,0 +1,107 @@
+"""Robot pose from one colour image: train the pose networks within a time budget each,
+then report them side by side in the papers' table layout, on the test split (the
+papers' protocol: random 80/20 split of the recordings) and on held-out recordings
+(camera placements, lighting and seeds never seen in training).
+
+Runs from the source tree with Python, numpy and torch only (no compiled core), so the
+same command serves the 2-core CPU machine and a GPU machine:
+
+    earcore dataset robots --out data/ur                                  # the papers' UR set
+    earcore dataset robots --out data/ur-heldout --seed 1001 --scale 0.2   # held-out recordings
+    PYTHONPATH=python python benches/pose_accuracy.py --data data/ur --heldout data/ur-heldout \\
+        --networks multi,cascade,keypoint --minutes 60 --out benches/out/pose
+
+`--ship` exports the multi-objective network to python/earcore/pose/weights/ (the
+weights `earcore.pose.estimate` uses)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+import torch
+
+from earcore.learning.dataset import ImageDataset
+from earcore.pose.evaluate import evaluate
+from earcore.pose.train import build_parser, config_from_args, load_trained, run
+
+SHIPPED = Path(__file__).resolve().parents[1] / "python" / "earcore" / "pose" / "weights" / "pose.onnx"
+
+
+def machine() -> str:
+    cpu = platform.processor() or "cpu"
+    try:
+        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    gpu = f", {torch.cuda.get_device_name()}" if torch.cuda.is_available() else ""
+    return f"{cpu}, {os.cpu_count()} cores{gpu}; torch {torch.__version__}, Python {platform.python_version()}"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", type=Path, required=True, help="earcore-images folder with train/test splits")
+    parser.add_argument("--heldout", type=Path, default=None, help="earcore-images folder of held-out recordings (all of it is evaluated)")
+    parser.add_argument("--networks", default="multi,cascade,keypoint")
+    parser.add_argument("--minutes", type=float, default=60.0, help="training budget per network")
+    parser.add_argument("--preset", default="small", choices=("small", "paper"))
+    parser.add_argument("--device", default="auto", choices=("cpu", "cuda", "auto"))
+    parser.add_argument("--batch", type=int, default=64)
+    parser.add_argument("--schedule", default="exponential", help="learning-rate schedule (exponential, cosine, linear, constant)")
+    parser.add_argument("--workers", type=int, default=0, help="data-loading worker processes")
+    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--eval-minutes", type=float, default=5.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path("benches/out/pose"))
+    parser.add_argument("--ship", action="store_true", help="export the multi network as the package's shipped weights")
+    args = parser.parse_args()
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    command = "python benches/pose_accuracy.py " + " ".join(sys.argv[1:])
+    report = [f"# Robot pose from one colour image ({date.today().isoformat()})", "", f"machine: {machine()}", f"command: `{command}`", ""]
+    summary: dict[str, dict] = {}
+    heldout = ImageDataset(args.heldout, split=None, noise=False) if args.heldout else None
+    for name in args.networks.split(","):
+        train_args = [f"--data={args.data}", f"--out={args.out / name}", f"--network={name}", f"--preset={args.preset}"]
+        train_args += [f"--minutes={args.minutes}", f"--batch={args.batch}", f"--schedule={args.schedule}", f"--device={args.device}", f"--workers={args.workers}"]
+        train_args += [f"--eval-minutes={args.eval_minutes}", f"--seed={args.seed}"] + ([f"--threads={args.threads}"] if args.threads else [])
+        config = config_from_args(build_parser().parse_args(train_args))
+        started = time.perf_counter()
+        result, table = run(config, args.data, args.out / name, progress=sys.stderr.isatty())
+        wall = time.perf_counter() - started
+        entry: dict = {"steps": result.steps, "training_minutes": result.seconds / 60, "wall_minutes": wall / 60}
+        report.append(f"## {name} ({args.preset}): {result.steps} steps in {result.seconds / 60:.1f} training minutes")
+        report.append("")
+        if table is not None:
+            entry["test"] = table.metrics
+            report.append(table.markdown("test split (the papers' protocol)"))
+        if heldout is not None:
+            trained, _ = load_trained(args.out / name, "cpu")
+            held = evaluate(trained, heldout, "cpu", robots=heldout.robots, keypoint_names=heldout.manifest.get("keypoints", {}))
+            held.save(args.out / name, "heldout", f"{name}, held-out recordings")
+            entry["heldout"] = held.metrics
+            report.append(held.markdown("held-out recordings"))
+        summary[name] = entry
+        (args.out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+        (args.out / "summary.md").write_text("\n".join(report) + "\n")
+        print("\n".join(report[-3:]), flush=True)
+    if args.ship and "multi" in summary:
+        from earcore.pose.export import export_network
+
+        SHIPPED.parent.mkdir(parents=True, exist_ok=True)
+        network, meta = load_trained(args.out / "multi")
+        sidecar = export_network(network, meta, SHIPPED)
+        print(f"onnxruntime parity: max |Δ| {max(sidecar['parity'].values()):.2e}")
+        print(f"shipped weights: {SHIPPED}")
+    print(f"summary: {args.out / 'summary.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
