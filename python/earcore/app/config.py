@@ -1,7 +1,7 @@
 """`earcore run`'s configuration: the cell, the perception loop and the planner in one
 typed structure, loaded from and dumped to TOML. Field names are the TOML keys; each
 area owns its section (`earcore.sim.config`, `earcore.perception.config`,
-`earcore.planning.config`)."""
+`earcore.planning.config`, `earcore.pose.config`)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from typing import Any
 
 from earcore.perception.config import PerceptionConfig
 from earcore.planning.config import PlanningConfig
+from earcore.pose.config import PoseConfig
 from earcore.sim.config import CellConfig
 from earcore.validate import ConfigError, non_negative, positive, vector
 
@@ -30,6 +31,7 @@ class RunConfig:
     cell: CellConfig = field(default_factory=CellConfig)
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     planning: PlanningConfig = field(default_factory=PlanningConfig)
+    pose: PoseConfig = field(default_factory=PoseConfig)
 
     def validate(self) -> RunConfig:
         """Raise `ConfigError` naming the first setting out of its range; returns self.
@@ -42,6 +44,7 @@ class RunConfig:
         self.cell.validate("cell")
         self.perception.validate("perception")
         self.planning.validate("planning")
+        self.pose.validate("pose", [c.name for c in self.cell.cameras])
         return self
 
 

@@ -82,6 +82,12 @@ class Recorder:
             obstacles, osizes = pipeline.tree.current_obstacles()
             rec.log("world/map/current_obstacles", rr.Points3D(obstacles, radii=osizes / 2, colors=(220, 40, 40)))
 
+    def log_pose(self, time_s: float, camera: str, picture) -> None:
+        """The pose network's estimate drawn over the camera's image (papers' convention:
+        true joints green crosses, estimated red circles, base magenta, mask tinted)."""
+        self.stream.set_time("sim", duration=time_s)
+        self.stream.log(f"world/cameras/{camera}/pose", self.rr.Image(picture))
+
     def _log_planning(self, cell, executive) -> None:
         """The path being executed (the tool's line), new plans and reflexes, the risk."""
         rr, rec = self.rr, self.stream

@@ -144,6 +144,11 @@ def run(
         from earcore.app.recording import Recorder
 
         recorder = Recorder(out / "cell.rrd")
+    watch = None
+    if config.pose.camera:
+        from earcore.app.pose_watch import PoseWatch
+
+        watch = PoseWatch(config.pose, config.cell.robot)
     started = time.perf_counter()
     render_s = 0.0
     steps = int(round(config.duration / config.cell.time_step))
@@ -175,6 +180,10 @@ def run(
         if recorder is not None:
             recorder.log_frame(cell.time, cell, pipeline, frames, report, executive)
         score.add_frame(cell, pipeline, frames, report)
+        if watch is not None:
+            picture = watch.observe(cell.time, cell, frames)
+            if picture is not None and recorder is not None:
+                recorder.log_pose(cell.time, config.pose.camera, picture)
         while snapshots and cell.time >= snapshots[0]:
             written.append(str(draw_snapshot(out / f"danger_{snapshots.pop(0):05.1f}s.png", pipeline, cell)))
         if progress:
@@ -191,6 +200,11 @@ def run(
     if executive is not None:
         summary["planning"] = executive.summary()
         summary["trips"] = [t.as_dict() for t in getattr(executive, "trips", [])]
+    if watch is not None:
+        summary["pose"] = watch.summary()
+        png = watch.save_last(out / "pose.png")
+        if png is not None:
+            summary["pose"]["picture"] = str(png)
     if recorder is not None:
         recorder.close()
         summary["recording"] = str(recorder.path)

@@ -44,6 +44,8 @@ __all__ = [
     "FLANGES",
     "PAPER_RECORDINGS",
     "RenderedSample",
+    "keypoint_frames",
+    "keypoint_positions",
     "RobotImageOptions",
     "RobotImageRenderer",
     "SampleSpec",
@@ -204,6 +206,25 @@ def revolute_joints(model: RobotModel, robot: str) -> tuple[list[str], list[int]
     joints = {j.name: j for j in parse_urdf(urdf_path(robot)).joints}
     names = [n for n in model.joint_names if joints[n].kind in ("revolute", "continuous")]
     return names, [model.link_names.index(joints[n].child) for n in names]
+
+
+def keypoint_frames(model: RobotModel, robot: str) -> tuple[list[int], np.ndarray]:
+    """Each keypoint's link (index into `model.link_names`) and its homogeneous offset
+    (n, 4) in that link's frame: the revolute joints' origins, then the flange."""
+    links = revolute_joints(model, robot)[1]
+    flange, offset = FLANGES[robot]
+    offsets = np.zeros((len(links) + 1, 4))
+    offsets[:, 3] = 1.0
+    offsets[-1, :3] = offset
+    return [*links, model.link_names.index(flange)], offsets
+
+
+def keypoint_positions(model: RobotModel, robot: str, q: np.ndarray) -> np.ndarray:
+    """(n, 3) keypoints of `robot` at configuration `q`, in the model's world frame
+    (its `base` applied): the labels the images carry, for any camera."""
+    links, offsets = keypoint_frames(model, robot)
+    poses = model.fk(np.asarray(q, dtype=np.float64))[links]
+    return np.einsum("nij,nj->ni", poses, offsets)[:, :3]
 
 
 def manifest_for(options: RobotImageOptions, shards: list[list[SampleSpec]]) -> dict[str, Any]:
@@ -404,20 +425,16 @@ class RobotImageRenderer:
         lut = np.zeros(len(infos) + 1, dtype=np.uint8)
         for name, index in by_link.items():
             lut[index + 1] = model.link_names.index(name) + 1
-        names, links = revolute_joints(model, robot)
-        flange, offset = FLANGES[robot]
-        offsets = np.zeros((len(links) + 1, 4))
-        offsets[:, 3] = 1.0
-        offsets[-1, :3] = offset
+        keypoint_links, offsets = keypoint_frames(model, robot)
         poses = model.fk(model.random_configurations(256, seed=0))
-        tip = poses[:, model.link_names.index(flange)] @ offsets[-1]
+        tip = poses[:, keypoint_links[-1]] @ offsets[-1]
         reach = float(np.linalg.norm(tip[:, :3] - model.base[:3, 3], axis=1).max())
         self.robot = _Robot(
             robot,
             body,
             model,
             [by_joint[n] for n in model.joint_names],
-            [*links, model.link_names.index(flange)],
+            keypoint_links,
             offsets,
             lut,
             [-1, *range(len(infos))],
