@@ -50,6 +50,7 @@ def main() -> int:
     parser.add_argument("--heldout", type=Path, default=None, help="earcore-images folder of held-out recordings (all of it is evaluated)")
     parser.add_argument("--networks", default="multi,cascade,keypoint")
     parser.add_argument("--minutes", type=float, default=60.0, help="training budget per network")
+    parser.add_argument("--steps", type=int, default=None, help="a step budget instead (comparisons that CPU contention must not skew)")
     parser.add_argument("--preset", default="small", choices=("small", "paper"))
     parser.add_argument("--device", default="auto", choices=("cpu", "cuda", "auto"))
     parser.add_argument("--batch", type=int, default=64)
@@ -59,6 +60,7 @@ def main() -> int:
     parser.add_argument("--eval-minutes", type=float, default=5.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("benches/out/pose"))
+    parser.add_argument("--refine", action="store_true", help="also report the keypoint network after the kinematic fit (needs the compiled core)")
     parser.add_argument("--ship", action="store_true", help="export the multi network as the package's shipped weights")
     args = parser.parse_args()
 
@@ -69,7 +71,8 @@ def main() -> int:
     heldout = ImageDataset(args.heldout, split=None, noise=False) if args.heldout else None
     for name in args.networks.split(","):
         train_args = [f"--data={args.data}", f"--out={args.out / name}", f"--network={name}", f"--preset={args.preset}"]
-        train_args += [f"--minutes={args.minutes}", f"--batch={args.batch}", f"--schedule={args.schedule}", f"--device={args.device}", f"--workers={args.workers}"]
+        budget = f"--steps={args.steps}" if args.steps else f"--minutes={args.minutes}"
+        train_args += [budget, f"--batch={args.batch}", f"--schedule={args.schedule}", f"--device={args.device}", f"--workers={args.workers}"]
         train_args += [f"--eval-minutes={args.eval_minutes}", f"--seed={args.seed}"] + ([f"--threads={args.threads}"] if args.threads else [])
         config = config_from_args(build_parser().parse_args(train_args))
         started = time.perf_counter()
@@ -87,6 +90,16 @@ def main() -> int:
             held.save(args.out / name, "heldout", f"{name}, held-out recordings")
             entry["heldout"] = held.metrics
             report.append(held.markdown("held-out recordings"))
+        if name == "keypoint" and args.refine:
+            # The same network's keypoints after the kinematic fit (needs the compiled core).
+            trained, meta = load_trained(args.out / name, "cpu")
+            test = ImageDataset(args.data, split="test", noise=False)
+            sets = [("test", test, "test split")] + ([("heldout", heldout, "held-out recordings")] if heldout is not None else [])
+            for key, data, label in sets:
+                fitted = evaluate(trained, data, "cpu", robots=data.robots, keypoint_names=meta.get("keypoints"), refined=True)
+                fitted.save(args.out / name, f"{key}-refined", f"keypoint + kinematic fit, {label}")
+                entry[f"{key}_refined"] = fitted.metrics
+                report.append(fitted.markdown(f"{label}, after the kinematic fit"))
         summary[name] = entry
         (args.out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
         (args.out / "summary.md").write_text("\n".join(report) + "\n")

@@ -54,6 +54,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robots", nargs="*", default=None)
     parser.add_argument("--out", type=Path, default=None, help="write results.md / results.json here (default: the run folder)")
     parser.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu")
+    parser.add_argument("--refine", action="store_true", help="fit the robot's kinematics to the keypoints first (the keypoint network)")
     args = parser.parse_args(rest)
     from earcore.errors import EarcoreError
     from earcore.learning.dataset import ImageDataset
@@ -69,11 +70,12 @@ def evaluate_main(argv: list[str] | None = None) -> int:
             return fail("earcore evaluate pose", f"the data's images are {data.image_size}, the network takes {tuple(network.options.input_size)}")
         if len(data) == 0:
             return fail("earcore evaluate pose", f"no {args.split} images in {args.data}")
-        table = evaluate(network, data, device, robots=meta.get("robots", data.robots), keypoint_names=meta.get("keypoints"))
-    except EarcoreError as exc:
+        table = evaluate(network, data, device, robots=meta.get("robots", data.robots), keypoint_names=meta.get("keypoints"), refined=args.refine)
+    except (EarcoreError, ValueError) as exc:
         return fail("earcore evaluate pose", str(exc), 1)
     out = args.out or (args.checkpoint if args.checkpoint.is_dir() else args.checkpoint.parent)
-    md, _ = table.save(out, f"results-{args.split}", f"{meta['network']}, {args.split} split of {args.data}")
+    stem = f"results-{args.split}" + ("-refined" if args.refine else "")
+    md, _ = table.save(out, stem, f"{meta['network']}{' + kinematic fit' if args.refine else ''}, {args.split} split of {args.data}")
     print(table.markdown())
     print(f"wrote {md} and its .json")
     return 0

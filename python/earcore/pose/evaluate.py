@@ -19,7 +19,7 @@ import torch
 
 from earcore.learning.train import collate, to_device
 
-__all__ = ["Evaluation", "evaluate", "evaluator", "inference_ms", "predict"]
+__all__ = ["Evaluation", "evaluate", "evaluator", "inference_ms", "predict", "refine_predictions"]
 
 ROWS = (
     ("mask_accuracy", "Mask pixel accuracy", "{:.1%}"),
@@ -96,6 +96,9 @@ def predict(model: torch.nn.Module, dataset: Any, device: torch.device, limit: i
                 }
                 if "type_logits" in out:
                     parts["type"] = out["type_logits"].argmax(1)
+                if "pixels" in out:
+                    parts["pixels"] = out["pixels"]
+                    parts["intrinsics"] = batch["intrinsics"]
                 for k, v in parts.items():
                     keep.setdefault(k, []).append(v.cpu().numpy())
     finally:
@@ -127,6 +130,47 @@ def _metrics(p: dict[str, np.ndarray], rows: np.ndarray) -> tuple[dict[str, floa
     return out, [float(100 * e) for e, c in zip(per_kp, valid.sum(0)) if c > 0]
 
 
+def refine_predictions(p: dict[str, np.ndarray], robots: Sequence[str], frames: dict[str, list], *, starts: int = 4) -> dict[str, np.ndarray]:
+    """`p` with each image's keypoints and base replaced by the robot's kinematic fit to
+    the network's pixels and depths (`earcore.pose.refine`; needs the compiled core), for
+    networks that give pixels. The robot is the predicted type (the true one without a
+    type head); `frames` are the dataset manifest's `keypoint_frames`."""
+    if "pixels" not in p:
+        raise ValueError("only a network with 2D keypoints (the keypoint variant) can be refined")
+    from earcore import robots as robot_models
+    from earcore.pose.refine import refine
+
+    models: dict[str, Any] = {}
+    out = dict(p)
+    out["keypoints"] = p["keypoints"].copy()
+    out["base"] = p["base"].copy()
+    kinds = p["type"] if "type" in p else p["robot"]
+    for i, kind in enumerate(kinds.tolist()):
+        name = robots[kind]
+        if name not in frames:
+            raise ValueError(f"the dataset's manifest has no keypoint_frames for {name} (made by an older earcore: regenerate it)")
+        if name not in models:
+            models[name] = robot_models.load(name)
+        model = models[name]
+        links = [model.link_names.index(link) for link, _ in frames[name]]
+        offsets = np.array([offset for _, offset in frames[name]], dtype=np.float64)
+        n = len(links)
+        fit = refine(
+            model,
+            p["keypoints"][i, :n].astype(np.float64),
+            links=links,
+            offsets=offsets,
+            base=p["base"][i].astype(np.float64),
+            pixels=p["pixels"][i, :n].astype(np.float64),
+            base_pixel=p["pixels"][i, -1].astype(np.float64),
+            intrinsics=p["intrinsics"][i].astype(np.float64),
+            starts=starts,
+        )
+        out["keypoints"][i, :n] = fit.keypoints
+        out["base"][i] = fit.base
+    return out
+
+
 def inference_ms(model: torch.nn.Module, image_shape: Sequence[int], device: torch.device, repeats: int = 20) -> float:
     """Median time of one forward pass on one image (torch, eval mode)."""
     x = torch.rand(1, *image_shape, device=device)
@@ -156,12 +200,16 @@ def evaluate(
     robots: Sequence[str] | None = None,
     keypoint_names: dict[str, list[str]] | None = None,
     timing: bool = True,
+    refined: bool = False,
 ) -> Evaluation:
     """Metrics per robot and over all images of `dataset` (robot names from
-    `robots`, else the dataset's `.robots`)."""
+    `robots`, else the dataset's `.robots`); `refined`: after the kinematic fit
+    (`refine_predictions`)."""
     device = torch.device(device)
     p = predict(model, dataset, device, limit)
     names = list(robots if robots is not None else getattr(dataset, "robots", []))
+    if refined:
+        p = refine_predictions(p, names, getattr(dataset, "manifest", {}).get("keypoint_frames", {}))
     ms = inference_ms(model, dataset[0]["image"].shape, device) if timing else float("nan")
     metrics: dict[str, dict[str, float]] = {}
     per_keypoint: dict[str, list[float]] = {}

@@ -227,6 +227,11 @@ def keypoint_positions(model: RobotModel, robot: str, q: np.ndarray) -> np.ndarr
     return np.einsum("nij,nj->ni", poses, offsets)[:, :3]
 
 
+def _frames_by_name(model: RobotModel, robot: str) -> list[list[Any]]:
+    links, offsets = keypoint_frames(model, robot)
+    return [[model.link_names[link], [float(v) for v in offset[:3]]] for link, offset in zip(links, offsets)]
+
+
 def manifest_for(options: RobotImageOptions, shards: list[list[SampleSpec]]) -> dict[str, Any]:
     """The dataset's manifest (`earcore.learning.shards`)."""
     models = {r: load(r) for r in options.robots}
@@ -241,6 +246,8 @@ def manifest_for(options: RobotImageOptions, shards: list[list[SampleSpec]]) -> 
         "mode": options.mode,
         "robots": list(options.robots),
         "keypoints": keypoints,
+        # Where each keypoint sits on the robot: (link name, offset in its frame, m).
+        "keypoint_frames": {r: _frames_by_name(m, r) for r, m in models.items()},
         "num_keypoints": max(len(k) for k in keypoints.values()),
         "links": {r: list(m.link_names) for r, m in models.items()},
         "max_dof": max(m.dof for m in models.values()),
