@@ -18,7 +18,9 @@ DOF = {"ur3": 6, "ur5": 6, "ur10": 6, "iiwa": 7}
 DEPTH = {"ur3": 0.5, "ur5": 0.8, "ur10": 1.0, "iiwa": 0.9}
 
 
-def write_folder(folder: Path, robots=("ur3", "ur10"), per_robot: int | dict[str, int] = 4, width: int = 32, height: int = 24, shard_size: int | None = None, seed: int = 0) -> Path:
+def write_folder(
+    folder: Path, robots=("ur3", "ur10"), per_robot: int | dict[str, int] = 4, width: int = 32, height: int = 24, shard_size: int | None = None, seed: int = 0
+) -> Path:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     k = max(len(KEYPOINTS[r]) for r in robots)
