@@ -1,0 +1,74 @@
+"""Review: `earcore evaluate pose` on a dataset whose robots are not the training set's
+(a held-out set of one robot, robots in another order, another arm).
+
+The dataset's `robot` index is its own manifest's class order; the network's type head
+and the table's column names use the training run's `meta["robots"]`. They are mixed
+up: a UR10-only set is reported as "ur3" and its type accuracy is counted against the
+wrong class."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+torch = pytest.importorskip("torch")
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learning"))
+from review_folder import write_folder  # noqa: E402
+
+from earcore.learning.checkpoint import Checkpoint, save_checkpoint  # noqa: E402
+from earcore.pose.networks import build_network  # noqa: E402
+
+
+def _checkpoint(folder: Path, robots: list[str], winner: int) -> Path:
+    """A multi-objective network for 32x24 images whose type head always answers `winner`."""
+    torch.manual_seed(0)
+    net = build_network("multi", {"input_size": (32, 24), "num_keypoints": 7, "num_robots": len(robots), "width": 0.25, "fc": 16, "head": 8})
+    with torch.no_grad():
+        net.type_head[-1].weight.zero_()
+        net.type_head[-1].bias.fill_(-10.0)
+        net.type_head[-1].bias[winner] = 10.0
+    meta = {"network": "multi", "options": net.options.to_dict(), "robots": robots, "keypoints": {}, "input_size": [32, 24]}
+    save_checkpoint(folder / "checkpoint.pt", Checkpoint(step=1, seconds=1.0, model=net.state_dict(), config={"network": "multi"}, meta=meta))
+    return folder
+
+
+def test_a_one_robot_held_out_set_is_reported_under_its_own_robot(tmp_path):
+    from earcore.app.pose import evaluate_main
+
+    run = _checkpoint(tmp_path / "run", ["ur3", "ur10"], winner=1)  # always says "ur10"
+    data = write_folder(tmp_path / "ur10-only", robots=("ur10",), per_robot=4, width=32, height=24)
+    assert evaluate_main(["pose", "--checkpoint", str(run), "--data", str(data), "--split", "all", "--out", str(tmp_path / "out")]) == 0
+    metrics = json.loads((tmp_path / "out" / "results-all.json").read_text())["metrics"]
+    # every image is a UR10 and the network says UR10 for every image
+    assert set(metrics) == {"ur10", "all"}, f"UR10 images reported as {sorted(metrics)}"
+    assert metrics["all"]["type_accuracy"] == 1.0
+
+
+def test_robots_in_another_order_keep_their_names(tmp_path):
+    from earcore.app.pose import evaluate_main
+
+    run = _checkpoint(tmp_path / "run", ["ur3", "ur10"], winner=1)
+    data = write_folder(tmp_path / "swapped", robots=("ur10", "ur3"), per_robot={"ur10": 4, "ur3": 2}, width=32, height=24)
+    assert evaluate_main(["pose", "--checkpoint", str(run), "--data", str(data), "--split", "all", "--out", str(tmp_path / "out")]) == 0
+    metrics = json.loads((tmp_path / "out" / "results-all.json").read_text())["metrics"]
+    assert metrics["ur10"]["samples"] == 4 and metrics["ur3"]["samples"] == 2, {k: v["samples"] for k, v in metrics.items()}
+    # the network always says UR10: right for the 4 UR10 images, wrong for the 2 UR3s
+    assert metrics["ur10"]["type_accuracy"] == 1.0 and metrics["ur3"]["type_accuracy"] == 0.0
+    assert abs(metrics["all"]["type_accuracy"] - 4 / 6) < 1e-9
+
+
+def test_a_set_with_another_keypoint_count_is_refused_clearly(tmp_path, capsys):
+    from earcore.app.pose import evaluate_main
+
+    run = _checkpoint(tmp_path / "run", ["ur3", "ur10"], winner=0)
+    data = write_folder(tmp_path / "iiwa", robots=("iiwa",), per_robot=2, width=32, height=24)  # 8 keypoints, the network 7
+    try:
+        code = evaluate_main(["pose", "--checkpoint", str(run), "--data", str(data), "--split", "all", "--out", str(tmp_path / "out")])
+    except ValueError as exc:  # today: numpy's "operands could not be broadcast together with shapes (2,7,3) (2,8,3)"
+        pytest.fail(f"not a clear error: {exc}")
+    err = capsys.readouterr().err
+    assert code != 0 and "keypoint" in err and "broadcast" not in err, err
