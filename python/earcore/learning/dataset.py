@@ -79,7 +79,7 @@ class ImageDataset(torch.utils.data.Dataset):
         parts: dict[str, list[np.ndarray]] = {}
         for entry in self.manifest["shards"]:
             name = str(entry["name"])
-            shard = read_shard(self.folder, name, w, h, required)
+            shard = read_shard(self.folder, name, w, h, required, samples=int(entry["samples"]))
             path = self.folder / f"{name}.csv"
             robot_names = np.array(shard.text["robot"])
             unknown = sorted(set(robot_names.tolist()) - set(self.robots))
@@ -102,18 +102,21 @@ class ImageDataset(torch.utils.data.Dataset):
             counts = np.array([len(self.manifest["keypoints"][self.robots[r]]) for r in robot])
             valid = np.arange(k)[None, :] < counts[:, None]
             rows = np.flatnonzero(keep)
-            holes = valid & (np.isnan(xyz).any(-1) | np.isnan(uv).any(-1) | np.isnan(inside))
             base = np.stack([num[c] for c in BASE_COLUMNS], -1)
             scalars = np.stack([num[c] for c in ("fx", "fy", "cx", "cy")], -1)
-            for what, bad_rows in (
-                ("a keypoint", holes.any(1)),
-                ("the base pose", np.isnan(base).any(1)),
-                ("the intrinsics", np.isnan(scalars).any(1)),
-            ):
-                if bad_rows.any():
-                    raise DatasetError(f"{path}: row {rows[np.argmax(bad_rows)] + 2} lacks {what} (an empty label)")
             q = np.stack([num[f"q{i}"] for i in range(d)], -1) if d else np.zeros((len(robot), 0))
-            quat = base[:, 3:] / np.linalg.norm(base[:, 3:], axis=1, keepdims=True)
+            own = np.arange(d)[None, :] < self._dof(robot_names, q, keep)[robot][:, None]
+            for what, columns_, cells in (
+                ("a keypoint", [f"kp{i}_{c}" for i in range(k) for c in ("x", "y", "z", "u", "v", "in_image")], _kp_cells(xyz, uv, inside, valid)),
+                ("the base pose", list(BASE_COLUMNS), ~np.isfinite(base)),
+                ("the intrinsics", ["fx", "fy", "cx", "cy"], ~np.isfinite(scalars)),
+                ("a joint angle", [f"q{i}" for i in range(d)], np.isinf(q) | (own & np.isnan(q))),
+            ):
+                _refuse(path, rows, columns_, cells, f"lacks {what}: {{column}} is empty or not finite")
+            _refuse(path, rows, ["fx", "fy"], ~(scalars[:, :2] > 0), "has a focal length {column} <= 0")
+            norm = np.linalg.norm(base[:, 3:], axis=1, keepdims=True)
+            _refuse(path, rows, ["base_qw"], ~(norm > 1e-6), "has a base quaternion (base_qw, base_qx, base_qy, base_qz) of length zero")
+            quat = base[:, 3:] / norm
             intrinsics = np.zeros((len(robot), 3, 3))
             intrinsics[:, 0, 0], intrinsics[:, 1, 1], intrinsics[:, 0, 2], intrinsics[:, 1, 2] = scalars.T
             intrinsics[:, 2, 2] = 1.0
@@ -128,7 +131,7 @@ class ImageDataset(torch.utils.data.Dataset):
                 ("base_rotation", _rotations(quat).astype(np.float32)),
                 ("robot", robot),
                 ("intrinsics", intrinsics.astype(np.float32)),
-                ("joints", np.nan_to_num(q).astype(np.float32)),
+                ("joints", np.where(own, q, 0.0).astype(np.float32)),
                 ("coverage", num["coverage"].astype(np.float32)),
             ):
                 parts.setdefault(key, []).append(value)
@@ -137,6 +140,17 @@ class ImageDataset(torch.utils.data.Dataset):
         else:
             self._arrays = {key: np.concatenate(v) for key, v in parts.items()}
         return self._arrays
+
+    def _dof(self, robot_names: np.ndarray, q: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """Joints per robot (in the manifest's order): the manifest's `dof`, or, for a
+        manifest without it, the most joint angles any row of this shard gives a robot."""
+        table = self.manifest.get("dof")
+        if isinstance(table, dict):
+            return np.array([int(table[r]) for r in self.robots])
+        given = ~np.isnan(q)
+        last = np.where(given.any(1), given.shape[1] - np.argmax(given[:, ::-1], axis=1), 0)
+        names = robot_names[keep]
+        return np.array([int(last[names == r].max()) if (names == r).any() else 0 for r in self.robots])
 
     # --- access ---------------------------------------------------------------
 
@@ -169,6 +183,20 @@ class ImageDataset(torch.utils.data.Dataset):
             "coverage": torch.tensor(a["coverage"][i]),
             "index": torch.tensor(i, dtype=torch.int64),
         }
+
+
+def _kp_cells(xyz: np.ndarray, uv: np.ndarray, inside: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(N, 6K) non-finite cells of the robots' own keypoints, in the CSV's column order."""
+    cells = np.concatenate([xyz, uv, inside[..., None]], -1)  # (N, K, 6): x y z u v in_image
+    return (~np.isfinite(cells) & valid[..., None]).reshape(len(cells), -1)
+
+
+def _refuse(path: Path, rows: np.ndarray, names: list[str], bad: np.ndarray, what: str) -> None:
+    """A `DatasetError` naming the first bad cell's row (the header is row 1) and, for
+    `{column}` in `what`, its column."""
+    if bad.size and bad.any():
+        i, j = np.argwhere(bad.reshape(len(bad), -1))[0]
+        raise DatasetError(f"{path}: row {rows[i] + 2} " + what.format(column=names[j]))
 
 
 def _rotations(q: np.ndarray) -> np.ndarray:

@@ -4,6 +4,7 @@ read (a tar of PNGs and a CSV per shard, a JSON manifest).
     DATASET/
       manifest.json        format, version, kind, width, height, seed, mode, robots,
                            keypoints, num_keypoints, links, max_dof, shards, generator
+                           (and, optional: keypoint_frames, dof)
       shard-00000.tar      <key>.rgb.png (H×W×3) and <key>.links.png (H×W; 0 = not the
                            robot, i >= 1 = link i-1 of manifest["links"][robot])
       shard-00000.csv      one row per sample (`columns`)
@@ -141,9 +142,10 @@ def complete_shards(folder: str | Path) -> set[str]:
     return {p.stem for p in folder.glob("shard-*.csv") if (folder / f"{p.stem}.tar").is_file()}
 
 
-def read_shard(folder: str | Path, name: str, width: int, height: int, required: Iterable[str] = ()) -> Shard:
+def read_shard(folder: str | Path, name: str, width: int, height: int, required: Iterable[str] = (), samples: int | None = None) -> Shard:
     """Read a shard: every CSV row's two PNGs from the tar, checked against the image
-    size; `required` columns must be present. Raises `DatasetError` naming the file."""
+    size; `required` columns must be present, and `samples` (the manifest's count, if
+    given) rows. Raises `DatasetError` naming the file."""
     folder = Path(folder)
     csv_path, tar_path = folder / f"{name}.csv", folder / f"{name}.tar"
     try:
@@ -162,7 +164,13 @@ def read_shard(folder: str | Path, name: str, width: int, height: int, required:
     for i, r in enumerate(body):
         if len(r) != len(header):
             raise DatasetError(f"{csv_path}: row {i + 2} has {len(r)} cells, the header {len(header)}")
+    if samples is not None and len(body) != samples:
+        raise DatasetError(f"{csv_path}: {len(body)} rows, the manifest says {samples} samples (a damaged shard, or one of another dataset)")
     text = {c: [r[j] for r in body] for j, c in enumerate(header)}
+    keys = text["key"]
+    if len(set(keys)) != len(keys):
+        twice = next(k for i, k in enumerate(keys) if k in keys[:i])
+        raise DatasetError(f"{csv_path}: key {twice!r} appears in more than one row")
     files: dict[str, bytes] = {}
     try:
         with tarfile.open(tar_path, mode="r:") as tar:
@@ -224,4 +232,47 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
     shards = manifest["shards"]
     if not isinstance(shards, list) or not all(isinstance(s, dict) and "name" in s and "samples" in s for s in shards):
         raise DatasetError(f"{path}: shards must be a list of {{name, samples}}")
+    for s in shards:
+        if not isinstance(s["name"], str) or isinstance(s["samples"], bool) or not isinstance(s["samples"], int) or s["samples"] < 0:
+            raise DatasetError(f"{path}: shards must be a list of {{name (text), samples (a whole number >= 0)}}, got {s!r}")
+    _check_robots(manifest, path)
     return manifest
+
+
+def _check_robots(manifest: dict[str, Any], path: Path) -> None:
+    """`robots` a list of distinct names; `keypoints` (and `links`, `keypoint_frames` and
+    `dof` where present) a table with a list for every robot; no robot with more
+    keypoints than `num_keypoints` or more joints than `max_dof`."""
+    robots = manifest["robots"]
+    if not isinstance(robots, list) or not all(isinstance(r, str) for r in robots) or len(set(robots)) != len(robots):
+        raise DatasetError(f"{path}: robots must be a list of distinct names, got {robots!r}")
+    for key in ("keypoints", "links", "keypoint_frames", "dof"):
+        if key not in manifest:
+            continue
+        table = manifest[key]
+        if not isinstance(table, dict):
+            raise DatasetError(f"{path}: {key} must be a table {{robot: ...}}, got {type(table).__name__}")
+        missing = [r for r in robots if r not in table]
+        if missing:
+            raise DatasetError(f"{path}: {key} has no entry for robot{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+        for r in robots:
+            value = table[r]
+            if key == "dof":
+                if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= manifest["max_dof"]:
+                    raise DatasetError(f"{path}: dof of {r} must be a whole number in [0, max_dof = {manifest['max_dof']}], got {value!r}")
+            elif not isinstance(value, list):
+                raise DatasetError(f"{path}: {key} of {r} must be a list, got {type(value).__name__}")
+    for r in robots:
+        names = manifest["keypoints"][r]
+        if not all(isinstance(n, str) for n in names):
+            raise DatasetError(f"{path}: keypoints of {r} must be names")
+        if len(names) > manifest["num_keypoints"]:
+            raise DatasetError(f"{path}: {r} has {len(names)} keypoints, more than num_keypoints = {manifest['num_keypoints']}")
+        frames = manifest.get("keypoint_frames", {}).get(r)
+        if frames is not None:
+            if len(frames) != len(names):
+                raise DatasetError(f"{path}: keypoint_frames of {r} has {len(frames)} entries, its keypoints {len(names)}")
+            for f in frames:
+                ok = isinstance(f, list) and len(f) == 2 and isinstance(f[0], str) and isinstance(f[1], list) and len(f[1]) == 3
+                if not ok or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in f[1]):
+                    raise DatasetError(f"{path}: keypoint_frames of {r} must be [link name, [x, y, z]] pairs, got {f!r}")

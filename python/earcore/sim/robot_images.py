@@ -250,6 +250,7 @@ def manifest_for(options: RobotImageOptions, shards: list[list[SampleSpec]]) -> 
         "keypoint_frames": {r: _frames_by_name(m, r) for r, m in models.items()},
         "num_keypoints": max(len(k) for k in keypoints.values()),
         "links": {r: list(m.link_names) for r, m in models.items()},
+        "dof": {r: m.dof for r, m in models.items()},
         "max_dof": max(m.dof for m in models.values()),
         "shards": [{"name": shard_name(i), "samples": len(s)} for i, s in enumerate(shards)],
         "generator": options.as_dict(),

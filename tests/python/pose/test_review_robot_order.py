@@ -20,7 +20,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learning"))
-from review_folder import write_folder  # noqa: E402
+from format_folder import write_folder  # noqa: E402
 
 from earcore.learning.dataset import ImageDataset  # noqa: E402
 from earcore.pose.evaluate import predict  # noqa: E402

@@ -1,16 +1,14 @@
-"""Review: `ImageDataset` checks empty keypoint, base and intrinsics cells (NaN) but lets
-other nonsense through silently, and some damaged manifests escape as KeyError /
-TypeError instead of `DatasetError` naming the file.
+"""`ImageDataset` refuses labels that cannot be labels and damaged manifests and shards
+with a `DatasetError` naming the file (and the row and column), instead of training on
+them or failing with a KeyError / TypeError / RuntimeWarning:
 
-- "inf" (or "-inf") in a keypoint or the base: read as a label, the loss becomes inf;
-- a focal length of 0 or below: the keypoint network divides by it;
-- a base quaternion of zeros: base_rotation is NaN (a RuntimeWarning, no error);
-- an empty joint angle for a joint the robot has: read as 0 rad (a wrong label);
-- the manifest's `keypoints` without one of its robots: KeyError; a list: TypeError;
-- the manifest's `num_keypoints` smaller than a robot's keypoints: the extra keypoints
-  are dropped without a word;
-- a shard whose CSV has fewer (or more) rows than the manifest's `samples` (a row
-  deleted, a shard of another dataset copied in): read as it is."""
+- "inf" (or "-inf") in a keypoint, the base or a joint angle;
+- a focal length of 0 or below;
+- a base quaternion of zeros;
+- an empty joint angle for a joint the robot has;
+- the manifest's `keypoints` without one of its robots, or not a table;
+- the manifest's `num_keypoints` smaller than a robot's keypoints;
+- a shard whose CSV has fewer (or more) rows than the manifest's `samples`."""
 
 from __future__ import annotations
 
@@ -26,7 +24,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 sys.path.insert(0, str(Path(__file__).parent))
-from review_folder import write_folder  # noqa: E402
+from format_folder import write_folder  # noqa: E402
 
 from earcore.learning.dataset import ImageDataset  # noqa: E402
 from earcore.learning.errors import DatasetError  # noqa: E402

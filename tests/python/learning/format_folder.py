@@ -1,6 +1,6 @@
-"""Review helper: a small "earcore-images" folder written with the format's own writer
-(no renderer needed), robots in the manifest's order, one robot per shard as the
-generator writes them (`earcore.sim.robot_images.plan_shards`)."""
+"""A small "earcore-images" folder written with the format's own writer (no renderer
+needed) for the tests: robots in the manifest's order, one robot per shard, the shards
+one robot after another (robot-major, the worst order for "the first N images")."""
 
 from __future__ import annotations
 
@@ -86,7 +86,7 @@ def write_folder(
             "links": {r: ["base_link", "link"] for r in robots},
             "max_dof": d,
             "shards": [{"name": shard_name(i), "samples": len(s)} for i, s in enumerate(shards)],
-            "generator": {"review": True},
+            "generator": {"test": True},
         },
     )
     return folder
