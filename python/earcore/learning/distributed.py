@@ -7,13 +7,14 @@ share of every batch, and only rank 0 writes files.
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
 import torch.distributed as dist
+
+from earcore.errors import ConfigError
 
 __all__ = ["EpochSampler", "World", "all_mean", "init", "shutdown"]
 
@@ -73,16 +74,18 @@ class EpochSampler:
     multiple of the world size, rank r taking every size-th index from r), and able to
     start part-way through an epoch so that a resumed run sees the batches the
     uninterrupted run would have seen. `batch_size` is the global batch: each process
-    gets batch_size / world.size of it."""
+    gets batch_size / world.size of it; a batch larger than the set is a `ConfigError`."""
 
     def __init__(self, length: int, batch_size: int, seed: int, world: World = World()):
         if length < 1:
             raise ValueError("the training set is empty")
         if batch_size % world.size:
             raise ValueError(f"batch_size {batch_size} must be a multiple of the number of processes {world.size}")
+        if batch_size > length:
+            raise ConfigError(f"batch_size {batch_size} is larger than the training set ({length} samples); choose a batch of at most {length}")
         self.length, self.batch, self.seed, self.world = length, batch_size, seed, world
         #: whole batches per epoch (the last partial batch is dropped: per-batch class weights need full batches)
-        self.per_epoch = max(1, length // batch_size)
+        self.per_epoch = length // batch_size
 
     def position(self, step: int) -> tuple[int, int]:
         """(epoch, batch within the epoch) of optimiser step `step`."""
@@ -91,10 +94,7 @@ class EpochSampler:
     def epoch_indices(self, epoch: int) -> list[int]:
         g = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
         order = torch.randperm(self.length, generator=g).tolist()
-        need = self.per_epoch * self.batch
-        if need > len(order):  # a set smaller than one batch: repeat it
-            order = (order * math.ceil(need / len(order)))[:need]
-        return order[:need]
+        return order[: self.per_epoch * self.batch]
 
     def batches(self, start_step: int) -> Iterator[tuple[int, list[int]]]:
         """(epoch, this process's indices) for every step from `start_step` on, forever."""

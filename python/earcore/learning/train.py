@@ -172,6 +172,8 @@ def train(
     say = log if (log is not None and world.main) else (lambda _: None)
     if len(train_set) < 1:
         raise ValueError("the training set is empty")
+    if config.batch_size > len(train_set):
+        raise ConfigError(f"batch_size {config.batch_size} is larger than the training set ({len(train_set)} samples); choose a batch of at most {len(train_set)}")
 
     path = folder / CHECKPOINT_NAME
     state: Checkpoint | None = None
