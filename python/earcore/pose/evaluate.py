@@ -18,8 +18,9 @@ import numpy as np
 import torch
 
 from earcore.learning.train import collate, to_device
+from earcore.pose.errors import PoseError
 
-__all__ = ["Evaluation", "evaluate", "evaluator", "inference_ms", "predict", "refine_predictions"]
+__all__ = ["Evaluation", "check_keypoints", "evaluate", "evaluator", "inference_ms", "predict", "refine_predictions", "robot_lookup", "subset"]
 
 ROWS = (
     ("mask_accuracy", "Mask pixel accuracy", "{:.1%}"),
@@ -72,17 +73,28 @@ class Evaluation:
         return md, js
 
 
-def predict(model: torch.nn.Module, dataset: Any, device: torch.device, limit: int | None = None, batch_size: int = 32) -> dict[str, np.ndarray]:
-    """The model's outputs over (the first `limit` images of) `dataset` beside the labels,
-    as numpy arrays (the mask thresholded)."""
-    n = len(dataset) if limit is None else min(limit, len(dataset))
+def subset(length: int, limit: int | None, seed: int = 0) -> np.ndarray:
+    """Indices of `limit` images of a set of `length` drawn at random across the whole set
+    (the same for the same seed), in increasing order; every index without a limit.
+    Datasets are stored one robot after another: the first `limit` images would
+    leave robots out."""
+    if limit is None or limit >= length:
+        return np.arange(length)
+    return np.sort(np.random.default_rng([seed, length, limit]).choice(length, size=max(0, limit), replace=False))
+
+
+def predict(model: torch.nn.Module, dataset: Any, device: torch.device, limit: int | None = None, batch_size: int = 32, seed: int = 0) -> dict[str, np.ndarray]:
+    """The model's outputs over `dataset` (with `limit`: that many images drawn at random
+    across it, `subset`) beside the labels, as numpy arrays (the mask thresholded)."""
+    indices = subset(len(dataset), limit, seed).tolist()
+    n = len(indices)
     keep: dict[str, list[np.ndarray]] = {}
     was = model.training
     model.eval()
     try:
         with torch.no_grad():
             for start in range(0, n, batch_size):
-                batch = to_device(collate([dataset[i] for i in range(start, min(n, start + batch_size))]), device)
+                batch = to_device(collate([dataset[i] for i in indices[start : start + batch_size]]), device)
                 out = model(batch["image"], None, batch["intrinsics"])
                 parts = {
                     "mask": (out["mask_logits"] > 0)[:, 0],
@@ -171,6 +183,25 @@ def refine_predictions(p: dict[str, np.ndarray], robots: Sequence[str], frames: 
     return out
 
 
+def check_keypoints(model: torch.nn.Module, dataset: Any) -> None:
+    """A `PoseError` unless the dataset's images have as many keypoints as the network gives."""
+    options = getattr(model, "options", None)
+    network = getattr(options, "num_keypoints", None)
+    data = getattr(dataset, "num_keypoints", None)
+    if network is not None and data is not None and int(network) != int(data):
+        robots = ", ".join(getattr(dataset, "robots", [])) or "its robots"
+        raise PoseError(f"the data has {data} keypoints per image ({robots}), the network gives {network}: evaluate it on data of the robots it was trained on")
+
+
+def robot_lookup(data_robots: Sequence[str], network_robots: Sequence[str]) -> np.ndarray:
+    """For each of the dataset's robot indices, the network's index of the same robot
+    (matched by name); a `PoseError` naming the robots the network does not know."""
+    unknown = [r for r in data_robots if r not in network_robots]
+    if unknown:
+        raise PoseError(f"the network knows {', '.join(network_robots) or 'no robots'}, not {', '.join(unknown)} (in the data)")
+    return np.array([list(network_robots).index(r) for r in data_robots] or [0], dtype=np.int64)
+
+
 def inference_ms(model: torch.nn.Module, image_shape: Sequence[int], device: torch.device, repeats: int = 20) -> float:
     """Median time of one forward pass on one image (torch, eval mode)."""
     x = torch.rand(1, *image_shape, device=device)
@@ -202,12 +233,18 @@ def evaluate(
     timing: bool = True,
     refined: bool = False,
 ) -> Evaluation:
-    """Metrics per robot and over all images of `dataset` (robot names from
-    `robots`, else the dataset's `.robots`); `refined`: after the kinematic fit
+    """Metrics per robot and over all images of `dataset` (`limit`: that many drawn at
+    random, `subset`). `robots` are the network's robots (its type head's classes, in
+    order; default: the dataset's `.robots`): the dataset's robots are matched to them by
+    name, and a robot the network does not know, or another number of keypoints than
+    the network gives, is a `PoseError`. `refined`: after the kinematic fit
     (`refine_predictions`)."""
     device = torch.device(device)
-    p = predict(model, dataset, device, limit)
     names = list(robots if robots is not None else getattr(dataset, "robots", []))
+    check_keypoints(model, dataset)
+    lookup = robot_lookup(list(getattr(dataset, "robots", names)), names)
+    p = predict(model, dataset, device, limit)
+    p["robot"] = lookup[p["robot"]]
     if refined:
         p = refine_predictions(p, names, getattr(dataset, "manifest", {}).get("keypoint_frames", {}))
     ms = inference_ms(model, dataset[0]["image"].shape, device) if timing else float("nan")

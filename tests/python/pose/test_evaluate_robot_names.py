@@ -1,10 +1,9 @@
-"""Review: `earcore evaluate pose` on a dataset whose robots are not the training set's
-(a held-out set of one robot, robots in another order, another arm).
-
-The dataset's `robot` index is its own manifest's class order; the network's type head
-and the table's column names use the training run's `meta["robots"]`. They are mixed
-up: a UR10-only set is reported as "ur3" and its type accuracy is counted against the
-wrong class."""
+"""`earcore evaluate pose` on a dataset whose robots are not the training set's (a
+held-out set of one robot, robots in another order, another arm): the dataset's robot
+indices (its manifest's order) are matched by name to the network's (the type head's
+classes, the checkpoint's `meta["robots"]`), so each image is reported under its own
+robot and its type is counted against the network's class for that robot; a dataset
+with another keypoint count is refused in one line before anything is predicted."""
 
 from __future__ import annotations
 
@@ -68,7 +67,7 @@ def test_a_set_with_another_keypoint_count_is_refused_clearly(tmp_path, capsys):
     data = write_folder(tmp_path / "iiwa", robots=("iiwa",), per_robot=2, width=32, height=24)  # 8 keypoints, the network 7
     try:
         code = evaluate_main(["pose", "--checkpoint", str(run), "--data", str(data), "--split", "all", "--out", str(tmp_path / "out")])
-    except ValueError as exc:  # today: numpy's "operands could not be broadcast together with shapes (2,7,3) (2,8,3)"
+    except ValueError as exc:  # numpy's "operands could not be broadcast together ..." is not a clear error
         pytest.fail(f"not a clear error: {exc}")
     err = capsys.readouterr().err
     assert code != 0 and "keypoint" in err and "broadcast" not in err, err
