@@ -27,13 +27,35 @@ def _plain(value: Any) -> Any:
 
 
 class MetricsLog:
-    """Appends records to `path` (`metrics.jsonl`); a resumed run appends to the same file."""
+    """Appends records to `path` (`metrics.jsonl`); a resumed run appends to the same file
+    after dropping what came after its checkpoint (`keep_until`)."""
 
     def __init__(self, path: str | Path, *, enabled: bool = True):
         self.path = Path(path)
         self.enabled = enabled
         if enabled:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+
+    def keep_until(self, step: int) -> int:
+        """Drop the records after `step` (those of steps a crashed run did after its last
+        checkpoint, which the resumed run does again; a truncated last line too); returns
+        how many were dropped. The file is rewritten atomically."""
+        if not self.enabled or not self.path.is_file():
+            return 0
+        lines = self.path.read_text().splitlines()
+        kept = []
+        for line in lines:
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(record, dict) and int(record.get("step", 0)) <= step:
+                kept.append(line)
+        if len(kept) != len(lines):
+            tmp = self.path.with_name(f".{self.path.name}.tmp")
+            tmp.write_text("".join(line + "\n" for line in kept))
+            tmp.replace(self.path)
+        return len(lines) - len(kept)
 
     def write(self, kind: str, step: int, seconds: float, values: Mapping[str, Any]) -> None:
         if not self.enabled:

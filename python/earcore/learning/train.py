@@ -22,7 +22,7 @@ from torch import Tensor
 
 from earcore.errors import ConfigError
 from earcore.learning import distributed
-from earcore.learning.checkpoint import CHECKPOINT_NAME, Checkpoint, load_checkpoint, rng_state, save_checkpoint, set_rng_state
+from earcore.learning.checkpoint import CHECKPOINT_NAME, Checkpoint, CheckpointError, load_checkpoint, rng_state, save_checkpoint, set_rng_state
 from earcore.learning.config import TrainConfig
 from earcore.learning.losses import LossCombiner
 from earcore.learning.metrics_log import MetricsLog, plot_metrics
@@ -191,7 +191,11 @@ def train(
     optimiser = _optimiser(config, params)
     step, seconds = 0, 0.0
     if state is not None:
-        model.load_state_dict(state.model)
+        try:
+            model.load_state_dict(state.model)
+        except RuntimeError as exc:  # torch lists every mismatching tensor: keep the first line
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise CheckpointError(f"{path} holds weights of another network shape than this run builds ({first.rstrip(':')})") from None
         if state.optimiser is not None:
             optimiser.load_state_dict(state.optimiser)
         if state.combiner:
@@ -206,6 +210,12 @@ def train(
     if world.distributed:
         net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
     metrics = MetricsLog(folder / "metrics.jsonl", enabled=world.main)
+    # A run that stopped without a checkpoint of its last steps (killed, crashed) logged
+    # steps the resumed run does again: keep only what the checkpoint covers (a fresh
+    # start in a folder without a checkpoint: nothing).
+    dropped = metrics.keep_until(step if state is not None else -1)
+    if dropped:
+        say(f"dropped {dropped} metrics record(s) after step {step} (done again from the checkpoint)")
     evaluate = evaluate or evaluate_losses(objective, combiner)
 
     def checkpoint() -> None:
