@@ -13,31 +13,33 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from earcore.errors import ConfigError
-from earcore.learning.checkpoint import load_checkpoint
+from earcore.errors import ConfigError, EarcoreError
+from earcore.learning.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from earcore.learning.config import SCHEDULES, TrainConfig, load_config
 from earcore.learning.losses import FixedWeights
 from earcore.learning.train import TrainResult, train
-from earcore.pose.evaluate import Evaluation, evaluate, evaluator
+from earcore.pose.evaluate import Evaluation, evaluate, evaluator, subset
 from earcore.pose.networks import NETWORKS, PRESETS, PoseNetwork, build_network
 from earcore.pose.objectives import default_weights, objective_for
 
-__all__ = ["build_parser", "fit_statistics", "load_trained", "main", "run"]
+__all__ = ["build_parser", "check_resume", "fit_statistics", "load_trained", "loss_weights", "main", "run"]
 
 
-def fit_statistics(network: PoseNetwork, dataset: Any, samples: int = 256) -> None:
+def fit_statistics(network: PoseNetwork, dataset: Any, samples: int = 256, seed: int = 0) -> None:
     """Set the network's output scaling (mean and spread of the keypoints and bases, per
-    axis) and its camera (the median intrinsics) from the first `samples` images."""
-    n = min(samples, len(dataset))
-    if n < 1:
+    axis) and its camera (the median intrinsics) from `samples` images drawn at random
+    across the set (the same for the same seed; datasets are stored one robot after
+    another, so the first images would describe one robot)."""
+    if len(dataset) < 1:
         raise ValueError("the training set is empty")
     points, intrinsics = [], []
-    for i in range(n):
+    for i in subset(len(dataset), samples, seed).tolist():
         item = dataset[i]
         points.append(item["keypoints"][item["keypoint_valid"]])
         points.append(item["base"][None])
@@ -55,8 +57,41 @@ def load_trained(path: str | Path, device: str | torch.device = "cpu") -> tuple[
     if "network" not in meta or "options" not in meta:
         raise ConfigError(f"{path}: the checkpoint does not say which network it holds")
     network = build_network(meta["network"], meta["options"])
-    network.load_state_dict(state.model)
+    try:
+        network.load_state_dict(state.model)
+    except RuntimeError as exc:
+        first = str(exc).strip().splitlines()[-1].strip() if str(exc).strip() else type(exc).__name__
+        raise CheckpointError(f"{path}: the weights do not fit the network the checkpoint describes ({first})") from None
     return network.to(device).eval(), meta
+
+
+def check_resume(out: Path, network: PoseNetwork) -> None:
+    """A `CheckpointError` naming the options that differ when the run in `out` was
+    trained with another network shape than `network` (another preset, --option, image
+    size, keypoint or robot count) than resuming it would build."""
+    path = out / CHECKPOINT_NAME
+    if not path.exists():
+        return
+    stored = load_checkpoint(path).meta.get("options")
+    if not isinstance(stored, dict):
+        return
+    ours = json.loads(json.dumps(network.options.to_dict()))
+    theirs = json.loads(json.dumps(stored))
+    differ = sorted(k for k in set(ours) | set(theirs) if ours.get(k) != theirs.get(k))
+    if differ:
+        what = ", ".join(f"{k} {theirs.get(k)!r} there, {ours.get(k)!r} now" for k in differ)
+        raise CheckpointError(f"{path} holds a network with other options ({what}); resume with its options or train into another --out")
+
+
+def loss_weights(network: str, given: dict[str, float]) -> dict[str, float]:
+    """The network's default loss weights updated with `given`; a name the network's
+    objective never produces (a typo) is a `ConfigError` naming the known ones."""
+    defaults = default_weights(network)
+    unknown = sorted(set(given) - set(defaults))
+    if unknown:
+        names = ", ".join(map(repr, unknown))
+        raise ConfigError(f"loss_weights: {names} {'is' if len(unknown) == 1 else 'are'} not a loss of the {network} network; its losses: {', '.join(defaults)}")
+    return {**defaults, **given}
 
 
 def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser, prog: str = "python -m earcore.pose.train") -> argparse.ArgumentParser:
@@ -141,6 +176,7 @@ def run(
 ) -> tuple[TrainResult, Evaluation | None]:
     """Train `config.network` on `data`'s train split, evaluate on its test split
     (`datasets`: a (train, test) pair of Datasets instead)."""
+    weights = loss_weights(config.network, dict(config.loss_weights))
     if datasets is None:
         from earcore.learning.dataset import ImageDataset  # the Dataset over the earcore-images format
 
@@ -152,10 +188,12 @@ def run(
     options["input_size"] = list(train_set.image_size)
     options["num_keypoints"] = int(train_set.num_keypoints)
     options["num_robots"] = len(train_set.robots)
+    torch.manual_seed(config.seed)  # the initial weights follow the seed
     network = build_network(config.network, options)
+    if resume:
+        check_resume(Path(out), network)
     config = config.replace(network_options=network.options.to_dict())
-    fit_statistics(network, train_set)
-    weights = {**default_weights(config.network), **config.loss_weights}
+    fit_statistics(network, train_set, seed=config.seed)
     manifest = getattr(train_set, "manifest", {})
     meta = {
         "network": config.network,
@@ -197,7 +235,14 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
         config = config_from_args(args)
     except ConfigError as exc:
         parser.error(str(exc))
-    _, table = run(config, args.data, args.out, robots=args.robots, resume=args.resume, progress=not args.no_progress)
+    try:
+        _, table = run(config, args.data, args.out, robots=args.robots, resume=args.resume, progress=not args.no_progress)
+    except ConfigError as exc:  # a setting that does not fit the data or the run (batch size, loss weights)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except (EarcoreError, ValueError, OSError) as exc:  # a bad dataset, a damaged checkpoint, an existing run
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 1
     if table is not None:
         print(table.markdown())
     return 0

@@ -1,16 +1,15 @@
-"""Review: the pose training entry point (`earcore.pose.train.run` / `main`).
+"""The pose training entry point (`earcore.pose.train.run` / `main`):
 
-- The network is built (its weights drawn) before `train()` seeds torch with
-  `config.seed`: the same configuration run twice in one process (as
-  benches/pose_accuracy.py does, network after network) starts from other weights, and
-  `--seed` does not change the initial weights at all.
-- A loss weight under a name no objective produces (a typo in a config file) trains
-  silently with the default weight.
+- `config.seed` seeds the network's initial weights: the same configuration run twice
+  in one process (as benches/pose_accuracy.py does, network after network) gives the
+  same weights;
+- a loss weight under a name the network's objective never produces (a typo in a
+  config file) is a `ConfigError` naming the known losses;
 - `--resume` with other network options (a preset, `--option width=...`, a dataset of
-  another size) ends in torch's RuntimeError (a page of "size mismatch" lines, a
-  traceback from the CLI) instead of a one-line error.
-- `python -m earcore.pose.train` (the GPU machine's entry point) turns only
-  configuration errors into a one-line message: a missing dataset is a traceback."""
+  another size) is a one-line `CheckpointError` naming the options that differ, not
+  torch's page of "size mismatch" lines;
+- `python -m earcore.pose.train` (the GPU machine's entry point) reports a missing
+  dataset in one line on stderr, with no traceback."""
 
 from __future__ import annotations
 
@@ -71,7 +70,7 @@ def test_resuming_with_other_network_options_is_a_clear_error(tmp_path):
         run(wider, Path("unused"), tmp_path / "run", datasets=_sets(), resume=True, progress=False)
     except EarcoreError as exc:
         assert "width" in str(exc) or "option" in str(exc)
-    except RuntimeError as exc:  # today: load_state_dict's "size mismatch for trunk.0.weight ..."
+    except RuntimeError as exc:  # load_state_dict's "size mismatch for trunk.0.weight ..."
         pytest.fail(f"a RuntimeError of {len(str(exc).splitlines())} lines instead of a one-line error")
     else:
         pytest.fail("resumed a run with other network options")
@@ -86,5 +85,22 @@ def test_python_m_train_reports_a_missing_dataset_in_one_line(tmp_path):
         text=True,
         timeout=120,
     )
-    assert done.returncode != 0
+    assert done.returncode == 1
     assert "Traceback" not in done.stderr and "nowhere" in done.stderr, done.stderr
+
+
+def test_python_m_train_reports_a_batch_larger_than_the_set_in_one_line(tmp_path):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learning"))
+    from format_folder import write_folder
+
+    data = write_folder(tmp_path / "data", robots=("ur3", "ur10"), per_robot=4, width=32, height=24)  # 4 training images
+    env = {**os.environ, "PYTHONPATH": str(PYTHON_TREE)}
+    done = subprocess.run(
+        [sys.executable, "-m", "earcore.pose.train", "--data", str(data), "--out", str(tmp_path / "run"), "--steps", "1", "--batch", "64", "--no-progress"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr and "batch_size 64" in done.stderr and "4 samples" in done.stderr, done.stderr
