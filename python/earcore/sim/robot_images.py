@@ -172,10 +172,18 @@ def _code(name: str) -> int:
     return zlib.crc32(name.encode())
 
 
+#: How `plan_shards` orders the shards (in the manifest's generator table: a dataset
+#: begun with another order is not resumed with this one).
+SHARD_ORDER = "robots interleaved"
+
+
 def plan_shards(options: RobotImageOptions) -> list[list[SampleSpec]]:
     """Every sample of the dataset, in shards of one robot each (a worker loads one
-    robot per shard): a random test fraction per robot, shards in shuffled order."""
-    shards: list[list[SampleSpec]] = []
+    robot per shard): a random test fraction per robot, each robot's samples in a random
+    order, and the robots' shards interleaved (the first shard of each robot in the
+    options' robot order, then the second of each, ...) so that the first images of a
+    dataset show every robot. Only the options decide: equal options, equal shards."""
+    per_robot: list[list[list[SampleSpec]]] = []
     for robot, sizes in options.recordings().items():
         rng = np.random.default_rng([options.seed, _code(robot), 7])
         if options.mode == "recordings":
@@ -191,8 +199,9 @@ def plan_shards(options: RobotImageOptions) -> list[list[SampleSpec]]:
             r, f = items[i]
             key = f"{robot}-r{r:02d}-{f:05d}" if options.mode == "recordings" else f"{robot}-{r:07d}"
             specs.append(SampleSpec(key, robot, r, f, "test" if test[i] else "train"))
-        shards += [specs[i : i + options.shard_size] for i in range(0, n, options.shard_size)]
-    return shards
+        per_robot.append([specs[i : i + options.shard_size] for i in range(0, n, options.shard_size)])
+    rounds = max(len(shards) for shards in per_robot)
+    return [shards[i] for i in range(rounds) for shards in per_robot if i < len(shards)]
 
 
 def keypoint_names(model: RobotModel, robot: str) -> list[str]:
@@ -253,7 +262,7 @@ def manifest_for(options: RobotImageOptions, shards: list[list[SampleSpec]]) -> 
         "dof": {r: m.dof for r, m in models.items()},
         "max_dof": max(m.dof for m in models.values()),
         "shards": [{"name": shard_name(i), "samples": len(s)} for i, s in enumerate(shards)],
-        "generator": options.as_dict(),
+        "generator": {**options.as_dict(), "shard_order": SHARD_ORDER},
     }
 
 
