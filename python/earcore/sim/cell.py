@@ -39,30 +39,52 @@ def default_waypoints(robot: str) -> list[np.ndarray]:
     return [np.array(w, dtype=np.float64) for w in _WAYPOINTS[robot.lower()]]
 
 
+def _flush_c_stdio() -> None:
+    """fflush(NULL): write out the C library's stdio buffers (where it can be reached)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError, TypeError):  # pragma: no cover - no C library to reach (Windows)
+        pass
+
+
 class _quiet_stdout:
-    """Silence C-level writes to stdout (file descriptor 1) for a moment."""
+    """Silence C-level writes to stdout (file descriptor 1), and with `stderr` to
+    stderr (2) too, for a moment."""
+
+    def __init__(self, stderr: bool = False) -> None:
+        self._fds = (1, 2) if stderr else (1,)
 
     def __enter__(self):
         import os
         import sys
 
         sys.stdout.flush()
-        self._saved = os.dup(1)
+        sys.stderr.flush()
+        _flush_c_stdio()
+        self._saved = [os.dup(fd) for fd in self._fds]
         devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, 1)
+        for fd in self._fds:
+            os.dup2(devnull, fd)
         os.close(devnull)
 
     def __exit__(self, *exc):
         import os
 
-        os.dup2(self._saved, 1)
-        os.close(self._saved)
+        _flush_c_stdio()  # what C buffered (stdout into a pipe is block-buffered) goes to /dev/null too
+        for fd, saved in zip(self._fds, self._saved):
+            os.dup2(saved, fd)
+            os.close(saved)
 
 
 def _pybullet():
+    """pybullet and its BulletClient, imported without pybullet's "pybullet build time"
+    line (printed by its C module on import: on stdout or stderr by build)."""
     try:
-        import pybullet
-        from pybullet_utils.bullet_client import BulletClient
+        with _quiet_stdout(stderr=True):
+            import pybullet
+            from pybullet_utils.bullet_client import BulletClient
     except ImportError as exc:  # pragma: no cover - depends on the install
         raise ImportError("the simulated cell needs pybullet: pip install 'earcore[robots]'") from exc
     return pybullet, BulletClient
@@ -173,14 +195,17 @@ class SimulatedCell:
             sensor = replace(sensor, colour=sensor.colour.scaled(self.config.colour_scale))
         rng = np.random.default_rng([self.config.seed, len(c.name), sum(map(ord, c.name))])
         if c.mount == "world":
-            return SimulatedCamera(
-                self.p, c.name, sensor, look_at(c.position, c.target), rng=rng, supersample=self.config.supersample
-            )
+            return SimulatedCamera(self.p, c.name, sensor, look_at(c.position, c.target), rng=rng, supersample=self.config.supersample)
         if c.mount == "end_effector":
             link_from_camera = np.eye(4)
             link_from_camera[:3, 3] = c.position
             return SimulatedCamera(
-                self.p, c.name, sensor, np.eye(4), rng=rng, mount=(self.robot_id, self._tool_link(), link_from_camera),
+                self.p,
+                c.name,
+                sensor,
+                np.eye(4),
+                rng=rng,
+                mount=(self.robot_id, self._tool_link(), link_from_camera),
                 supersample=self.config.supersample,
             )
         raise ValueError(f"camera {c.name!r}: mount must be 'world' or 'end_effector', got {c.mount!r}")
@@ -195,10 +220,7 @@ class SimulatedCell:
             holds = list(pc.reach_holds) or [pc.hold_s] * n
             if len(speeds) != n or len(holds) != n:
                 raise ValueError("person.reach_speeds and reach_holds must be empty or as long as person.reach_starts")
-            reaches = [
-                Reach(s, (float(t[0]), float(t[1]), float(t[2])), h, v, pc.wander)
-                for s, t, h, v in zip(pc.reach_starts, pc.reach_targets, holds, speeds)
-            ]
+            reaches = [Reach(s, (float(t[0]), float(t[1]), float(t[2])), h, v, pc.wander) for s, t, h, v in zip(pc.reach_starts, pc.reach_targets, holds, speeds)]
         else:
             starts = np.cumsum(self.rng.uniform(3.0, 8.0, 8))
             targets = self.rng.uniform([0.3, -0.2, 0.1], [0.6, 0.4, 0.45], (8, 3))

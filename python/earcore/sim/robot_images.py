@@ -389,11 +389,11 @@ class _Robot:
 
 
 def _quiet_client():
-    import pybullet
-    from pybullet_utils.bullet_client import BulletClient
+    """A DIRECT pybullet client, without pybullet's lines on import and connect (dataset
+    workers would print them once each)."""
+    from earcore.sim.cell import _pybullet, _quiet_stdout
 
-    from earcore.sim.cell import _quiet_stdout
-
+    pybullet, BulletClient = _pybullet()
     with _quiet_stdout():
         return BulletClient(pybullet.DIRECT)
 

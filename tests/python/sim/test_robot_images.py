@@ -200,3 +200,20 @@ def test_random_mode_moves_the_camera_every_image_and_the_robot_covers_5_to_20_p
     # Most images in the papers' range (6-17 %), widened to 3-25 %.
     assert np.mean((coverage >= 0.03) & (coverage <= 0.25)) >= 0.8
     assert 0.05 <= np.median(coverage) <= 0.2
+
+
+def test_a_renderer_prints_nothing(tmp_path):
+    """A dataset worker's renderer prints neither pybullet's "pybullet build time" line
+    (its C module, on import; stdout or stderr by build) nor "argv[0]=" (on connect):
+    one line per worker over the progress bar otherwise."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import earcore
+
+    code = "from earcore.sim.robot_images import _quiet_client\nc = _quiet_client()\nprint('done')\n"
+    env = {"PYTHONPATH": str(Path(earcore.__file__).resolve().parent.parent), "PATH": "/usr/bin:/bin"}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "done\n" and "pybullet" not in done.stderr and "argv" not in done.stderr, (done.stdout, done.stderr)
