@@ -25,7 +25,7 @@ from earcore.urdf import UrdfError, parse_urdf
 #: The joint kinds the core models (URDF's names).
 JointKind = Literal["revolute", "continuous", "prismatic", "fixed"]
 
-__all__ = ["BUILTIN_MODELS", "RobotModel", "UrdfError", "load", "urdf_path"]
+__all__ = ["BUILTIN_MODELS", "FLANGES", "RobotModel", "UrdfError", "load", "urdf_path"]
 
 #: name → (package providing it, path inside the package's data folder)
 BUILTIN_MODELS: dict[str, tuple[str, str]] = {
@@ -34,6 +34,17 @@ BUILTIN_MODELS: dict[str, tuple[str, str]] = {
     "ur10": ("example-robot-data", "robots/ur_description/urdf/ur10_robot.urdf"),
     "iiwa": ("pybullet", "kuka_iiwa/model.urdf"),
     "panda": ("pybullet", "franka_panda/panda.urdf"),
+}
+
+#: Each built-in robot's flange (the keypoint "flange" of the pose datasets and
+#: networks): (link, offset in that link's frame, m). The iiwa model has no flange link:
+#: its flange face is 45 mm along link 7's z (the mesh's end).
+FLANGES: dict[str, tuple[str, tuple[float, float, float]]] = {
+    "ur3": ("tool0", (0.0, 0.0, 0.0)),
+    "ur5": ("tool0", (0.0, 0.0, 0.0)),
+    "ur10": ("tool0", (0.0, 0.0, 0.0)),
+    "iiwa": ("lbr_iiwa_link_7", (0.0, 0.0, 0.045)),
+    "panda": ("panda_link8", (0.0, 0.0, 0.0)),
 }
 
 _INSTALL_HINT = "install the robot models with: pip install 'earcore[robots]'"
@@ -92,10 +103,7 @@ class RobotModel(_earcore.RobotModel):
             raise ValueError(f"padding must be finite and >= 0, got {padding}")
         urdf = parse_urdf(path, geometry=geometry)
         index = {link: i for i, link in enumerate(urdf.links)}
-        joints = [
-            (j.name, cast(JointKind, j.kind), index[j.parent], index[j.child], j.xyz, j.rpy, j.axis, j.lower, j.upper)
-            for j in urdf.joints
-        ]
+        joints = [(j.name, cast(JointKind, j.kind), index[j.parent], index[j.child], j.xyz, j.rpy, j.axis, j.lower, j.upper) for j in urdf.joints]
         bodies = []
         for link in urdf.links:
             vertices = urdf.vertices.get(link)
@@ -109,8 +117,6 @@ class RobotModel(_earcore.RobotModel):
         return rng.uniform(limits[:, 0], limits[:, 1], size=(count, self.dof))
 
 
-def load(
-    name: str, padding: float = 0.005, *, geometry: str = "collision", shape: Literal["capsule", "cylinder", "auto"] = "auto"
-) -> RobotModel:
+def load(name: str, padding: float = 0.005, *, geometry: str = "collision", shape: Literal["capsule", "cylinder", "auto"] = "auto") -> RobotModel:
     """A built-in robot by name: ``ur3``, ``ur5``, ``ur10``, ``iiwa`` or ``panda``."""
     return RobotModel.from_urdf(urdf_path(name), padding, geometry=geometry, shape=shape, name=name.lower())

@@ -164,14 +164,11 @@ def refine_predictions(p: dict[str, np.ndarray], robots: Sequence[str], frames: 
         if name not in models:
             models[name] = robot_models.load(name)
         model = models[name]
-        links = [model.link_names.index(link) for link, _ in frames[name]]
-        offsets = np.array([offset for _, offset in frames[name]], dtype=np.float64)
-        n = len(links)
+        n = len(frames[name])
         fit = refine(
             model,
             p["keypoints"][i, :n].astype(np.float64),
-            links=links,
-            offsets=offsets,
+            frames=frames[name],
             base=p["base"][i].astype(np.float64),
             pixels=p["pixels"][i, :n].astype(np.float64),
             base_pixel=p["pixels"][i, -1].astype(np.float64),

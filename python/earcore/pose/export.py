@@ -37,6 +37,8 @@ def export_network(network: PoseNetwork, meta: dict[str, Any], path: str | Path,
         "intrinsics": network.intrinsics().tolist(),
         "robots": list(meta.get("robots", [])),
         "keypoints": meta.get("keypoints", {}),
+        # where each keypoint sits on the robot, for `refine(..., frames=...)`
+        "keypoint_frames": meta.get("keypoint_frames", {}),
         "num_keypoints": network.K,
         "outputs": outputs,
     }

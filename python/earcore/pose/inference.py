@@ -41,7 +41,14 @@ class PoseEstimate:
     """One image's estimate. `keypoints` (K, 3) and `base` (3,) in the camera frame
     (metres, OpenCV axes), `pixels` (K, 2) and `base_pixel` (2,) in the image's pixels,
     `mask` (H, W) bool at the image's resolution, `robot` the most probable type (None
-    if the network has no type head and knows several robots), `probabilities` per type."""
+    if the network has no type head and knows several robots), `probabilities` per type;
+    `keypoint_names` and `keypoint_frames` ([link name, [x, y, z]]: where each keypoint
+    sits on the robot, from the sidecar) say what the keypoints are, so that
+
+        refine(robots.load(est.robot), est.keypoints, frames=est.keypoint_frames,
+               pixels=est.pixels, intrinsics=K, base=est.base, base_pixel=est.base_pixel)
+
+    fits the robot's kinematics to them (`earcore.pose.refine`)."""
 
     mask: np.ndarray
     keypoints: np.ndarray
@@ -51,6 +58,7 @@ class PoseEstimate:
     robot: str | None
     probabilities: dict[str, float] = field(default_factory=dict)
     keypoint_names: list[str] = field(default_factory=list)
+    keypoint_frames: list[list[Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -233,4 +241,5 @@ def estimate(image: np.ndarray, camera: Any = None, weights: str | Path | None =
         robot=robot,
         probabilities=probabilities,
         keypoint_names=names,
+        keypoint_frames=list(model.sidecar.get("keypoint_frames", {}).get(robot, [])) if robot is not None else [],
     )

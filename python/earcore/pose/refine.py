@@ -32,7 +32,7 @@ import numpy as np
 
 from earcore.pose.errors import PoseError
 
-__all__ = ["RefineResult", "keypoint_links", "pnp_base", "refine"]
+__all__ = ["Frames", "RefineResult", "keypoint_links", "pnp_base", "refine", "resolve_keypoints"]
 
 
 @dataclass
@@ -43,6 +43,86 @@ class RefineResult:
     base: np.ndarray  # (3,)
     cost: float  # the final weighted sum of squares per residual
     iterations: int
+
+
+#: Where keypoints sit: [link name, [x, y, z]] pairs (the offset in that link's frame,
+#: m), as the dataset manifest's and the ONNX sidecar's `keypoint_frames` give them.
+Frames = Sequence[Sequence[Any]]
+
+
+def resolve_keypoints(robot: Any, names: Sequence[str] | None = None, frames: Frames | None = None) -> tuple[list[int], np.ndarray]:
+    """Each keypoint's link index and offset (K, 3) in that link's frame, from `frames`
+    (the manifest's or the sidecar's `keypoint_frames[robot]`) or from `names`: a link
+    (its origin), an actuated joint (its frame's origin, `keypoint_links`) or "flange"
+    (the robot's flange, `earcore.robots.FLANGES`: for the iiwa 45 mm along link 7)."""
+    links = list(robot.link_names)
+    if frames is not None:
+        out, offsets = [], []
+        for i, frame in enumerate(frames):
+            try:
+                link, offset = frame
+                xyz = np.asarray(offset, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"keypoint frame {i} must be [link name, [x, y, z]], got {frame!r}") from None
+            if link not in links:
+                raise ValueError(f"keypoint frame {i}: {link!r} is not a link of {robot.name}")
+            if xyz.shape != (3,) or not np.isfinite(xyz).all():
+                raise ValueError(f"keypoint frame {i}: the offset must be 3 finite numbers, got {offset!r}")
+            out.append(links.index(link))
+            offsets.append(xyz)
+        return out, np.array(offsets, dtype=np.float64).reshape(len(out), 3)
+    if names is None:
+        raise ValueError("give the keypoints' links, frames or names")
+    from earcore.robots import FLANGES
+
+    flange = FLANGES.get(str(robot.name).lower())
+    out, offsets = [], []
+    for name in names:
+        if name == "flange" and name not in links:
+            if flange is None:
+                raise ValueError(f"{robot.name} has no known flange: give the keypoints' frames ([link name, [x, y, z]] pairs)")
+            out.append(links.index(flange[0]))
+            offsets.append(np.array(flange[1], dtype=np.float64))
+        else:
+            out += keypoint_links(robot, [name])
+            offsets.append(np.zeros(3))
+    return out, np.array(offsets, dtype=np.float64).reshape(len(out), 3)
+
+
+def _check_links(robot: Any, links: Sequence[int]) -> list[int]:
+    n = len(robot.link_names)
+    out = []
+    for link in links:
+        if isinstance(link, (bool, np.bool_)) or not isinstance(link, (int, np.integer)) or not 0 <= int(link) < n:
+            raise ValueError(f"link index {link!r} is not one of {robot.name}'s {n} links (0 to {n - 1})")
+        out.append(int(link))
+    return out
+
+
+def _check_intrinsics(intrinsics: Any) -> np.ndarray:
+    k = np.asarray(intrinsics, dtype=np.float64)
+    if k.shape != (3, 3) or not np.isfinite(k).all():
+        raise ValueError(f"intrinsics must be a finite 3x3 matrix, got shape {k.shape}")
+    if not (k[0, 0] > 0 and k[1, 1] > 0):
+        raise ValueError(f"intrinsics: the focal lengths must be > 0, got fx {k[0, 0]}, fy {k[1, 1]}")
+    return k
+
+
+def _keypoint_frames(
+    robot: Any, count: int | None, links: Sequence[int] | None, names: Sequence[str] | None, frames: Frames | None, offsets: np.ndarray | None
+) -> tuple[list[int], np.ndarray | None]:
+    """The checked links and offsets of refine's and pnp_base's keypoint arguments."""
+    if links is None:
+        links, found = resolve_keypoints(robot, names, frames)
+        offsets = found if offsets is None else offsets
+    links = _check_links(robot, links)
+    if count is not None and len(links) != count:
+        raise ValueError(f"{count} keypoints but {len(links)} links")
+    if offsets is not None:
+        offsets = np.asarray(offsets, dtype=np.float64)
+        if offsets.shape != (len(links), 3) or not np.isfinite(offsets).all():
+            raise ValueError(f"offsets must be finite (K, 3) = ({len(links)}, 3), got {offsets.shape}")
+    return links, offsets
 
 
 def keypoint_links(robot: Any, names: Sequence[str]) -> list[int]:
@@ -58,7 +138,7 @@ def keypoint_links(robot: Any, names: Sequence[str]) -> list[int]:
         elif name in joints:
             out.append(children[joints.index(name)])
         else:
-            raise ValueError(f"keypoint {name!r} is neither a link nor an actuated joint of {robot.name}")
+            raise ValueError(f"keypoint {name!r} is neither a link nor an actuated joint of {robot.name} (the flange: `resolve_keypoints`)")
     return out
 
 
@@ -138,6 +218,7 @@ def refine(
     *,
     links: Sequence[int] | None = None,
     names: Sequence[str] | None = None,
+    frames: Frames | None = None,
     offsets: np.ndarray | None = None,
     base: np.ndarray | None = None,
     pixels: np.ndarray | None = None,
@@ -151,10 +232,13 @@ def refine(
     seed: int = 0,
 ) -> RefineResult:
     """Fit `robot` (an `earcore.robots.RobotModel`, or a name such as "ur5") to keypoints
-    (K, 3) in the camera frame. Keypoints are `links` (indices) or `names` (links or
-    joints), optionally at `offsets` (K, 3) in their link frames. With `pixels` (K, 2)
-    and `intrinsics` (3, 3) the fit is in the image (see the module doc); `base` (3,) and
-    `base_pixel` (2,) add the base as an observation."""
+    (K, 3) in the camera frame. Keypoints are `links` (indices, optionally at `offsets`
+    (K, 3) in their link frames), `frames` ([link name, [x, y, z]] pairs: the dataset
+    manifest's or the ONNX sidecar's `keypoint_frames[robot]`, `PoseEstimate.keypoint_frames`)
+    or `names` (links, joints or "flange": `PoseEstimate.keypoint_names`; see
+    `resolve_keypoints`). With `pixels` (K, 2) and `intrinsics` (3, 3) the fit is in the
+    image (see the module doc); `base` (3,) and `base_pixel` (2,) add the base as an
+    observation."""
     if isinstance(robot, str):
         from earcore import robots as _robots
 
@@ -162,17 +246,12 @@ def refine(
     p3 = np.asarray(keypoints, dtype=np.float64)
     if p3.ndim != 2 or p3.shape[1] != 3 or not np.isfinite(p3).all():
         raise ValueError(f"keypoints must be finite (K, 3), got shape {p3.shape}")
-    if links is None:
-        if names is None:
-            raise ValueError("give the keypoints' links or names")
-        links = keypoint_links(robot, names)
-    if len(links) != len(p3):
-        raise ValueError(f"{len(p3)} keypoints but {len(links)} links")
+    links, offsets = _keypoint_frames(robot, len(p3), links, names, frames, offsets)
     use_pixels = pixels is not None
     if use_pixels:
         if intrinsics is None:
             raise ValueError("pixels need the intrinsics")
-        k = np.asarray(intrinsics, dtype=np.float64)
+        k = _check_intrinsics(intrinsics)
         uv = np.asarray(pixels, dtype=np.float64)
         if uv.shape != (len(p3), 2) or not np.isfinite(uv).all():
             raise ValueError(f"pixels must be finite (K, 2) = ({len(p3)}, 2), got {uv.shape}")
@@ -279,11 +358,13 @@ def pnp_base(
     *,
     links: Sequence[int] | None = None,
     names: Sequence[str] | None = None,
+    frames: Frames | None = None,
     offsets: np.ndarray | None = None,
 ) -> np.ndarray:
     """camera_from_base (4, 4) from the keypoints' pixels (K, 2) when the joint angles are
     known: their base-frame positions by forward kinematics, then OpenCV's solvePnP
-    (EPnP, refined iteratively). Needs at least 4 keypoints."""
+    (EPnP, refined iteratively). Needs at least 4 keypoints; the keypoints are given as
+    for `refine`."""
     try:
         import cv2
     except ImportError as exc:
@@ -292,17 +373,14 @@ def pnp_base(
         from earcore import robots as _robots
 
         robot = _robots.load(robot)
-    if links is None:
-        if names is None:
-            raise ValueError("give the keypoints' links or names")
-        links = keypoint_links(robot, names)
+    links, offsets = _keypoint_frames(robot, None, links, names, frames, offsets)
     uv = np.asarray(pixels, dtype=np.float64)
     if uv.shape != (len(links), 2) or not np.isfinite(uv).all():
         raise ValueError(f"pixels must be finite (K, 2) = ({len(links)}, 2), got {uv.shape}")
     if len(links) < 4:
         raise ValueError(f"PnP needs at least 4 keypoints, got {len(links)}")
     obj = _Chain(robot, links, offsets).points(np.asarray(joints, dtype=np.float64))
-    k = np.asarray(intrinsics, dtype=np.float64)
+    k = _check_intrinsics(intrinsics)
     ok, rvec, tvec = cv2.solvePnP(obj, uv, k, None, flags=cv2.SOLVEPNP_EPNP)
     if not ok:
         raise PoseError("PnP found no pose")

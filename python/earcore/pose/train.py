@@ -200,6 +200,7 @@ def run(
         "options": network.options.to_dict(),
         "robots": list(train_set.robots),
         "keypoints": manifest.get("keypoints", {}),
+        "keypoint_frames": manifest.get("keypoint_frames", {}),
         "input_size": list(train_set.image_size),
         "data": str(data),
     }

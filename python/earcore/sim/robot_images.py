@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from earcore.learning.shards import Sample, columns, shard_name, write_shard
-from earcore.robots import BUILTIN_MODELS, RobotModel, load, urdf_path
+from earcore.robots import BUILTIN_MODELS, FLANGES, RobotModel, load, urdf_path
 from earcore.sim.camera import opengl_projection, opengl_view
 from earcore.sim.image_scene import ImageScene, draw_layout, draw_person
 from earcore.sim.sensors import SENSORS
@@ -63,15 +63,6 @@ PAPER_RECORDINGS: dict[str, tuple[int, ...]] = {
     "ur10": (112, 278, 514),
     "iiwa": (131,) * 13 + (134,),
     "panda": (131,) * 13 + (134,),
-}
-#: The flange keypoint per robot: (link, offset in that link's frame, m). The iiwa
-#: model has no flange link: its flange face is 45 mm along link 7's z (the mesh's end).
-FLANGES: dict[str, tuple[str, tuple[float, float, float]]] = {
-    "ur3": ("tool0", (0.0, 0.0, 0.0)),
-    "ur5": ("tool0", (0.0, 0.0, 0.0)),
-    "ur10": ("tool0", (0.0, 0.0, 0.0)),
-    "iiwa": ("lbr_iiwa_link_7", (0.0, 0.0, 0.045)),
-    "panda": ("panda_link8", (0.0, 0.0, 0.0)),
 }
 MODES = ("recordings", "random")
 #: The camera's near and far clipping planes (m).

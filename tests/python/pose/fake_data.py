@@ -15,7 +15,11 @@ class FakeDataset(torch.utils.data.Dataset):
         self.robots = ["red", "green"]
         self.num_keypoints = keypoints
         self.image_size = (width, height)
-        self.manifest = {"robots": self.robots, "keypoints": {"red": [f"r{i}" for i in range(keypoints - 1)], "green": [f"g{i}" for i in range(keypoints)]}}
+        self.manifest = {
+            "robots": self.robots,
+            "keypoints": {"red": [f"r{i}" for i in range(keypoints - 1)], "green": [f"g{i}" for i in range(keypoints)]},
+            "keypoint_frames": {"red": [[f"r{i}", [0.0, 0.0, 0.0]] for i in range(keypoints - 1)], "green": [[f"g{i}", [0.0, 0.0, 0.1]] for i in range(keypoints)]},
+        }
         self.noise, self.seed, self.epoch = noise, seed, 0
         f = 0.9 * width
         self.intrinsics = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])

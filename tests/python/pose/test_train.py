@@ -60,6 +60,10 @@ def test_train_evaluate_export(tmp_path):
         expected = net(test_set[0]["image"][None])
     found = estimate(image, train_set.intrinsics, weights=tmp_path / "pose.onnx")
     assert np.abs(found.base - expected["base"][0].numpy()).max() < 1e-4
+    # where each keypoint sits travels from the manifest to the sidecar, for refine(..., frames=...)
+    sidecar = json.loads((tmp_path / "pose.json").read_text())
+    assert sidecar["keypoint_frames"] == train_set.manifest["keypoint_frames"]
+    assert found.robot is not None and found.keypoint_frames == train_set.manifest["keypoint_frames"][found.robot]
 
 
 def test_an_unknown_target_or_bad_option_is_one_line(capsys):
