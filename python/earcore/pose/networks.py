@@ -337,6 +337,33 @@ class CascadeNet(PoseNetwork):
         }
 
 
+def _regrid(x: Tensor, size: tuple[int, int], factor: int) -> Tensor:
+    """`x` on the grid of a map `factor` times finer (2, 4, ...) or, for a negative
+    `factor`, -factor times coarser, of `size` (h, w). The grids are those of strided
+    3×3 convolutions with "same" padding: cell j of a stride-s map is centred on input
+    pixel s·j (not s·j + (s-1)/2), so a finer cell j lies at this map's j / factor
+    (bilinear, corner-aligned; the last row and column repeated where the finer map
+    reaches beyond) and a coarser cell j at this map's -factor·j."""
+    h, w = size
+    if factor < 0:
+        y = x[:, :, ::-factor, ::-factor]
+    elif factor > 1:
+        hin, win = x.shape[2], x.shape[3]
+        y = F.interpolate(x, size=((hin - 1) * factor + 1, (win - 1) * factor + 1), mode="bilinear", align_corners=True)
+    else:
+        y = x
+    y = y[:, :, :h, :w]
+    if y.shape[2] < h or y.shape[3] < w:
+        y = F.pad(y, (0, w - y.shape[3], 0, h - y.shape[2]), mode="replicate")
+    return y
+
+
+def cell_centres(count: int, stride: int, dtype: torch.dtype = torch.float32, device: torch.device | None = None) -> Tensor:
+    """Input-pixel coordinates (pixel centres at integers) of the cells of a stride-`stride`
+    map made by strided 3×3 convolutions with "same" padding: s·j (`_regrid`)."""
+    return torch.arange(count, dtype=dtype, device=device) * float(stride)
+
+
 class KeypointNet(PoseNetwork):
     """Beyond the papers: 2D heatmaps (K keypoints + the base) with a depth per keypoint,
     at `heatmap_stride`. Pixels are the heatmaps' soft-argmax (their expected position),
@@ -371,24 +398,23 @@ class KeypointNet(PoseNetwork):
         quarter = self.down4(half)
         eighth = self.down8(quarter)
         target = {2: half, 4: quarter, 8: eighth}[self.stride]
-        up8 = F.interpolate(eighth, size=quarter.shape[2:], mode="bilinear", align_corners=False)
+        up8 = _regrid(eighth, (quarter.shape[2], quarter.shape[3]), 2)
         fine = self.merge(torch.cat([quarter, up8], 1))
         if target is not quarter:
-            fine = F.interpolate(fine, size=target.shape[2:], mode="bilinear", align_corners=False)
+            fine = _regrid(fine, (target.shape[2], target.shape[3]), 2 if self.stride == 2 else -2)
         return fine, eighth, half
 
     def forward(self, image: Tensor, mask: Tensor | None = None, intrinsics: Tensor | None = None) -> dict[str, Tensor]:
         x = self.check(image)
         n = image.shape[0]
-        w, h = self.options.input_size
         fine, coarse, half = self._features(x)
         hh, ww = fine.shape[2], fine.shape[3]
         heat = self.heat(fine).flatten(2)  # (N, K+1, hh·ww)
         prob = torch.softmax(heat, dim=2)
-        # Heatmap cell centres in input pixels (OpenCV convention: pixel centres at integers).
-        sy, sx = h / hh, w / ww
-        ys = (torch.arange(hh, dtype=image.dtype, device=image.device) + 0.5) * sy - 0.5
-        xs = (torch.arange(ww, dtype=image.dtype, device=image.device) + 0.5) * sx - 0.5
+        # Heatmap cell centres in input pixels (OpenCV convention: pixel centres at
+        # integers): cell j of the stride-s map is centred on input pixel s·j.
+        ys = cell_centres(hh, self.stride, image.dtype, image.device)
+        xs = cell_centres(ww, self.stride, image.dtype, image.device)
         gy = ys.view(hh, 1).expand(hh, ww).reshape(-1)
         gx = xs.view(1, ww).expand(hh, ww).reshape(-1)
         u = (prob * gx).sum(2)
