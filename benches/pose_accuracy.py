@@ -54,7 +54,7 @@ def main() -> int:
     parser.add_argument("--preset", default="small", choices=("small", "paper"))
     parser.add_argument("--device", default="auto", choices=("cpu", "cuda", "auto"))
     parser.add_argument("--batch", type=int, default=64)
-    parser.add_argument("--schedule", default="exponential", help="learning-rate schedule (exponential, cosine, linear, constant)")
+    parser.add_argument("--schedule", default="cosine", help="learning-rate schedule (exponential, cosine, linear, constant)")
     parser.add_argument("--workers", type=int, default=0, help="data-loading worker processes")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--eval-minutes", type=float, default=5.0)

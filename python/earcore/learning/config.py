@@ -29,7 +29,9 @@ class TrainConfig:
     comes first; at least one of them must be set. The learning rate falls from
     `lr_start` to `lr_end` over the run's progress (the larger of the step and the
     time fraction), so a time-limited run still ends at `lr_end` (the papers:
-    1e-3 → 1e-6, "decreased gradually"; `exponential` is a straight line in log lr)."""
+    1e-3 → 1e-6, "decreased gradually"). The default is `cosine`: at equal steps it beat
+    `exponential` (a straight line in log lr, which spends most of a run below 1e-4) on
+    every metric (benches/RESULTS.md)."""
 
     network: str = "multi"
     #: the network's own options (widths, input size, ...), checked by the network's builder
@@ -39,7 +41,7 @@ class TrainConfig:
     batch_size: int = 64
     lr_start: float = 1e-3
     lr_end: float = 1e-6
-    schedule: str = "exponential"
+    schedule: str = "cosine"
     optimiser: str = "adam"
     momentum: float = 0.9
     weight_decay: float = 0.0

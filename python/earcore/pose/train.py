@@ -104,7 +104,7 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     p.add_argument("--steps", type=int, default=None, help="optimiser steps")
     p.add_argument("--batch", type=int, default=None, help="global batch size (default 64, Paper V)")
     p.add_argument("--lr", type=float, nargs=2, default=None, metavar=("START", "END"), help="learning rate from START to END (default 1e-3 1e-6)")
-    p.add_argument("--schedule", choices=SCHEDULES, default=None, help="learning-rate schedule from START to END (default exponential)")
+    p.add_argument("--schedule", choices=SCHEDULES, default=None, help="learning-rate schedule from START to END (default cosine)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     p.add_argument("--workers", type=int, default=None, help="data-loading worker processes (default 0)")
     p.add_argument("--device", choices=("cpu", "cuda", "auto"), default=None)

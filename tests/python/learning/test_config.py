@@ -51,7 +51,8 @@ def test_schedule_runs_from_start_to_end():
     config = TrainConfig(steps=100, lr_start=1e-3, lr_end=1e-6)
     assert config.learning_rate(0.0) == pytest.approx(1e-3)
     assert config.learning_rate(1.0) == pytest.approx(1e-6)
-    assert config.learning_rate(0.5) == pytest.approx(math.sqrt(1e-3 * 1e-6))
+    assert config.learning_rate(0.25) == pytest.approx(1e-6 + 0.5 * (1e-3 - 1e-6) * (1 + math.cos(math.pi / 4)))  # cosine, the default
+    assert config.replace(schedule="exponential").learning_rate(0.5) == pytest.approx(math.sqrt(1e-3 * 1e-6))
     assert config.replace(schedule="linear").learning_rate(0.5) == pytest.approx((1e-3 + 1e-6) / 2)
     assert config.replace(schedule="cosine").learning_rate(0.5) == pytest.approx((1e-3 + 1e-6) / 2)
     both = TrainConfig(steps=100, minutes=10.0)
