@@ -24,7 +24,7 @@ from earcore.sim.robot_images import keypoint_positions, revolute_joints  # noqa
 
 sys.path.insert(0, str(Path(__file__).parent))
 sys.path.insert(0, str(Path(__file__).parents[1] / "pose"))
-from test_estimate import exported  # noqa: E402
+from test_estimate_onnx import exported  # noqa: E402
 from test_run import small_run_config  # noqa: E402
 
 
