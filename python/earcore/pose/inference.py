@@ -92,6 +92,9 @@ def _load(path: str, mtime: float, threads: int | None) -> _Model:
     onnx_path = Path(path)
     sidecar = _read_sidecar(onnx_path)
     options = ort.SessionOptions()
+    # Threads that spin after a run steal the cores from the numpy work around it
+    # (resizing the mask took 4 ms instead of 0.5 ms right after a spinning run).
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     if threads is not None:
         options.intra_op_num_threads = threads
         options.inter_op_num_threads = 1
@@ -142,7 +145,17 @@ def resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
     h, w = image.shape[:2]
     if h % height == 0 and w % width == 0:  # whole-number shrink (a Kinect's 512×424 to 128×106): block means
         fy, fx = h // height, w // width
-        return image.reshape(height, fy, width, fx, *image.shape[2:]).sum(axis=(1, 3), dtype=np.float32) * np.float32(1.0 / (fy * fx))
+        rest = image.shape[2:]
+        # Strided slices added one by one: 3-4× faster than numpy's sum over axes (1, 3).
+        columns = image.reshape(h, width, fx, *rest)
+        acc = columns[:, :, 0].astype(np.float32)
+        for i in range(1, fx):
+            acc += columns[:, :, i]
+        rows = acc.reshape(height, fy, width, *rest)
+        out = rows[:, 0].copy()
+        for i in range(1, fy):
+            out += rows[:, i]
+        return out * np.float32(1.0 / (fy * fx))
     rows = _resize_matrix(h, height).astype(image.dtype)
     cols = _resize_matrix(w, width).astype(image.dtype)
     if image.ndim == 2:
