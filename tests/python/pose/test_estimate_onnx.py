@@ -126,3 +126,13 @@ def test_missing_shipped_weights_say_how_to_make_them(tmp_path, monkeypatch):
     monkeypatch.setattr(inference, "DEFAULT_WEIGHTS", tmp_path / "weights" / "pose.onnx")
     with pytest.raises(PoseWeightsError, match="earcore train pose"):
         estimate(np.zeros((32, 32, 3)))
+
+
+@pytest.mark.parametrize("shape", [(424, 512, 3), (424, 512), (212, 256, 3), (36, 40, 3)])
+def test_whole_number_shrinks_are_block_means(shape):
+    image = np.random.default_rng(0).random(shape).astype(np.float32)
+    factor = 4 if shape[0] % 4 == 0 and shape[1] % 4 == 0 else 2
+    h, w = shape[0] // factor, shape[1] // factor
+    reference = image.reshape(h, factor, w, factor, *shape[2:]).astype(np.float64).mean(axis=(1, 3))
+    got = inference.resize(image, w, h)
+    assert got.shape == reference.shape and np.abs(got - reference).max() < 1e-6
