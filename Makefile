@@ -41,7 +41,7 @@ develop: $(VENV)/.ready ## build the extension (release) into .venv, editable
 demo: develop ## the main job: the simulated cell (UR5, 4 cameras, a person reaching in) -> out/ PNGs + summary.json
 	$(VENV)/bin/earcore run --out out
 
-pose: develop $(VENV)/.learning ## robot pose from one colour image, small: images, training, evaluation, ONNX -> out/pose (~10 min)
+pose: develop $(VENV)/.learning ## robot pose from one colour image, small: images, training, evaluation, ONNX -> out/pose (~6 min)
 	$(VENV)/bin/earcore dataset robots --out out/robots --scale 0.5 --quiet
 	$(VENV)/bin/earcore dataset robots --out out/robots-heldout --scale 0.1 --seed 1001 --quiet
 	$(VENV)/bin/earcore train pose --data out/robots --out out/pose --minutes 5 --no-progress
