@@ -11,7 +11,7 @@ import numpy as np
 
 from earcore.pose.config import PoseConfig
 from earcore.pose.overlay import overlay, project
-from earcore.sim.robot_images import keypoint_positions
+from earcore.sim.robot_images import keypoint_frames, keypoint_positions
 
 __all__ = ["PoseWatch"]
 
@@ -30,6 +30,7 @@ class PoseWatch:
         self.base_errors: list[float] = []
         self.types: list[bool] = []
         self.last: np.ndarray | None = None
+        self._frames: tuple[list[int], np.ndarray] | None = None  # read from the URDF once, on the first estimate
 
     def observe(self, time_s: float, cell, frames) -> np.ndarray | None:
         """The overlay picture of this frame set's estimate, if one is due; None otherwise."""
@@ -41,7 +42,9 @@ class PoseWatch:
         self._next = time_s + self.period
         result = estimate(frame.colour, frame.K, self.weights)
         camera_from_base = np.linalg.inv(frame.base_from_camera)
-        truth = keypoint_positions(cell.model, self.robot, cell.q) @ camera_from_base[:3, :3].T + camera_from_base[:3, 3]
+        if self._frames is None:
+            self._frames = keypoint_frames(cell.model, self.robot)
+        truth = keypoint_positions(cell.model, self._frames, cell.q) @ camera_from_base[:3, :3].T + camera_from_base[:3, 3]
         base = (camera_from_base @ cell.model.base)[:3, 3]
         count = min(len(truth), len(result.keypoints))
         self.joint_errors.append(float(np.linalg.norm(result.keypoints[:count] - truth[:count], axis=1).mean()))

@@ -170,7 +170,5 @@ def load_config(path: str | Path) -> TrainConfig:
         raise ConfigError(f"{path} is not valid JSON: {exc}") from None
     try:
         return TrainConfig.from_dict(data)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
-    except TypeError as exc:
+    except (ConfigError, TypeError) as exc:
         raise ConfigError(f"{path}: {exc}") from None

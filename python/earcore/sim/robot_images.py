@@ -219,12 +219,13 @@ def keypoint_frames(model: RobotModel, robot: str) -> tuple[list[int], np.ndarra
     return [*links, model.link_names.index(flange)], offsets
 
 
-def keypoint_positions(model: RobotModel, robot: str, q: np.ndarray) -> np.ndarray:
-    """(n, 3) keypoints of `robot` at configuration `q`, in the model's world frame
-    (its `base` applied): the labels the images carry, for any camera."""
-    links, offsets = keypoint_frames(model, robot)
-    poses = model.fk(np.asarray(q, dtype=np.float64))[links]
-    return np.einsum("nij,nj->ni", poses, offsets)[:, :3]
+def keypoint_positions(model: RobotModel, frames: tuple[list[int], np.ndarray], q: np.ndarray) -> np.ndarray:
+    """Keypoints at configuration `q` ((dof,) → (n, 3); (K, dof) → (K, n, 3)) in the
+    model's world frame (its `base` applied), `frames` from `keypoint_frames`: the
+    labels the images carry, for any camera."""
+    links, offsets = frames
+    poses = model.fk(np.asarray(q, dtype=np.float64))[..., links, :, :]
+    return np.einsum("...nij,nj->...ni", poses, offsets)[..., :3]
 
 
 def _frames_by_name(model: RobotModel, robot: str) -> list[list[Any]]:
@@ -499,9 +500,7 @@ class RobotImageRenderer:
 
     def _keypoints(self, robot: _Robot, qs: np.ndarray) -> np.ndarray:
         """(K, n, 3) keypoints in the world for configurations (K, dof)."""
-        poses = robot.model.fk(np.atleast_2d(qs)).reshape(len(np.atleast_2d(qs)), -1, 4, 4)
-        chosen = poses[:, robot.keypoint_links]  # (K, n, 4, 4)
-        return np.einsum("knij,nj->kni", chosen, robot.keypoint_offsets)[..., :3]
+        return keypoint_positions(robot.model, (robot.keypoint_links, robot.keypoint_offsets), np.atleast_2d(qs))
 
     def _recording_sweep(self, robot: _Robot, recording: int) -> np.ndarray:
         key = (robot.name, recording)

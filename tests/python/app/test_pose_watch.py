@@ -20,7 +20,7 @@ from earcore.learning import png  # noqa: E402
 from earcore.pose.overlay import GREEN  # noqa: E402
 from earcore.sim.cell import SimulatedCell  # noqa: E402
 from earcore.sim.config import CellConfig, PersonConfig  # noqa: E402
-from earcore.sim.robot_images import keypoint_positions, revolute_joints  # noqa: E402
+from earcore.sim.robot_images import keypoint_frames, keypoint_positions, revolute_joints  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 sys.path.insert(0, str(Path(__file__).parents[1] / "pose"))
@@ -37,7 +37,7 @@ def test_truth_is_where_pybullet_puts_the_joints(robot):
         for q in cell.model.random_configurations(3, seed=int(rng.integers(1000))):
             cell.q = q
             cell._apply_joints()
-            ours = keypoint_positions(cell.model, robot, q)
+            ours = keypoint_positions(cell.model, keypoint_frames(cell.model, robot), q)
             for i, link in enumerate(links):
                 state = cell.p.getLinkState(cell.robot_id, cell.link_ids[cell.model.link_names[link]], computeForwardKinematics=True)
                 assert np.allclose(ours[i], state[4], atol=1e-5), (robot, names[i])

@@ -90,14 +90,14 @@ def test_refine_predictions_recovers_noiseless_keypoints_through_the_manifests_f
     through the manifest's `keypoint_frames` gives them back."""
     pytest.importorskip("pybullet")
     from earcore.pose.evaluate import refine_predictions
-    from earcore.sim.robot_images import RobotImageOptions, keypoint_positions, manifest_for
+    from earcore.sim.robot_images import RobotImageOptions, keypoint_frames, keypoint_positions, manifest_for
 
     frames = manifest_for(RobotImageOptions(robots=("ur5",)), [])["keypoint_frames"]
     assert frames["ur5"][-1][0] == "tool0"
     k = np.array([[110.0, 0.0, 63.5], [0.0, 110.0, 52.5], [0.0, 0.0, 1.0]])
     r = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])  # looking along the world's -x, z up in the image
     t = -r @ np.array([2.2, 0.1, 0.5])
-    world = keypoint_positions(ur5, "ur5", Q)
+    world = keypoint_positions(ur5, keypoint_frames(ur5, "ur5"), Q)
     cam = world @ r.T + t
     base = r @ np.asarray(ur5.base)[:3, 3] + t
     points = np.vstack([cam, base])
