@@ -16,6 +16,7 @@ __all__ = [
     "mean_pose",
     "perturb_pose",
     "quaternion",
+    "rotation_from_quaternion",
     "pose_from_vector",
     "rotation_angle",
     "rotation_from_vector",
@@ -114,6 +115,20 @@ def quaternion(r: np.ndarray) -> tuple[float, float, float, float]:
     y = np.copysign(y, r[0, 2] - r[2, 0])
     z = np.copysign(z, r[1, 0] - r[0, 1])
     return float(x), float(y), float(z), float(w)
+
+
+def rotation_from_quaternion(wxyz: np.ndarray) -> np.ndarray:
+    """3×3 rotations of unit quaternions given scalar first, (w, x, y, z): (..., 4) → (..., 3, 3)
+    (`quaternion` gives (x, y, z, w); the dataset's CSV stores w first)."""
+    w, x, y, z = np.moveaxis(np.asarray(wxyz, dtype=np.float64), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
 
 
 def turn_from_z(direction) -> tuple[np.ndarray, float]:

@@ -20,6 +20,7 @@ import torch
 
 from earcore.learning.errors import DatasetError
 from earcore.learning.shards import BASE_COLUMNS, columns, read_manifest, read_shard
+from earcore.transforms import rotation_from_quaternion
 
 __all__ = ["ImageDataset", "colour_noise"]
 
@@ -128,7 +129,7 @@ class ImageDataset(torch.utils.data.Dataset):
                 ("keypoint_valid", valid),
                 ("keypoint_in_image", valid & (np.nan_to_num(inside) > 0.5)),
                 ("base", base[:, :3].astype(np.float32)),
-                ("base_rotation", _rotations(quat).astype(np.float32)),
+                ("base_rotation", rotation_from_quaternion(quat).astype(np.float32)),
                 ("robot", robot),
                 ("intrinsics", intrinsics.astype(np.float32)),
                 ("joints", np.where(own, q, 0.0).astype(np.float32)),
@@ -197,16 +198,3 @@ def _refuse(path: Path, rows: np.ndarray, names: list[str], bad: np.ndarray, wha
     if bad.size and bad.any():
         i, j = np.argwhere(bad.reshape(len(bad), -1))[0]
         raise DatasetError(f"{path}: row {rows[i] + 2} " + what.format(column=names[j]))
-
-
-def _rotations(q: np.ndarray) -> np.ndarray:
-    """3×3 rotations of unit quaternions (w, x, y, z), (N, 4) → (N, 3, 3)."""
-    w, x, y, z = q.T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )

@@ -135,3 +135,16 @@ def test_damaged_datasets_name_the_file(folder, tmp_path):
         ImageDataset(bad)
     with pytest.raises(DatasetError, match="no such dataset folder"):
         ImageDataset(tmp_path / "nowhere")
+
+
+def test_quaternions_scalar_first_give_back_the_rotations_they_came_from():
+    """The dataset's base rotations (CSV: w, x, y, z) against the matrices `quaternion`
+    was computed from, and against Rodrigues' formula for a hand-made quaternion."""
+    from earcore.transforms import quaternion, rotation_from_quaternion, rotation_from_vector
+
+    rng = np.random.default_rng(2)
+    rotations = [rotation_from_vector(v) for v in rng.normal(0, 1.5, (20, 3))]
+    wxyz = np.array([(w, x, y, z) for x, y, z, w in (quaternion(r) for r in rotations)])
+    assert np.allclose(rotation_from_quaternion(wxyz), np.array(rotations), atol=1e-12)
+    half = np.radians(30) / 2  # 30° about z
+    assert np.allclose(rotation_from_quaternion([np.cos(half), 0, 0, np.sin(half)]), rotation_from_vector([0, 0, np.radians(30)]))
