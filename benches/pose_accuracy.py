@@ -11,8 +11,10 @@ same command serves the 2-core CPU machine and a GPU machine:
     PYTHONPATH=python python benches/pose_accuracy.py --data data/ur --heldout data/ur-heldout \\
         --networks multi,cascade,keypoint --minutes 60 --out benches/out/pose
 
-`--ship` exports the multi-objective network to python/earcore/pose/weights/ (the
-weights `earcore.pose.estimate` uses)."""
+`--extra FOLDER` adds every image of another set to the training images (a random-camera
+set beside the recordings, for the held-out placements). `--ship [NETWORK]` exports a
+network (default multi) to python/earcore/pose/weights/ (the weights
+`earcore.pose.estimate` uses)."""
 
 from __future__ import annotations
 
@@ -47,6 +49,7 @@ def machine() -> str:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, required=True, help="earcore-images folder with train/test splits")
+    parser.add_argument("--extra", type=Path, action="append", default=[], help="more training images (every image of this earcore-images folder), repeatable")
     parser.add_argument("--heldout", type=Path, default=None, help="earcore-images folder of held-out recordings (all of it is evaluated)")
     parser.add_argument("--networks", default="multi,cascade,keypoint")
     parser.add_argument("--minutes", type=float, default=60.0, help="training budget per network")
@@ -61,7 +64,7 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("benches/out/pose"))
     parser.add_argument("--refine", action="store_true", help="also report the keypoint network after the kinematic fit (needs the compiled core)")
-    parser.add_argument("--ship", action="store_true", help="export the multi network as the package's shipped weights")
+    parser.add_argument("--ship", nargs="?", const="multi", default=None, metavar="NETWORK", help="export this network (default multi) as the shipped weights")
     args = parser.parse_args()
 
     args.out.mkdir(parents=True, exist_ok=True)
@@ -70,13 +73,13 @@ def main() -> int:
     summary: dict[str, dict] = {}
     heldout = ImageDataset(args.heldout, split=None, noise=False) if args.heldout else None
     for name in args.networks.split(","):
-        train_args = [f"--data={args.data}", f"--out={args.out / name}", f"--network={name}", f"--preset={args.preset}"]
+        train_args = [f"--data={args.data}", f"--out={args.out / name}", f"--network={name}", f"--preset={args.preset}"] + [f"--extra={e}" for e in args.extra]
         budget = f"--steps={args.steps}" if args.steps else f"--minutes={args.minutes}"
         train_args += [budget, f"--batch={args.batch}", f"--schedule={args.schedule}", f"--device={args.device}", f"--workers={args.workers}"]
         train_args += [f"--eval-minutes={args.eval_minutes}", f"--seed={args.seed}"] + ([f"--threads={args.threads}"] if args.threads else [])
         config = config_from_args(build_parser().parse_args(train_args))
         started = time.perf_counter()
-        result, table = run(config, args.data, args.out / name, progress=sys.stderr.isatty())
+        result, table = run(config, args.data, args.out / name, extra=args.extra, progress=sys.stderr.isatty())
         wall = time.perf_counter() - started
         entry: dict = {"steps": result.steps, "training_minutes": result.seconds / 60, "wall_minutes": wall / 60}
         report.append(f"## {name} ({args.preset}): {result.steps} steps in {result.seconds / 60:.1f} training minutes")
@@ -104,11 +107,11 @@ def main() -> int:
         (args.out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
         (args.out / "summary.md").write_text("\n".join(report) + "\n")
         print("\n".join(report[-3:]), flush=True)
-    if args.ship and "multi" in summary:
+    if args.ship is not None and args.ship in summary:
         from earcore.pose.export import export_network
 
         SHIPPED.parent.mkdir(parents=True, exist_ok=True)
-        network, meta = load_trained(args.out / "multi")
+        network, meta = load_trained(args.out / args.ship)
         sidecar = export_network(network, meta, SHIPPED)
         print(f"onnxruntime parity: max |Δ| {max(sidecar['parity'].values()):.2e}")
         print(f"shipped weights: {SHIPPED}")

@@ -22,7 +22,7 @@ from earcore.learning.errors import DatasetError
 from earcore.learning.shards import BASE_COLUMNS, columns, read_manifest, read_shard
 from earcore.transforms import rotation_from_quaternion
 
-__all__ = ["ImageDataset", "colour_noise"]
+__all__ = ["ImageDataset", "ImageDatasets", "colour_noise"]
 
 SPLITS = ("train", "test")
 
@@ -184,6 +184,52 @@ class ImageDataset(torch.utils.data.Dataset):
             "coverage": torch.tensor(a["coverage"][i]),
             "index": torch.tensor(i, dtype=torch.int64),
         }
+
+
+class ImageDatasets(torch.utils.data.Dataset):
+    """Several `ImageDataset`s as one (a recordings set and a random-camera set, say):
+    they must show the same robots in the same class order, with as many keypoints and
+    images of one size; the first one's manifest describes them all."""
+
+    def __init__(self, parts: list[ImageDataset]) -> None:
+        if not parts:
+            raise ValueError("ImageDatasets needs at least one dataset")
+        first = parts[0]
+        for other in parts[1:]:
+            for what, mine, theirs in (
+                ("robots", first.robots, other.robots),
+                ("keypoints per image", first.num_keypoints, other.num_keypoints),
+                ("image size", first.image_size, other.image_size),
+                ("joints", first.max_dof, other.max_dof),
+            ):
+                if mine != theirs:
+                    raise DatasetError(f"{other.folder} cannot join {first.folder}: {what} {theirs} there, {mine} here")
+        self.parts = list(parts)
+        self.folder = first.folder
+        self.manifest = first.manifest
+        self.robots = first.robots
+        self.num_keypoints = first.num_keypoints
+        self.max_dof = first.max_dof
+        self.image_size = first.image_size
+        self.split = first.split
+
+    def set_epoch(self, epoch: int) -> None:
+        for part in self.parts:
+            part.set_epoch(epoch)
+
+    def __len__(self) -> int:
+        return sum(len(part) for part in self.parts)
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"index {index} out of range for {n} samples")
+        i = index % n
+        for part in self.parts:
+            if i < len(part):
+                return part[i]
+            i -= len(part)
+        raise AssertionError("unreachable: the index was checked against the total length")
 
 
 def _kp_cells(xyz: np.ndarray, uv: np.ndarray, inside: np.ndarray, valid: np.ndarray) -> np.ndarray:

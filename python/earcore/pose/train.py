@@ -97,6 +97,7 @@ def loss_weights(network: str, given: dict[str, float]) -> dict[str, float]:
 def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser, prog: str = "python -m earcore.pose.train") -> argparse.ArgumentParser:
     p = parser_class(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", type=Path, required=True, help="an earcore-images dataset folder")
+    p.add_argument("--extra", type=Path, action="append", default=[], help="more training images: all of this folder (same robots, size), repeatable")
     p.add_argument("--network", choices=NETWORKS, default=None, help="multi (Paper V, default), cascade (Paper IV) or keypoint")
     p.add_argument("--out", type=Path, required=True, help="the run folder (config, checkpoint, metrics, results)")
     p.add_argument("--preset", choices=sorted(PRESETS), default=None, help="network shape: small (shipped, default) or paper")
@@ -156,7 +157,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
             options[key] = text
     changes["network_options"] = options
     notes = dict(base.get("notes", {}))
-    notes.update({"data": str(args.data), "robots": args.robots, "preset": args.preset or notes.get("preset", "small")})
+    notes.update({"data": str(args.data), "extra": [str(e) for e in args.extra], "robots": args.robots, "preset": args.preset or notes.get("preset", "small")})
     changes["notes"] = notes
     merged = {**base, **changes}
     if not base and "network" not in changes:
@@ -170,17 +171,21 @@ def run(
     out: Path,
     *,
     robots: list[str] | None = None,
+    extra: list[Path] | tuple[Path, ...] = (),
     resume: bool = False,
     progress: bool = True,
     datasets: tuple[Any, Any] | None = None,
 ) -> tuple[TrainResult, Evaluation | None]:
-    """Train `config.network` on `data`'s train split, evaluate on its test split
-    (`datasets`: a (train, test) pair of Datasets instead)."""
+    """Train `config.network` on `data`'s train split and every image of the `extra`
+    folders, evaluate on `data`'s test split (`datasets`: a (train, test) pair of
+    Datasets instead)."""
     weights = loss_weights(config.network, dict(config.loss_weights))
     if datasets is None:
-        from earcore.learning.dataset import ImageDataset  # the Dataset over the earcore-images format
+        from earcore.learning.dataset import ImageDataset, ImageDatasets  # the Dataset over the earcore-images format
 
-        train_set = ImageDataset(data, split="train", robots=robots, noise=True, seed=config.seed)
+        train_set: Any = ImageDataset(data, split="train", robots=robots, noise=True, seed=config.seed)
+        if extra:
+            train_set = ImageDatasets([train_set, *(ImageDataset(e, split=None, robots=robots, noise=True, seed=config.seed + 1 + j) for j, e in enumerate(extra))])
         test_set = ImageDataset(data, split="test", robots=robots, noise=False, seed=config.seed)
     else:
         train_set, test_set = datasets
@@ -203,6 +208,7 @@ def run(
         "keypoint_frames": manifest.get("keypoint_frames", {}),
         "input_size": list(train_set.image_size),
         "data": str(data),
+        "extra": [str(e) for e in extra],
     }
     result = train(
         network,
@@ -237,7 +243,7 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
     except ConfigError as exc:
         parser.error(str(exc))
     try:
-        _, table = run(config, args.data, args.out, robots=args.robots, resume=args.resume, progress=not args.no_progress)
+        _, table = run(config, args.data, args.out, robots=args.robots, extra=args.extra, resume=args.resume, progress=not args.no_progress)
     except ConfigError as exc:  # a setting that does not fit the data or the run (batch size, loss weights)
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

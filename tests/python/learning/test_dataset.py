@@ -148,3 +148,32 @@ def test_quaternions_scalar_first_give_back_the_rotations_they_came_from():
     assert np.allclose(rotation_from_quaternion(wxyz), np.array(rotations), atol=1e-12)
     half = np.radians(30) / 2  # 30° about z
     assert np.allclose(rotation_from_quaternion([np.cos(half), 0, 0, np.sin(half)]), rotation_from_vector([0, 0, np.radians(30)]))
+
+
+def test_datasets_join_in_order_and_refuse_other_robots(folder, tmp_path):
+    from earcore.learning.dataset import ImageDatasets
+
+    train, test = ImageDataset(folder, split="train", noise=False), ImageDataset(folder, split="test", noise=False)
+    both = ImageDatasets([train, test])
+    assert len(both) == len(train) + len(test) == 12
+    assert both.robots == train.robots and both.image_size == train.image_size and both.num_keypoints == train.num_keypoints
+    items = [train[i] for i in range(len(train))] + [test[i] for i in range(len(test))]
+    for i, want in enumerate(items):
+        got = both[i]
+        assert torch.equal(got["image"], want["image"]) and torch.equal(got["keypoints"], want["keypoints"])
+    assert torch.equal(both[-1]["image"], items[-1]["image"])
+    with pytest.raises(IndexError):
+        both[12]
+    # The epoch reaches every part: noisy parts draw new noise together.
+    noisy = ImageDatasets([ImageDataset(folder, split="train", noise=True), ImageDataset(folder, split="test", noise=True)])
+    first = noisy[len(train)]["image"].clone()
+    noisy.set_epoch(1)
+    assert not torch.equal(noisy[len(train)]["image"], first)
+    other = copy(folder, tmp_path)
+    manifest = json.loads((other / "manifest.json").read_text())
+    manifest["robots"] = ["panda", "ur3"]
+    (other / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(DatasetError, match="robots"):
+        ImageDatasets([train, ImageDataset(other, split=None)])
+    with pytest.raises(ValueError):
+        ImageDatasets([])

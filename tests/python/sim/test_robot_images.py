@@ -189,7 +189,7 @@ def test_recordings_keep_the_camera_while_the_joints_sweep():
     assert len({tuple(np.round(c[:3, 3], 6)) for c in cameras}) == 3
 
 
-def test_random_mode_moves_the_camera_every_image_and_the_robot_covers_5_to_20_percent():
+def test_random_mode_moves_the_camera_every_image_out_of_the_arms_reach_with_the_robot_in_view():
     options = RobotImageOptions(robots=("ur5",), mode="random", count=40, shard_size=40)
     renderer = RobotImageRenderer(options)
     out = [renderer.render(s) for s in plan_shards(options)[0]]
@@ -197,9 +197,16 @@ def test_random_mode_moves_the_camera_every_image_and_the_robot_covers_5_to_20_p
     assert len({tuple(np.round(s.world_from_camera[:3, 3], 6)) for s in out}) == 40
     coverage = np.array([s.sample.row["coverage"] for s in out])
     assert np.all(coverage == [float((s.sample.links > 0).mean()) for s in out])
-    # Most images in the papers' range (6-17 %), widened to 3-25 %.
-    assert np.mean((coverage >= 0.03) & (coverage <= 0.25)) >= 0.8
-    assert 0.05 <= np.median(coverage) <= 0.2
+    # No keypoint near the lens: the camera is out of the arm's reach (0.85 m for a UR5).
+    eyes = np.stack([s.world_from_camera[:3, 3] for s in out])
+    nearest = np.array([np.linalg.norm(s.keypoints_world - eye, axis=1).min() for s, eye in zip(out, eyes)])
+    assert nearest.min() > 0.15
+    # The whole arm in view in most images; the robot's share of the image as in the papers
+    # (6-17 %, here 3-25 %) in most of them.
+    inside = np.array([[s.sample.row[f"kp{i}_in_image"] for i in range(7)] for s in out])
+    assert inside.all(1).mean() >= 0.8
+    assert np.mean((coverage >= 0.03) & (coverage <= 0.25)) >= 0.7
+    assert 0.04 <= np.median(coverage) <= 0.2
 
 
 def test_a_renderer_prints_nothing(tmp_path):
