@@ -30,9 +30,12 @@ from pathlib import Path
 import torch
 
 from earcore.learning.dataset import ImageDataset
+from earcore.learning.metrics_log import plot_comparison, read_metrics
 from earcore.pose.evaluate import evaluate
 from earcore.pose.train import build_parser, config_from_args, load_trained, run
 
+#: The accuracy-vs-time curves drawn side by side (curves.png).
+CURVES = ("joints_median_cm", "base_median_cm", "mask_iou", "type_accuracy")
 SHIPPED = Path(__file__).resolve().parents[1] / "python" / "earcore" / "pose" / "weights" / "pose.onnx"
 
 
@@ -107,6 +110,10 @@ def main() -> int:
         (args.out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
         (args.out / "summary.md").write_text("\n".join(report) + "\n")
         print("\n".join(report[-3:]), flush=True)
+    runs = {name: args.out / name / "metrics.jsonl" for name in summary if (args.out / name / "metrics.jsonl").is_file()}
+    keys = [k for k in CURVES if any(k in r for path in runs.values() for r in read_metrics(path) if r.get("kind") == "eval")]
+    if runs and keys:
+        plot_comparison(runs, keys, args.out / "curves.png", title=f"{args.preset} preset, test split, {machine()}")
     if args.ship is not None and args.ship in summary:
         from earcore.pose.export import export_network
 

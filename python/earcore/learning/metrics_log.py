@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["MetricsLog", "plot_metrics", "read_metrics"]
+__all__ = ["MetricsLog", "plot_comparison", "plot_metrics", "read_metrics"]
 
 
 def _plain(value: Any) -> Any:
@@ -85,16 +85,57 @@ def curve_keys(rows: list[dict]) -> list[str]:
     return sorted({k for r in rows for k, v in r.items() if k not in BOOKKEEPING and not k.startswith("w_") and isinstance(v, (int, float))})
 
 
-def plot_metrics(path: str | Path, out: str | Path | None = None) -> list[Path]:
-    """Curves of a metrics file: `losses.png` (training losses against step) and
-    `eval.png` (each evaluation metric against training minutes: the accuracy-vs-time
-    curve). Returns the files written; none if matplotlib is not installed."""
+def _pyplot() -> Any:
+    """matplotlib's pyplot without a display; None if matplotlib is not installed."""
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
+        return None
+    return plt
+
+
+def plot_comparison(runs: Mapping[str, str | Path], keys: list[str], out: str | Path, *, title: str = "") -> Path | None:
+    """Several runs' evaluation curves on shared axes: one panel per metric in `keys`,
+    one line per run (`runs`: label → metrics file), against training minutes. Returns
+    the PNG written; None if matplotlib is not installed. A metric no run logged is a
+    `ValueError` naming those that were logged."""
+    plt = _pyplot()
+    if plt is None:
+        return None
+    rows = {label: [r for r in read_metrics(path) if r.get("kind") == "eval"] for label, path in runs.items()}
+    logged = sorted({k for rs in rows.values() for k in curve_keys(rs)})
+    missing = [k for k in keys if k not in logged]
+    if missing:
+        raise ValueError(f"no run logged {', '.join(missing)}; logged: {', '.join(logged) or 'nothing'}")
+    fig, axes = plt.subplots(1, len(keys), figsize=(3.6 * len(keys), 3.0), squeeze=False)
+    for ax, key in zip(axes[0], keys):
+        for label, rs in rows.items():
+            pts = [(r["seconds"] / 60.0, r[key]) for r in rs if isinstance(r.get(key), (int, float))]
+            if pts:
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=".", lw=1, label=label)
+        ax.set_xlabel("training minutes")
+        ax.set_title(key, fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    target = Path(out)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(target, dpi=90)
+    plt.close(fig)
+    return target
+
+
+def plot_metrics(path: str | Path, out: str | Path | None = None) -> list[Path]:
+    """Curves of a metrics file: `losses.png` (training losses against step) and
+    `eval.png` (each evaluation metric against training minutes: the accuracy-vs-time
+    curve). Returns the files written; none if matplotlib is not installed."""
+    plt = _pyplot()
+    if plt is None:
         return []
     path = Path(path)
     if not path.is_file():
