@@ -66,7 +66,7 @@ def main() -> int:
     parser.add_argument("--eval-minutes", type=float, default=5.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("benches/out/pose"))
-    parser.add_argument("--refine", action="store_true", help="also report the keypoint network after the kinematic fit (needs the compiled core)")
+    parser.add_argument("--refine", action="store_true", help="also report the keypoint network after the kinematic fit and with PnP (needs the compiled core)")
     parser.add_argument("--ship", nargs="?", const="multi", default=None, metavar="NETWORK", help="export this network (default multi) as the shipped weights")
     args = parser.parse_args()
 
@@ -102,10 +102,11 @@ def main() -> int:
             test = ImageDataset(args.data, split="test", noise=False)
             sets = [("test", test, "test split")] + ([("heldout", heldout, "held-out recordings")] if heldout is not None else [])
             for key, data, label in sets:
-                fitted = evaluate(trained, data, "cpu", robots=data.robots, keypoint_names=meta.get("keypoints"), refined=True)
-                fitted.save(args.out / name, f"{key}-refined", f"keypoint + kinematic fit, {label}")
-                entry[f"{key}_refined"] = fitted.metrics
-                report.append(fitted.markdown(f"{label}, after the kinematic fit"))
+                for mode, how in (("fit", "after the kinematic fit"), ("pnp", "the base by PnP, the joint angles known")):
+                    fitted = evaluate(trained, data, "cpu", robots=data.robots, keypoint_names=meta.get("keypoints"), refined=mode)
+                    fitted.save(args.out / name, f"{key}-{mode}", f"keypoint, {how}, {label}")
+                    entry[f"{key}_{mode}"] = fitted.metrics
+                    report.append(fitted.markdown(f"{label}, {how}"))
         summary[name] = entry
         (args.out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
         (args.out / "summary.md").write_text("\n".join(report) + "\n")

@@ -17,6 +17,9 @@ from pathlib import Path
 
 from earcore.app.arguments import Parser, fail
 
+#: How a refined table is titled.
+REFINED_LABELS = {"fit": " + kinematic fit", "pnp": " + PnP with the joint angles known"}
+
 __all__ = ["evaluate_main", "export_main", "train_main"]
 
 
@@ -54,7 +57,14 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robots", nargs="*", default=None)
     parser.add_argument("--out", type=Path, default=None, help="write results.md / results.json here (default: the run folder)")
     parser.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu")
-    parser.add_argument("--refine", action="store_true", help="fit the robot's kinematics to the keypoints first (the keypoint network)")
+    parser.add_argument(
+        "--refine",
+        nargs="?",
+        const="fit",
+        choices=("fit", "pnp"),
+        default=None,
+        help="refine the keypoint network's 2D keypoints: fit the robot's kinematics (fit, the default) or PnP with the labels' joints (pnp)",
+    )
     args = parser.parse_args(rest)
     from earcore.errors import EarcoreError
     from earcore.learning.dataset import ImageDataset
@@ -74,8 +84,8 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     except (EarcoreError, ValueError) as exc:
         return fail("earcore evaluate pose", str(exc), 1)
     out = args.out or (args.checkpoint if args.checkpoint.is_dir() else args.checkpoint.parent)
-    stem = f"results-{args.split}" + ("-refined" if args.refine else "")
-    md, _ = table.save(out, stem, f"{meta['network']}{' + kinematic fit' if args.refine else ''}, {args.split} split of {args.data}")
+    stem = f"results-{args.split}" + (f"-{args.refine}" if args.refine else "")
+    md, _ = table.save(out, stem, f"{meta['network']}{REFINED_LABELS.get(args.refine, '')}, {args.split} split of {args.data}")
     print(table.markdown())
     print(f"wrote {md} and its .json")
     return 0

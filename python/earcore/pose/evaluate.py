@@ -111,6 +111,7 @@ def predict(model: torch.nn.Module, dataset: Any, device: torch.device, limit: i
                 if "pixels" in out:
                     parts["pixels"] = out["pixels"]
                     parts["intrinsics"] = batch["intrinsics"]
+                    parts["joints"] = batch["joints"]
                 for k, v in parts.items():
                     keep.setdefault(k, []).append(v.cpu().numpy())
     finally:
@@ -142,21 +143,32 @@ def _metrics(p: dict[str, np.ndarray], rows: np.ndarray) -> tuple[dict[str, floa
     return out, [float(100 * e) for e, c in zip(per_kp, valid.sum(0)) if c > 0]
 
 
-def refine_predictions(p: dict[str, np.ndarray], robots: Sequence[str], frames: dict[str, list], *, starts: int = 4) -> dict[str, np.ndarray]:
-    """`p` with each image's keypoints and base replaced by the robot's kinematic fit to
-    the network's pixels and depths (`earcore.pose.refine`; needs the compiled core), for
-    networks that give pixels. The robot is the predicted type (the true one without a
-    type head); `frames` are the dataset manifest's `keypoint_frames`."""
+#: What `refine_predictions` does with a network's 2D keypoints.
+REFINEMENTS = ("fit", "pnp")
+#: PnP leaves out keypoints this far (pixels) from the RANSAC consensus.
+PNP_OUTLIER_PX = 4.0
+
+
+def refine_predictions(p: dict[str, np.ndarray], robots: Sequence[str], frames: dict[str, list], *, starts: int = 4, mode: str = "fit") -> dict[str, np.ndarray]:
+    """`p` with each image's keypoints and base replaced, for networks that give pixels
+    (`earcore.pose.refine`; needs the compiled core). "fit": the robot's kinematic fit
+    (joint angles and base pose) to the network's pixels and depths, the robot being the
+    predicted type (the true one without a type head). "pnp": the joint angles known
+    (the labels', as a robot controller reports them), the base pose by PnP on the
+    pixels (DREAM's setting; outlying keypoints left out). `frames` are the dataset
+    manifest's `keypoint_frames`."""
     if "pixels" not in p:
         raise ValueError("only a network with 2D keypoints (the keypoint variant) can be refined")
+    if mode not in REFINEMENTS:
+        raise ValueError(f"mode must be one of {', '.join(REFINEMENTS)}, got {mode!r}")
     from earcore import robots as robot_models
-    from earcore.pose.refine import refine
+    from earcore.pose.refine import keypoints_in_base, pnp_base, refine
 
     models: dict[str, Any] = {}
     out = dict(p)
     out["keypoints"] = p["keypoints"].copy()
     out["base"] = p["base"].copy()
-    kinds = p["type"] if "type" in p else p["robot"]
+    kinds = p["robot"] if mode == "pnp" or "type" not in p else p["type"]
     for i, kind in enumerate(kinds.tolist()):
         name = robots[kind]
         if name not in frames:
@@ -165,6 +177,14 @@ def refine_predictions(p: dict[str, np.ndarray], robots: Sequence[str], frames: 
             models[name] = robot_models.load(name)
         model = models[name]
         n = len(frames[name])
+        if mode == "pnp":
+            q = p["joints"][i, : model.dof].astype(np.float64)
+            pixels, k = p["pixels"][i].astype(np.float64), p["intrinsics"][i].astype(np.float64)
+            pose = pnp_base(model, q, pixels[:n], k, frames=frames[name], base_pixel=pixels[-1], outlier_px=PNP_OUTLIER_PX)
+            points = keypoints_in_base(model, q, frames=frames[name])
+            out["keypoints"][i, :n] = points @ pose[:3, :3].T + pose[:3, 3]
+            out["base"][i] = pose[:3, 3]
+            continue
         fit = refine(
             model,
             p["keypoints"][i, :n].astype(np.float64),
@@ -228,22 +248,22 @@ def evaluate(
     robots: Sequence[str] | None = None,
     keypoint_names: dict[str, list[str]] | None = None,
     timing: bool = True,
-    refined: bool = False,
+    refined: str | None = None,
 ) -> Evaluation:
     """Metrics per robot and over all images of `dataset` (`limit`: that many drawn at
     random, `subset`). `robots` are the network's robots (its type head's classes, in
     order; default: the dataset's `.robots`): the dataset's robots are matched to them by
     name, and a robot the network does not know, or another number of keypoints than
     the network gives, is a `PoseError`. `refined`: after the kinematic fit
-    (`refine_predictions`)."""
+    ("fit") or PnP with the joint angles known ("pnp"): `refine_predictions`."""
     device = torch.device(device)
     names = list(robots if robots is not None else getattr(dataset, "robots", []))
     check_keypoints(model, dataset)
     lookup = robot_lookup(list(getattr(dataset, "robots", names)), names)
     p = predict(model, dataset, device, limit)
     p["robot"] = lookup[p["robot"]]
-    if refined:
-        p = refine_predictions(p, names, getattr(dataset, "manifest", {}).get("keypoint_frames", {}))
+    if refined is not None:
+        p = refine_predictions(p, names, getattr(dataset, "manifest", {}).get("keypoint_frames", {}), mode=refined)
     ms = inference_ms(model, dataset[0]["image"].shape, device) if timing else float("nan")
     metrics: dict[str, dict[str, float]] = {}
     per_keypoint: dict[str, list[float]] = {}

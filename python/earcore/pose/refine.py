@@ -35,7 +35,7 @@ import numpy as np
 
 from earcore.pose.errors import PoseError
 
-__all__ = ["Frames", "RefineResult", "keypoint_links", "pnp_base", "refine", "resolve_keypoints"]
+__all__ = ["Frames", "RefineResult", "keypoint_links", "keypoints_in_base", "pnp_base", "refine", "resolve_keypoints"]
 
 
 @dataclass
@@ -215,6 +215,12 @@ class _Chain:
         return np.array(out)  # (K, 3, dof)
 
 
+def keypoints_in_base(robot: Any, joints: np.ndarray, *, frames: Frames | None = None, names: Sequence[str] | None = None) -> np.ndarray:
+    """The keypoints (K, 3) in the robot's base frame at `joints`, given as for `refine`."""
+    links, offsets = _keypoint_frames(robot, None, None, names, frames, None)
+    return _Chain(robot, links, offsets).points(np.asarray(joints, dtype=np.float64))
+
+
 def refine(
     robot: Any,
     keypoints: np.ndarray,
@@ -381,11 +387,16 @@ def pnp_base(
     names: Sequence[str] | None = None,
     frames: Frames | None = None,
     offsets: np.ndarray | None = None,
+    base_pixel: np.ndarray | None = None,
+    outlier_px: float | None = None,
 ) -> np.ndarray:
     """camera_from_base (4, 4) from the keypoints' pixels (K, 2) when the joint angles are
     known: their base-frame positions by forward kinematics, then OpenCV's solvePnP
-    (EPnP, refined iteratively). Needs at least 4 keypoints; the keypoints are given as
-    for `refine`."""
+    (EPnP, refined iteratively). `base_pixel` (2,) adds the base frame's origin as one
+    more point. With `outlier_px`, points farther than that from their reprojection
+    under a RANSAC consensus (at least 4 of them) are left out before the refinement (a
+    network's keypoints fail by whole joints). Needs at least 4 points; the keypoints are
+    given as for `refine`."""
     try:
         import cv2
     except ImportError as exc:
@@ -401,7 +412,19 @@ def pnp_base(
     if len(links) < 4:
         raise ValueError(f"PnP needs at least 4 keypoints, got {len(links)}")
     obj = _Chain(robot, links, offsets).points(np.asarray(joints, dtype=np.float64))
+    if base_pixel is not None:
+        bp = np.asarray(base_pixel, dtype=np.float64).reshape(-1)
+        if bp.shape != (2,) or not np.isfinite(bp).all():
+            raise ValueError(f"base_pixel must be 2 finite numbers, got {base_pixel!r}")
+        obj, uv = np.vstack([obj, np.zeros((1, 3))]), np.vstack([uv, bp[None]])
     k = _check_intrinsics(intrinsics)
+    if outlier_px is not None:
+        if not outlier_px > 0:
+            raise ValueError(f"outlier_px must be > 0, got {outlier_px!r}")
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(obj, uv, k, None, reprojectionError=float(outlier_px), iterationsCount=200, flags=cv2.SOLVEPNP_EPNP)
+        if ok and inliers is not None and len(inliers) >= 4:
+            keep = inliers.ravel()
+            obj, uv = obj[keep], uv[keep]
     ok, rvec, tvec = cv2.solvePnP(obj, uv, k, None, flags=cv2.SOLVEPNP_EPNP)
     if not ok:
         raise PoseError("PnP found no pose")

@@ -113,6 +113,26 @@ def test_pnp_recovers_the_base_pose(ur5):
         pnp_base(ur5, Q, project(points)[:3], K, names=NAMES[:3])
 
 
+def test_pnp_leaves_out_a_misplaced_keypoint_and_uses_the_base(ur5):
+    pytest.importorskip("cv2")
+    pose, points = scene(ur5, Q)
+    uv = project(points)
+    base_uv = project(pose[:3, 3][None])[0]
+    wrong = uv.copy()
+    wrong[4] += [25.0, -18.0]  # an occluded wrist put elsewhere
+    plain = pnp_base(ur5, Q, wrong, K, names=NAMES, base_pixel=base_uv)
+    robust = pnp_base(ur5, Q, wrong, K, names=NAMES, base_pixel=base_uv, outlier_px=3.0)
+    assert np.linalg.norm(plain[:3, 3] - pose[:3, 3]) > 0.01
+    assert np.linalg.norm(robust[:3, 3] - pose[:3, 3]) < 1e-4
+    # The base's pixel is used: moving it moves the answer.
+    moved = pnp_base(ur5, Q, uv, K, names=NAMES, base_pixel=base_uv + [6.0, 0.0])
+    assert np.linalg.norm(moved[:3, 3] - pose[:3, 3]) > 1e-3
+    with pytest.raises(ValueError, match="base_pixel"):
+        pnp_base(ur5, Q, uv, K, names=NAMES, base_pixel=[1.0, np.nan])
+    with pytest.raises(ValueError, match="outlier_px"):
+        pnp_base(ur5, Q, uv, K, names=NAMES, outlier_px=0.0)
+
+
 def test_one_wrong_keypoint_does_not_drag_the_others_with_the_robust_cost(ur5):
     """A network misplaces whole keypoints: with Cauchy's cost (the default) the fit keeps
     the other keypoints near the truth; plain least squares spreads the error over all."""

@@ -113,3 +113,10 @@ def test_refine_predictions_recovers_noiseless_keypoints_through_the_manifests_f
     out = refine_predictions(p, ["ur5"], frames)
     assert np.abs(out["keypoints"][0] - cam).max() < 1e-3
     assert np.abs(out["base"][0] - base).max() < 1e-3
+    # With the joint angles known (the labels'), PnP on the same pixels gives them back too.
+    p["joints"] = np.asarray(Q, dtype=np.float32)[None]
+    out = refine_predictions(p, ["ur5"], frames, mode="pnp")
+    assert np.abs(out["keypoints"][0] - cam).max() < 1e-3
+    assert np.abs(out["base"][0] - base).max() < 1e-3
+    with pytest.raises(ValueError, match="mode must be one of fit, pnp"):
+        refine_predictions(p, ["ur5"], frames, mode="icp")
