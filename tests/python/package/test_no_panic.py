@@ -358,7 +358,9 @@ def run_child(cases, verbose=False):
     import earcore.robots
     from earcore import _earcore as ec
 
-    scratch = Path(tempfile.mkdtemp(prefix="earcore-fuzz-"))
+    # The parent's folder, removed by the parent even when a case kills this process.
+    given = os.environ.get("EARCORE_FUZZ_SCRATCH")
+    scratch = Path(given) if given else Path(tempfile.mkdtemp(prefix="earcore-fuzz-"))
     os.chdir(scratch)
     ur5 = earcore.robots.load("ur5")
     toy = ec.RobotModel(
@@ -439,15 +441,16 @@ def _surface(ec, rng):
 
 
 def _child(cases, timeout):
-    env = dict(os.environ, RUST_BACKTRACE="0")
     cmd = [sys.executable, str(HERE), "--child", ",".join(map(str, cases))]
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
-        out, code, timed_out = proc.stdout, proc.returncode, False
-    except subprocess.TimeoutExpired as exc:
-        raw = exc.stdout or b""
-        out, code, timed_out = raw.decode() if isinstance(raw, bytes) else raw, None, True
-        proc = None
+    with tempfile.TemporaryDirectory(prefix="earcore-fuzz-") as scratch:
+        env = dict(os.environ, RUST_BACKTRACE="0", EARCORE_FUZZ_SCRATCH=scratch)
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+            out, code, timed_out = proc.stdout, proc.returncode, False
+        except subprocess.TimeoutExpired as exc:
+            raw = exc.stdout or b""
+            out, code, timed_out = raw.decode() if isinstance(raw, bytes) else raw, None, True
+            proc = None
     lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
     return lines, code, timed_out, (proc.stderr[-2000:] if proc else "")
 
