@@ -18,11 +18,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from earcore.learning.crops import Box, box_around, crop, crop_intrinsics, crop_labels, crop_pixels
 from earcore.learning.errors import DatasetError
 from earcore.learning.shards import BASE_COLUMNS, columns, read_manifest, read_shard
 from earcore.transforms import rotation_from_quaternion
 
-__all__ = ["ImageDataset", "ImageDatasets", "colour_noise"]
+__all__ = ["ImageDataset", "ImageDatasets", "ZoomedImages", "colour_noise"]
 
 SPLITS = ("train", "test")
 
@@ -230,6 +231,85 @@ class ImageDatasets(torch.utils.data.Dataset):
                 return part[i]
             i -= len(part)
         raise AssertionError("unreachable: the index was checked against the total length")
+
+
+class ZoomedImages(torch.utils.data.Dataset):
+    """The items of `dataset` (images `zoom` times the network's input size) at the input
+    size: with probability `whole` the whole image shrunk, otherwise a box around the
+    robot's keypoints and base (from the labels, a `margin` drawn in its range on every
+    side, its size and place jittered by up to `jitter` of it, as a first look at the
+    whole image would place it), never zoomed past the source's resolution. The image,
+    mask, links, pixels and intrinsics follow the box; the 3D labels stay. The same for
+    the same (seed, epoch, index)."""
+
+    def __init__(self, dataset: Any, zoom: int, *, whole: float = 0.3, margin: tuple[float, float] = (0.15, 0.45), jitter: float = 0.15, seed: int = 0) -> None:
+        w, h = dataset.image_size
+        if isinstance(zoom, bool) or not isinstance(zoom, int) or zoom < 2 or w % zoom or h % zoom:
+            raise ValueError(f"zoom must be a whole number >= 2 dividing the images' size {w}×{h}, got {zoom!r}")
+        if not 0.0 <= whole <= 1.0 or not 0.0 <= margin[0] <= margin[1] or not 0.0 <= jitter < 1.0:
+            raise ValueError(f"whole must be in [0, 1], margin a range of fractions >= 0, jitter in [0, 1); got {whole}, {margin}, {jitter}")
+        self.dataset, self.zoom = dataset, zoom
+        self.whole, self.margin, self.jitter, self.seed = whole, margin, jitter, int(seed)
+        self.source_size: tuple[int, int] = (w, h)
+        self.image_size: tuple[int, int] = (w // zoom, h // zoom)
+        self.robots, self.num_keypoints = dataset.robots, dataset.num_keypoints
+        self.folder, self.manifest = getattr(dataset, "folder", None), getattr(dataset, "manifest", {})
+        self.max_dof, self.split = getattr(dataset, "max_dof", None), getattr(dataset, "split", None)
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+        if hasattr(self.dataset, "set_epoch"):
+            self.dataset.set_epoch(epoch)
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def box(self, item: dict[str, torch.Tensor], rng: np.random.Generator) -> Box:
+        """Where `item` is zoomed into (source pixels)."""
+        w, h = self.source_size
+        if rng.random() < self.whole:
+            return Box.whole(w, h)
+        k = item["intrinsics"].numpy().astype(np.float64)
+        base = item["base"].numpy().astype(np.float64)
+        points = item["pixels"].numpy()[item["keypoint_valid"].numpy()].astype(np.float64)
+        if base[2] > 1e-3:
+            points = np.vstack([points, (k @ base)[:2] / base[2]])
+        out_w, out_h = self.image_size
+        found = box_around(points, (w, h), (out_w, out_h), margin=rng.uniform(*self.margin), min_width=out_w)
+        width = max(found.width * float(np.exp(rng.uniform(-self.jitter, self.jitter))), float(out_w))
+        height = width * out_h / out_w
+        cx = found.left + found.width / 2 + rng.uniform(-self.jitter, self.jitter) * width
+        cy = found.top + found.height / 2 + rng.uniform(-self.jitter, self.jitter) * height
+        return Box(cx - width / 2, cy - height / 2, width, height)
+
+    def zoomed(self, item: dict[str, torch.Tensor], box: Box) -> dict[str, torch.Tensor]:
+        """`item` seen through `box`."""
+        out = self.image_size
+        valid = item["keypoint_valid"].numpy()
+        links = crop_labels(item["links"].numpy(), box, out)
+        pixels = np.where(valid[:, None], crop_pixels(item["pixels"].numpy(), box, out), 0.0).astype(np.float32)
+        seen = (pixels[:, 0] >= -0.5) & (pixels[:, 0] < out[0] - 0.5) & (pixels[:, 1] >= -0.5) & (pixels[:, 1] < out[1] - 0.5)
+        inside = valid & seen & (item["keypoints"].numpy()[:, 2] > 0)
+        image = crop(item["image"].numpy().transpose(1, 2, 0), box, out)
+        zoomed = dict(item)
+        zoomed.update(
+            {
+                "image": torch.from_numpy(np.ascontiguousarray(np.clip(image, 0.0, 1.0).transpose(2, 0, 1))),
+                "mask": torch.from_numpy((links > 0).astype(np.float32)[None]),
+                "links": torch.from_numpy(links.astype(np.int64)),
+                "pixels": torch.from_numpy(pixels),
+                "keypoint_in_image": torch.from_numpy(inside),
+                "intrinsics": torch.from_numpy(crop_intrinsics(item["intrinsics"].numpy(), box, out).astype(np.float32)),
+                "coverage": torch.tensor(float((links > 0).mean())),
+            }
+        )
+        return zoomed
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        item = self.dataset[index]
+        rng = np.random.default_rng([self.seed, self.epoch, index % len(self), 7])
+        return self.zoomed(item, self.box(item, rng))
 
 
 def _kp_cells(xyz: np.ndarray, uv: np.ndarray, inside: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ import torch
 
 from earcore.learning.train import collate, to_device
 from earcore.pose.errors import PoseError
+from earcore.pose.zoom import two_looks
 
 __all__ = ["Evaluation", "check_keypoints", "evaluate", "evaluator", "inference_ms", "predict", "refine_predictions", "robot_lookup", "subset"]
 
@@ -95,7 +96,10 @@ def predict(model: torch.nn.Module, dataset: Any, device: torch.device, limit: i
         with torch.no_grad():
             for start in range(0, n, batch_size):
                 batch = to_device(collate([dataset[i] for i in indices[start : start + batch_size]]), device)
-                out = model(batch["image"], None, batch["intrinsics"])
+                if getattr(getattr(model, "options", None), "zoom", 1) > 1:
+                    out = two_looks(model, batch["image"], batch["intrinsics"])
+                else:
+                    out = model(batch["image"], None, batch["intrinsics"])
                 parts = {
                     "mask": (out["mask_logits"] > 0)[:, 0],
                     "mask_true": batch["mask"][:, 0] > 0.5,
@@ -220,7 +224,13 @@ def robot_lookup(data_robots: Sequence[str], network_robots: Sequence[str]) -> n
 
 
 def inference_ms(model: torch.nn.Module, image_shape: Sequence[int], device: torch.device, repeats: int = 20) -> float:
-    """Median time of one forward pass on one image (torch, eval mode)."""
+    """Median time of the forward passes for one image (torch, eval mode): one, or two for
+    a network that looks twice (`earcore.pose.zoom`; the box's cut not counted)."""
+    options = getattr(model, "options", None)
+    looks = 2 if getattr(options, "zoom", 1) > 1 else 1
+    if looks > 1:
+        w, h = options.input_size  # type: ignore[union-attr]
+        image_shape = (image_shape[0], h, w)
     x = torch.rand(1, *image_shape, device=device)
     was = model.training
     model.eval()
@@ -229,7 +239,8 @@ def inference_ms(model: torch.nn.Module, image_shape: Sequence[int], device: tor
         with torch.no_grad():
             for i in range(repeats + 3):
                 t = time.perf_counter()
-                model(x)
+                for _ in range(looks):
+                    model(x)
                 if device.type == "cuda":
                     torch.cuda.synchronize(device)
                 if i >= 3:

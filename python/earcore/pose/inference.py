@@ -28,7 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from earcore.learning.crops import Box, crop, crop_intrinsics, resample_matrix, uncrop_pixels
 from earcore.pose.errors import PoseWeightsError
+from earcore.pose.zoom import second_look_box
 
 __all__ = ["DEFAULT_WEIGHTS", "PoseEstimate", "estimate", "load_model", "resize"]
 
@@ -120,26 +122,6 @@ def load_model(weights: str | Path | None = None, threads: int | None = None) ->
     return _load(str(path.resolve()), path.stat().st_mtime, threads)
 
 
-def _resize_matrix(n_in: int, n_out: int) -> np.ndarray:
-    """(n_out, n_in) weights: box average over each output pixel's footprint when
-    shrinking, linear interpolation between pixel centres when growing."""
-    m = np.zeros((n_out, n_in))
-    scale = n_in / n_out
-    if scale >= 1.0:
-        for o in range(n_out):
-            lo, hi = o * scale, (o + 1) * scale
-            for i in range(int(np.floor(lo)), min(n_in, int(np.ceil(hi)))):
-                m[o, i] = min(hi, i + 1) - max(lo, i)
-        return m / m.sum(1, keepdims=True)
-    centres = np.clip((np.arange(n_out) + 0.5) * scale - 0.5, 0, n_in - 1)
-    left = np.floor(centres).astype(int)
-    right = np.minimum(left + 1, n_in - 1)
-    t = centres - left
-    m[np.arange(n_out), left] += 1 - t
-    m[np.arange(n_out), right] += t
-    return m
-
-
 def resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
     """(H, W) or (H, W, C) float image → (height, width[, C]), in the image's precision."""
     h, w = image.shape[:2]
@@ -156,8 +138,8 @@ def resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
         for i in range(1, fy):
             out += rows[:, i]
         return out * np.float32(1.0 / (fy * fx))
-    rows = _resize_matrix(h, height).astype(image.dtype)
-    cols = _resize_matrix(w, width).astype(image.dtype)
+    rows = resample_matrix(h, height).astype(image.dtype)
+    cols = resample_matrix(w, width).astype(image.dtype)
     if image.ndim == 2:
         return rows @ image @ cols.T
     c = image.shape[2]
@@ -186,7 +168,7 @@ def _image(image: Any) -> np.ndarray:
 def _camera(camera: Any, model: _Model, width: int, height: int) -> np.ndarray:
     if camera is None:
         w, h = model.input_size
-        return _scaled(model.intrinsics, width / w, height / h)
+        return crop_intrinsics(model.intrinsics, Box.whole(w, h), (width, height))
     k = getattr(camera, "K", camera)
     k = np.asarray(k, dtype=np.float64)
     if k.shape != (3, 3) or not np.isfinite(k).all() or k[0, 0] <= 0 or k[1, 1] <= 0:
@@ -194,14 +176,11 @@ def _camera(camera: Any, model: _Model, width: int, height: int) -> np.ndarray:
     return k
 
 
-def _scaled(k: np.ndarray, sx: float, sy: float) -> np.ndarray:
-    """Intrinsics of an image resized by (sx, sy), pixel centres at integers."""
-    out = k.copy()
-    out[0, 0] *= sx
-    out[1, 1] *= sy
-    out[0, 2] = (k[0, 2] + 0.5) * sx - 0.5
-    out[1, 2] = (k[1, 2] + 0.5) * sy - 0.5
-    return out
+def _run(model: _Model, image: np.ndarray) -> dict[str, np.ndarray]:
+    """The network's outputs by name for one (h, w, 3) float image at its input size."""
+    inputs = np.ascontiguousarray(image.transpose(2, 0, 1)[None], dtype=np.float32)
+    names = [o.name for o in model.session.get_outputs()]
+    return dict(zip(names, model.session.run(names, {"image": inputs})))
 
 
 def estimate(image: np.ndarray, camera: Any = None, weights: str | Path | None = None, *, threads: int | None = None) -> PoseEstimate:
@@ -212,13 +191,16 @@ def estimate(image: np.ndarray, camera: Any = None, weights: str | Path | None =
     model = load_model(weights, threads)
     height, width = rgb.shape[:2]
     k_image = _camera(camera, model, width, height)
-    w, h = model.input_size
-    sx, sy = w / width, h / height
-    small = resize(rgb, w, h) if (w, h) != (width, height) else rgb
-    k_net = _scaled(k_image, sx, sy)
-    inputs = np.ascontiguousarray(small.transpose(2, 0, 1)[None], dtype=np.float32)
-    names = [o.name for o in model.session.get_outputs()]
-    out = dict(zip(names, model.session.run(names, {"image": inputs})))
+    size = model.input_size
+    box = Box.whole(width, height)
+    first = _run(model, resize(rgb, *size) if size != (width, height) else rgb)
+    out = first
+    zoom = int(model.sidecar.get("options", {}).get("zoom", 1))
+    if zoom > 1 and "pixels" in first:
+        # The second look: a box around what the first found, at up to `zoom` times its resolution.
+        box = second_look_box(uncrop_pixels(first["pixels"][0].astype(np.float64), box, size), (width, height), size, zoom)
+        out = _run(model, crop(rgb, box, size))
+    k_net = crop_intrinsics(k_image, box, size)
 
     k_t = model.intrinsics
     points = np.concatenate([out["keypoints"][0], out["base"][0][None]]).astype(np.float64)
@@ -229,10 +211,10 @@ def estimate(image: np.ndarray, camera: Any = None, weights: str | Path | None =
         uv = np.stack([k_t[0, 0] * points[:, 0] / z + k_t[0, 2], k_t[1, 1] * points[:, 1] / z + k_t[1, 2]], 1)
     z_true = points[:, 2] * np.sqrt(k_net[0, 0] * k_net[1, 1] / (k_t[0, 0] * k_t[1, 1]))
     xyz = np.stack([(uv[:, 0] - k_net[0, 2]) * z_true / k_net[0, 0], (uv[:, 1] - k_net[1, 2]) * z_true / k_net[1, 1], z_true], 1)
-    pixels = np.stack([(uv[:, 0] + 0.5) / sx - 0.5, (uv[:, 1] + 0.5) / sy - 0.5], 1)
+    pixels = uncrop_pixels(uv, box, size)
 
-    logits = out["mask_logits"][0, 0].astype(np.float32)
-    mask = (resize(logits, width, height) if (w, h) != (width, height) else logits) > 0
+    logits = first["mask_logits"][0, 0].astype(np.float32)
+    mask = (resize(logits, width, height) if size != (width, height) else logits) > 0
 
     robots = list(model.sidecar["robots"])
     probabilities: dict[str, float] = {}

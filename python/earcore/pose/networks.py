@@ -74,6 +74,10 @@ class NetworkOptions:
     mask_dilations: list[int] = field(default_factory=lambda: [5, 3, 5, 3])
     #: the keypoint network's heatmap stride (4: 32×27 heatmaps at 128×106)
     heatmap_stride: int = 4
+    #: the keypoint network only: > 1 reads boxes around the robot cut from images this
+    #: many times the input size (a first look at the whole image shrunk places the box;
+    #: `earcore.pose.zoom`); depths then follow each box's focal length
+    zoom: int = 1
 
     def __post_init__(self) -> None:
         self.input_size = tuple(self.input_size)  # type: ignore[assignment]
@@ -93,6 +97,8 @@ class NetworkOptions:
             raise ConfigError(f"mask_stride must be 1, 2 or 4, got {self.mask_stride!r}")
         if self.heatmap_stride not in (2, 4, 8):
             raise ConfigError(f"heatmap_stride must be 2, 4 or 8, got {self.heatmap_stride!r}")
+        if isinstance(self.zoom, bool) or not isinstance(self.zoom, int) or not 1 <= self.zoom <= 8:
+            raise ConfigError(f"zoom must be a whole number in [1, 8], got {self.zoom!r}")
         if self.norm not in ("batch", "group", "none"):
             raise ConfigError(f"norm must be 'batch', 'group' or 'none', got {self.norm!r}")
         if self.activation not in ("relu", "elu", "leaky"):
@@ -426,6 +432,11 @@ class KeypointNet(PoseNetwork):
         else:
             fx, fy = intrinsics[:, 0, 0:1], intrinsics[:, 1, 1:2]
             cx, cy = intrinsics[:, 0, 2:3], intrinsics[:, 1, 2:3]
+            if self.options.zoom > 1:
+                # A box zoomed s times shows the robot as the network's camera would at
+                # depth z / s: the network gives that depth, the focal lengths the rest
+                # (the rule `earcore.pose.estimate` applies to any camera).
+                z = z * torch.sqrt(fx * fy / (self.camera[0] * self.camera[1]))
         points = torch.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], dim=2)
         pooled = coarse.mean(dim=(2, 3))
         return {
@@ -437,6 +448,8 @@ class KeypointNet(PoseNetwork):
         }
 
 
+_ZOOM_ONLY = "zoom is for the keypoint network (its depths follow each box's focal length); the {name} network regresses 3D from the whole image"
+
 _CLASSES: dict[str, type[PoseNetwork]] = {"multi": MultiObjectiveNet, "cascade": CascadeNet, "keypoint": KeypointNet}
 
 
@@ -446,6 +459,8 @@ def build_network(name: str, options: NetworkOptions | dict[str, Any] | None = N
     if name not in _CLASSES:
         raise ConfigError(f"network must be one of {', '.join(NETWORKS)}, got {name!r}")
     if isinstance(options, NetworkOptions):
+        if name != "keypoint" and options.zoom != 1:
+            raise ConfigError(_ZOOM_ONLY.format(name=name))
         return _CLASSES[name](options)
     values: dict[str, Any] = {}
     if preset is not None:
@@ -453,6 +468,8 @@ def build_network(name: str, options: NetworkOptions | dict[str, Any] | None = N
             raise ConfigError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
         values.update(PRESETS[preset])
     values.update(options or {})
+    if name != "keypoint" and int(values.get("zoom", 1)) != 1:
+        raise ConfigError(_ZOOM_ONLY.format(name=name))
     if name == "cascade" and "fc" not in (options or {}) and preset in (None, "paper"):
         values["fc"] = 500  # Paper IV's FC 500
     return _CLASSES[name](NetworkOptions.from_dict(values))

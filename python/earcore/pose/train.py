@@ -112,6 +112,7 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     p.add_argument("--robots", nargs="*", default=None, help="train on these robots only")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--eval-minutes", type=float, default=None, help="evaluate on the test split every this many training minutes (default 5)")
+    p.add_argument("--zoom", type=int, default=None, help="keypoint network: boxes around the robot from images this many times its input (2: 256x212 data)")
     p.add_argument("--option", action="append", default=[], metavar="KEY=JSON", help="a network option, e.g. --option width=0.75 --option mask_stride=1")
     p.add_argument("--config", type=Path, default=None, help="a TrainConfig JSON file (the command line's options override it)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
@@ -155,6 +156,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
             options[key] = json.loads(text)
         except json.JSONDecodeError:
             options[key] = text
+    if args.zoom is not None:
+        options["zoom"] = args.zoom
     changes["network_options"] = options
     notes = dict(base.get("notes", {}))
     notes.update({"data": str(args.data), "extra": [str(e) for e in args.extra], "robots": args.robots, "preset": args.preset or notes.get("preset", "small")})
@@ -190,6 +193,14 @@ def run(
     else:
         train_set, test_set = datasets
     options = dict(config.network_options)
+    zoom = options.get("zoom", 1)
+    if zoom != 1:
+        from earcore.learning.dataset import ZoomedImages
+
+        try:
+            train_set = ZoomedImages(train_set, zoom, seed=config.seed)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
     options["input_size"] = list(train_set.image_size)
     options["num_keypoints"] = int(train_set.num_keypoints)
     options["num_robots"] = len(train_set.robots)
