@@ -59,6 +59,7 @@ def main() -> int:
     parser.add_argument("--steps", type=int, default=None, help="a step budget instead (comparisons that CPU contention must not skew)")
     parser.add_argument("--preset", default="small", choices=("small", "paper"))
     parser.add_argument("--device", default="auto", choices=("cpu", "cuda", "auto"))
+    parser.add_argument("--zoom", type=int, default=None, help="keypoint network: a second look at a box this many times sharper (data that many times the input)")
     parser.add_argument("--batch", type=int, default=64)
     parser.add_argument("--schedule", default="cosine", help="learning-rate schedule (exponential, cosine, linear, constant)")
     parser.add_argument("--workers", type=int, default=0, help="data-loading worker processes")
@@ -77,6 +78,8 @@ def main() -> int:
     heldout = ImageDataset(args.heldout, split=None, noise=False) if args.heldout else None
     for name in args.networks.split(","):
         train_args = [f"--data={args.data}", f"--out={args.out / name}", f"--network={name}", f"--preset={args.preset}"] + [f"--extra={e}" for e in args.extra]
+        if args.zoom and name == "keypoint":
+            train_args.append(f"--zoom={args.zoom}")
         budget = f"--steps={args.steps}" if args.steps else f"--minutes={args.minutes}"
         train_args += [budget, f"--batch={args.batch}", f"--schedule={args.schedule}", f"--device={args.device}", f"--workers={args.workers}"]
         train_args += [f"--eval-minutes={args.eval_minutes}", f"--seed={args.seed}"] + ([f"--threads={args.threads}"] if args.threads else [])
