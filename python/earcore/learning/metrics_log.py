@@ -112,10 +112,10 @@ def plot_comparison(runs: Mapping[str, str | Path], keys: list[str], out: str | 
         raise ValueError(f"no run logged {', '.join(missing)}; logged: {', '.join(logged) or 'nothing'}")
     fig, axes = plt.subplots(1, len(keys), figsize=(3.6 * len(keys), 3.0), squeeze=False)
     for ax, key in zip(axes[0], keys):
-        for label, rs in rows.items():
+        for index, (label, rs) in enumerate(rows.items()):
             pts = [(r["seconds"] / 60.0, r[key]) for r in rs if isinstance(r.get(key), (int, float))]
-            if pts:
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=".", lw=1, label=label)
+            if pts:  # a run keeps its colour in every panel, whichever metrics it lacks
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=".", lw=1, label=label, color=f"C{index % 10}")
         ax.set_xlabel("training minutes")
         ax.set_title(key, fontsize=9)
         ax.grid(alpha=0.3)
