@@ -70,11 +70,13 @@ bench: develop ## criterion benches, then the side-by-side comparisons with Octo
 	cargo bench
 	$(MAKE) bench-python
 
-bench-pose: develop $(VENV)/.learning ## labelled-image speed; the three pose networks, 60 min each, side by side; ships the multi network (~3.5 h)
+bench-pose: develop $(VENV)/.learning ## labelled-image speed; the three pose networks, 60 min each with their data, side by side; ships the keypoint network (~3.5 h)
 	$(PY) benches/dataset_generation.py
 	$(VENV)/bin/earcore dataset robots --out benches/out/data/ur --quiet
+	$(VENV)/bin/earcore dataset robots --out benches/out/data/ur-random --mode random --count 2000 --seed 7 --quiet
 	$(VENV)/bin/earcore dataset robots --out benches/out/data/ur-heldout --seed 1001 --scale 0.2 --quiet
-	$(PY) benches/pose_accuracy.py --data benches/out/data/ur --heldout benches/out/data/ur-heldout --minutes 60 --out benches/out/pose --ship
+	$(PY) benches/pose_accuracy.py --data benches/out/data/ur --extra benches/out/data/ur-random --heldout benches/out/data/ur-heldout \
+	  --minutes 57 --refine --out benches/out/pose --ship keypoint
 
 bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python-fcl, open3d-cpu + pyoctomap, small_gicp)
 	@ldconfig -p | grep -q libusb-1.0 || { echo "installing libusb-1.0-0 (open3d needs it)"; \
