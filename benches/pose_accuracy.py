@@ -68,8 +68,12 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("benches/out/pose"))
     parser.add_argument("--refine", action="store_true", help="also report the keypoint network after the kinematic fit and with PnP (needs the compiled core)")
-    parser.add_argument("--ship", nargs="?", const="multi", default=None, metavar="NETWORK", help="export this network (default multi) as the shipped weights")
+    parser.add_argument(
+        "--ship", nargs="?", const="multi", default=None, choices=("multi", "cascade", "keypoint"), help="export this network (default multi) as the shipped weights"
+    )
     args = parser.parse_args()
+    if args.ship is not None and args.ship not in args.networks.split(","):
+        parser.error(f"--ship {args.ship}: that network is not among --networks {args.networks}")
 
     args.out.mkdir(parents=True, exist_ok=True)
     command = "python benches/pose_accuracy.py " + " ".join(sys.argv[1:])

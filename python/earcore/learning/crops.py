@@ -25,6 +25,11 @@ class Box:
     width: float
     height: float
 
+    def __post_init__(self) -> None:
+        values = (self.left, self.top, self.width, self.height)
+        if not all(math.isfinite(v) for v in values) or not (self.width > 0 and self.height > 0):
+            raise ValueError(f"a box needs a finite corner and a size > 0, got left {self.left}, top {self.top}, width {self.width}, height {self.height}")
+
     @classmethod
     def whole(cls, width: int, height: int) -> Box:
         return cls(0.0, 0.0, float(width), float(height))

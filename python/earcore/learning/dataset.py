@@ -272,12 +272,15 @@ class ZoomedImages(torch.utils.data.Dataset):
             return Box.whole(w, h)
         k = item["intrinsics"].numpy().astype(np.float64)
         base = item["base"].numpy().astype(np.float64)
-        points = item["pixels"].numpy()[item["keypoint_valid"].numpy()].astype(np.float64)
+        # Keypoints behind the camera have no pixel worth framing.
+        ahead = item["keypoint_valid"].numpy() & (item["keypoints"].numpy()[:, 2] > 1e-3)
+        points = item["pixels"].numpy()[ahead].astype(np.float64)
         if base[2] > 1e-3:
             points = np.vstack([points, (k @ base)[:2] / base[2]])
         out_w, out_h = self.image_size
         found = box_around(points, (w, h), (out_w, out_h), margin=rng.uniform(*self.margin), min_width=out_w)
-        width = max(found.width * float(np.exp(rng.uniform(-self.jitter, self.jitter))), float(out_w))
+        # Between the source's resolution and the whole image: what a second look can be.
+        width = min(max(found.width * float(np.exp(rng.uniform(-self.jitter, self.jitter))), float(out_w)), float(w))
         height = width * out_h / out_w
         cx = found.left + found.width / 2 + rng.uniform(-self.jitter, self.jitter) * width
         cy = found.top + found.height / 2 + rng.uniform(-self.jitter, self.jitter) * height
@@ -310,6 +313,11 @@ class ZoomedImages(torch.utils.data.Dataset):
         item = self.dataset[index]
         rng = np.random.default_rng([self.seed, self.epoch, index % len(self), 7])
         return self.zoomed(item, self.box(item, rng))
+
+    def first_look(self, index: int) -> dict[str, torch.Tensor]:
+        """Item `index` with the whole image shrunk (a first look): its intrinsics are
+        the network's camera."""
+        return self.zoomed(self.dataset[index], Box.whole(*self.source_size))
 
 
 def _kp_cells(xyz: np.ndarray, uv: np.ndarray, inside: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -84,9 +84,12 @@ def subset(length: int, limit: int | None, seed: int = 0) -> np.ndarray:
     return np.sort(np.random.default_rng([seed, length, limit]).choice(length, size=max(0, limit), replace=False))
 
 
-def predict(model: torch.nn.Module, dataset: Any, device: torch.device, limit: int | None = None, batch_size: int = 32, seed: int = 0) -> dict[str, np.ndarray]:
+def predict(
+    model: torch.nn.Module, dataset: Any, device: torch.device, limit: int | None = None, batch_size: int = 32, seed: int = 0, counts: list[int] | None = None
+) -> dict[str, np.ndarray]:
     """The model's outputs over `dataset` (with `limit`: that many images drawn at random
-    across it, `subset`) beside the labels, as numpy arrays (the mask thresholded)."""
+    across it, `subset`) beside the labels, as numpy arrays (the mask thresholded).
+    `counts`: keypoints per robot type of the network (for a network that looks twice)."""
     indices = subset(len(dataset), limit, seed).tolist()
     n = len(indices)
     keep: dict[str, list[np.ndarray]] = {}
@@ -97,7 +100,7 @@ def predict(model: torch.nn.Module, dataset: Any, device: torch.device, limit: i
             for start in range(0, n, batch_size):
                 batch = to_device(collate([dataset[i] for i in indices[start : start + batch_size]]), device)
                 if getattr(getattr(model, "options", None), "zoom", 1) > 1:
-                    out = two_looks(model, batch["image"], batch["intrinsics"])
+                    out = two_looks(model, batch["image"], batch["intrinsics"], counts)
                 else:
                     out = model(batch["image"], None, batch["intrinsics"])
                 parts = {
@@ -259,22 +262,25 @@ def evaluate(
     robots: Sequence[str] | None = None,
     keypoint_names: dict[str, list[str]] | None = None,
     timing: bool = True,
-    refined: str | None = None,
+    refined: str | bool | None = None,
 ) -> Evaluation:
     """Metrics per robot and over all images of `dataset` (`limit`: that many drawn at
     random, `subset`). `robots` are the network's robots (its type head's classes, in
     order; default: the dataset's `.robots`): the dataset's robots are matched to them by
     name, and a robot the network does not know, or another number of keypoints than
     the network gives, is a `PoseError`. `refined`: after the kinematic fit
-    ("fit") or PnP with the joint angles known ("pnp"): `refine_predictions`."""
+    ("fit", or True) or PnP with the joint angles known ("pnp"): `refine_predictions`."""
     device = torch.device(device)
     names = list(robots if robots is not None else getattr(dataset, "robots", []))
     check_keypoints(model, dataset)
     lookup = robot_lookup(list(getattr(dataset, "robots", names)), names)
-    p = predict(model, dataset, device, limit)
+    given = getattr(dataset, "manifest", {}).get("keypoints", {})
+    counts = [len(given.get(name, [])) or int(getattr(model, "K", 0)) for name in names] or None
+    p = predict(model, dataset, device, limit, counts=counts)
     p["robot"] = lookup[p["robot"]]
-    if refined is not None:
-        p = refine_predictions(p, names, getattr(dataset, "manifest", {}).get("keypoint_frames", {}), mode=refined)
+    mode = "fit" if refined is True else (refined or None)
+    if mode is not None:
+        p = refine_predictions(p, names, getattr(dataset, "manifest", {}).get("keypoint_frames", {}), mode=mode)
     ms = inference_ms(model, dataset[0]["image"].shape, device) if timing else float("nan")
     metrics: dict[str, dict[str, float]] = {}
     per_keypoint: dict[str, list[float]] = {}

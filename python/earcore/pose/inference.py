@@ -30,7 +30,7 @@ import numpy as np
 
 from earcore.learning.crops import Box, crop, crop_intrinsics, resample_matrix, uncrop_pixels
 from earcore.pose.errors import PoseWeightsError
-from earcore.pose.zoom import second_look_box
+from earcore.pose.zoom import first_look_points, second_look_box
 
 __all__ = ["DEFAULT_WEIGHTS", "PoseEstimate", "estimate", "load_model", "resize"]
 
@@ -198,7 +198,10 @@ def estimate(image: np.ndarray, camera: Any = None, weights: str | Path | None =
     zoom = int(model.sidecar.get("options", {}).get("zoom", 1))
     if zoom > 1 and "pixels" in first:
         # The second look: a box around what the first found, at up to `zoom` times its resolution.
-        box = second_look_box(uncrop_pixels(first["pixels"][0].astype(np.float64), box, size), (width, height), size, zoom)
+        found = uncrop_pixels(first["pixels"][0].astype(np.float64), box, size)
+        counts = [len(model.sidecar.get("keypoints", {}).get(r, [])) or int(model.sidecar["num_keypoints"]) for r in model.sidecar["robots"]]
+        types = first["type_logits"][0] if "type_logits" in first and len(counts) == first["type_logits"].shape[1] else None
+        box = second_look_box(first_look_points(found, types, counts), (width, height), size, zoom)
         out = _run(model, crop(rgb, box, size))
     k_net = crop_intrinsics(k_image, box, size)
 

@@ -39,8 +39,10 @@ def fit_statistics(network: PoseNetwork, dataset: Any, samples: int = 256, seed:
     if len(dataset) < 1:
         raise ValueError("the training set is empty")
     points, intrinsics = [], []
+    # A zoomed set's camera is its whole-image look's (what `estimate` scales to an image).
+    look = getattr(dataset, "first_look", dataset.__getitem__)
     for i in subset(len(dataset), samples, seed).tolist():
-        item = dataset[i]
+        item = look(i)
         points.append(item["keypoints"][item["keypoint_valid"]])
         points.append(item["base"][None])
         intrinsics.append(item["intrinsics"])

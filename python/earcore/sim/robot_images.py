@@ -482,8 +482,8 @@ class RobotImageRenderer:
     def _camera(self, rng: np.random.Generator, robot: _Robot, aim: np.ndarray) -> np.ndarray:
         """world_from_camera (OpenCV axes) of a hand-held camera: 0.7-1.2 reaches from
         the aim point (near `aim`, off by ~10 % of the reach), held 0.15-1.2 m above the
-        table top, any side of the robot, rolled by up to ±8°, and moved back along its
-        line of sight until it is 1.2 reaches from the base (out of the arm's way)."""
+        table top, any side of the robot, rolled by up to ±8°, and moved back horizontally
+        until it is 1.2 reaches from the base (out of the arm's way)."""
         reach = robot.reach
         target = aim + rng.normal(0.0, 0.1 * reach, 3)
         distance = reach * rng.uniform(*DISTANCE)
@@ -492,9 +492,10 @@ class RobotImageRenderer:
         horizontal = np.sqrt(max(distance**2 - dz**2, (0.3 * distance) ** 2))
         azimuth = rng.uniform(0, 2 * np.pi)
         eye = target + np.array([horizontal * np.cos(azimuth), horizontal * np.sin(azimuth), dz])
-        # Out of the arm's reach: a robot sweeping its joints would strike a camera inside it.
+        # Out of the arm's reach (a robot sweeping its joints would strike a camera inside
+        # it), moved back horizontally: the held height stays above the table.
         while np.linalg.norm(eye) < CLEARANCE * reach:
-            eye = target + 1.05 * (eye - target)
+            eye[:2] = target[:2] + 1.05 * (eye[:2] - target[:2])
         pose = robot.model.base @ look_at(eye, target)
         roll = np.eye(4)
         roll[:3, :3] = axis_angle_matrix([0, 0, 1], rng.uniform(-np.radians(8), np.radians(8)))

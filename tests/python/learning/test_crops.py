@@ -78,3 +78,9 @@ def test_boxes_hold_their_points_with_the_output_aspect():
         inside = crop_pixels(uv, box, (128, 106))
         assert inside.min() >= -0.5 and inside[:, 0].max() <= 127.5 and inside[:, 1].max() <= 105.5
     assert box_around(np.full((3, 2), np.nan), (256, 212), (128, 106)) == Box.whole(256, 212)
+
+
+def test_a_box_must_have_a_size_and_a_place():
+    for bad in ((0.0, 0.0, 0.0, 10.0), (0.0, 0.0, 10.0, -1.0), (float("nan"), 0.0, 10.0, 10.0), (0.0, float("inf"), 10.0, 10.0)):
+        with pytest.raises(ValueError, match="box"):
+            Box(*bad)

@@ -158,3 +158,31 @@ def test_a_zoom_run_trains_evaluates_and_exports(tmp_path):
     net, meta = load_trained(tmp_path / "run")
     assert net.options.zoom == 2 and net.options.input_size == (32, 32) and meta["input_size"] == [32, 32]
     assert table is not None and table.metrics["all"]["samples"] == 4
+    # The network's camera is the whole image's shrunk to the input (what estimate scales to
+    # an image when given no camera), not a zoomed box's: fx / 2, (cx + 0.5) / 2 - 0.5.
+    k = data[0].intrinsics
+    expected = [[k[0, 0] / 2, 0.0, (k[0, 2] + 0.5) / 2 - 0.5], [0.0, k[1, 1] / 2, (k[1, 2] + 0.5) / 2 - 0.5], [0.0, 0.0, 1.0]]
+    assert np.allclose(net.intrinsics().numpy(), expected, atol=1e-4)
+    from earcore.pose.evaluate import evaluate
+
+    assert evaluate(net, data[1], refined=False, timing=False).metrics["all"]["samples"] == 4
+
+
+def test_keypoints_behind_the_camera_do_not_frame_the_box():
+    data = FakeDataset(4, 64, 64, keypoints=4, seed=2)
+    sample = data.samples[1]
+    sample["keypoints"][0, 2] = -0.05
+    sample["pixels"][0] = [5000.0, -3000.0]
+    zoomed = ZoomedImages(data, 2, whole=0.0, jitter=0.0, seed=0)
+    box = zoomed.box(data[1], np.random.default_rng(0))
+    assert box.width <= 64.0 + 1e-9
+    assert zoomed[1]["mask"].sum() > 0
+
+
+def test_padding_keypoints_of_a_smaller_robot_do_not_widen_the_second_look():
+    points = np.array([[0.05, 0.02, 2.0], [0.1, -0.05, 2.1], [3.0, 2.5, 2.2], [0.0, 0.1, 2.0]])  # the third: padding, far off
+    k = torch.tensor([[[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]]])
+    wide = two_looks(Oracle(points), torch.rand(1, 3, 48, 64), k)["boxes"][0]
+    own = two_looks(Oracle(points), torch.rand(1, 3, 48, 64), k, counts=[2, 3])["boxes"][0]  # type 0 (the oracle's logits tie): 2 keypoints
+    assert own.width < wide.width
+    assert own == two_looks(Oracle(points[[0, 1, 3]]), torch.rand(1, 3, 48, 64), k)["boxes"][0]

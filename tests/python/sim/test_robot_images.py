@@ -224,3 +224,19 @@ def test_a_renderer_prints_nothing(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert done.stdout == "done\n" and "pybullet" not in done.stderr and "argv" not in done.stderr, (done.stdout, done.stderr)
+
+
+def test_cameras_stand_out_of_reach_and_above_the_table():
+    """The placement rule over many draws (no rendering): 1.2 reaches or more from the
+    base, 0.15-1.2 m above the table top (the base frame's z = 0)."""
+    renderer = RobotImageRenderer(RobotImageOptions(robots=("ur3", "ur10")))
+    try:
+        for name in ("ur3", "ur10"):
+            robot = renderer._use(name)
+            rng = np.random.default_rng(5)
+            aim = np.array([0.0, 0.0, 0.4 * robot.reach])
+            eyes = np.array([(np.linalg.inv(robot.model.base) @ renderer._camera(rng, robot, aim))[:3, 3] for _ in range(300)])
+            assert np.linalg.norm(eyes, axis=1).min() >= 1.2 * robot.reach - 1e-9
+            assert eyes[:, 2].min() >= 0.15 - 1e-9 and eyes[:, 2].max() <= 1.2 + 1e-9
+    finally:
+        renderer.close()
