@@ -20,10 +20,14 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
 # (normals, outliers), the voxel grid, robot collision checks, synthetic rendering and
 # ICP. Several threads even on a small machine, so the pool is really used.
 WORK = """
-import os, pickle, sys, time
+import os, pickle, signal, sys, time
 import multiprocessing
 import numpy as np
 import earcore
+
+# Python leaves Ctrl-C ignored when the test run was started with it ignored (in the
+# background, under nohup): this child must hear it.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from earcore import _earcore, robots
 
 earcore.set_num_threads(4)
