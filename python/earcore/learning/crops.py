@@ -102,7 +102,7 @@ def crop(image: np.ndarray, box: Box, out_size: tuple[int, int]) -> np.ndarray:
     if src.ndim == 2:
         return rows @ src @ cols.T
     c = src.shape[2]
-    tall = (rows @ src.reshape(height, width * c)).reshape(h, width, c)
+    tall = (rows @ src.reshape(height, width * c)).reshape(h, width, c)  # matrix products, not einsum: BLAS
     return np.ascontiguousarray((tall.transpose(0, 2, 1) @ cols.T).transpose(0, 2, 1))
 
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from earcore.learning.crops import Box, crop, crop_intrinsics, resample_matrix, uncrop_pixels
+from earcore.learning.crops import Box, crop, crop_intrinsics, uncrop_pixels
 from earcore.pose.errors import PoseWeightsError
 from earcore.pose.zoom import first_look_points, second_look_box
 
@@ -138,13 +138,7 @@ def resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
         for i in range(1, fy):
             out += rows[:, i]
         return out * np.float32(1.0 / (fy * fx))
-    rows = resample_matrix(h, height).astype(image.dtype)
-    cols = resample_matrix(w, width).astype(image.dtype)
-    if image.ndim == 2:
-        return rows @ image @ cols.T
-    c = image.shape[2]
-    tall = (rows @ image.reshape(h, w * c)).reshape(height, w, c)  # matrix products, not einsum: BLAS
-    return np.ascontiguousarray((tall.transpose(0, 2, 1) @ cols.T).transpose(0, 2, 1))
+    return crop(image, Box.whole(w, h), (width, height)).astype(image.dtype, copy=False)
 
 
 def _image(image: Any) -> np.ndarray:

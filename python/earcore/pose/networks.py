@@ -448,8 +448,6 @@ class KeypointNet(PoseNetwork):
         }
 
 
-_ZOOM_ONLY = "zoom is for the keypoint network (its depths follow each box's focal length); the {name} network regresses 3D from the whole image"
-
 _CLASSES: dict[str, type[PoseNetwork]] = {"multi": MultiObjectiveNet, "cascade": CascadeNet, "keypoint": KeypointNet}
 
 
@@ -458,18 +456,16 @@ def build_network(name: str, options: NetworkOptions | dict[str, Any] | None = N
     values, then the given ones, over the defaults)."""
     if name not in _CLASSES:
         raise ConfigError(f"network must be one of {', '.join(NETWORKS)}, got {name!r}")
-    if isinstance(options, NetworkOptions):
-        if name != "keypoint" and options.zoom != 1:
-            raise ConfigError(_ZOOM_ONLY.format(name=name))
-        return _CLASSES[name](options)
-    values: dict[str, Any] = {}
-    if preset is not None:
-        if preset not in PRESETS:
-            raise ConfigError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
-        values.update(PRESETS[preset])
-    values.update(options or {})
-    if name != "keypoint" and int(values.get("zoom", 1)) != 1:
-        raise ConfigError(_ZOOM_ONLY.format(name=name))
-    if name == "cascade" and "fc" not in (options or {}) and preset in (None, "paper"):
-        values["fc"] = 500  # Paper IV's FC 500
-    return _CLASSES[name](NetworkOptions.from_dict(values))
+    if not isinstance(options, NetworkOptions):
+        values: dict[str, Any] = {}
+        if preset is not None:
+            if preset not in PRESETS:
+                raise ConfigError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+            values.update(PRESETS[preset])
+        values.update(options or {})
+        if name == "cascade" and "fc" not in (options or {}) and preset in (None, "paper"):
+            values["fc"] = 500  # Paper IV's FC 500
+        options = NetworkOptions.from_dict(values)
+    if name != "keypoint" and options.zoom != 1:
+        raise ConfigError(f"zoom is for the keypoint network (its depths follow each box's focal length); the {name} network regresses 3D from the whole image")
+    return _CLASSES[name](options)
