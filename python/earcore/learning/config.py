@@ -48,6 +48,18 @@ class TrainConfig:
     grad_clip: float | None = None
     #: named loss → weight (missing names take the network's defaults)
     loss_weights: dict[str, float] = field(default_factory=dict)
+    #: how the losses become one total (`earcore.learning.combiners.COMBINERS`; "fixed": `loss_weights`)
+    loss_combiner: str = "fixed"
+    #: the combiner's own settings (decay, warmup, period, temperature, hidden, lr)
+    combiner_options: dict[str, Any] = field(default_factory=dict)
+    #: which parts of the network train: a named set of the network's or module paths ("all": everything)
+    trainable: str | list[str] = "all"
+    #: start from this trained network's weights (a run folder or checkpoint)
+    transfer_from: str | None = None
+    #: stop once this many evaluations in a row brought no new best `patience_metric` (None: never)
+    patience: int | None = None
+    #: the evaluation value `patience` watches; lower is better
+    patience_metric: str = "val_total"
     device: str = "cpu"
     threads: int | None = None
     workers: int = 0
@@ -68,7 +80,7 @@ class TrainConfig:
         """Check every field; raises `ConfigError` naming the first bad one."""
         if not isinstance(self.network, str) or not self.network:
             raise ConfigError(f"network must be a non-empty name, got {self.network!r}")
-        for name in ("network_options", "loss_weights", "notes"):
+        for name in ("network_options", "loss_weights", "combiner_options", "notes"):
             if not isinstance(getattr(self, name), dict):
                 raise ConfigError(f"{name} must be a mapping, got {getattr(self, name)!r}")
         if self.steps is None and self.minutes is None:
@@ -92,6 +104,16 @@ class TrainConfig:
             if not isinstance(key, str):
                 raise ConfigError(f"loss_weights keys must be loss names, got {key!r}")
             validate.non_negative(weight, f"loss_weights[{key!r}]")
+        if not isinstance(self.loss_combiner, str) or not self.loss_combiner:
+            raise ConfigError(f"loss_combiner must be a name, got {self.loss_combiner!r}")
+        if not (isinstance(self.trainable, str) or (isinstance(self.trainable, list) and self.trainable and all(isinstance(t, str) for t in self.trainable))):
+            raise ConfigError(f"trainable must be a name or a non-empty list of module paths, got {self.trainable!r}")
+        if self.transfer_from is not None and (not isinstance(self.transfer_from, str) or not self.transfer_from):
+            raise ConfigError(f"transfer_from must be a path, got {self.transfer_from!r}")
+        if self.patience is not None:
+            validate.count(self.patience, "patience")
+        if not isinstance(self.patience_metric, str) or not self.patience_metric:
+            raise ConfigError(f"patience_metric must be a name, got {self.patience_metric!r}")
         validate.one_of(self.device, DEVICES, "device")
         if self.threads is not None:
             validate.count(self.threads, "threads")

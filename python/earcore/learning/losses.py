@@ -1,4 +1,4 @@
-"""The papers' losses (Papers IV, V and VII) and how named losses become one total.
+"""The papers' losses (Papers IV, V and VII).
 
 - `mask_loss`: class-weighted binary cross-entropy, Eqs. 1-4 in Paper VII's standard
   form ``l = -w_fg·y·log(p) - w_bg·(1-y)·log(1-p)`` (Papers IV-VI print p and y
@@ -11,26 +11,22 @@
   Euclidean distance (not squared), then the mean over the batch.
 - `base_loss` (Eq. 6): the Euclidean distance of the base position, batch mean.
 - `type_loss` (Eq. 7): categorical cross-entropy, batch mean.
-- `LossCombiner`: named losses → total (Eq. 8 for `FixedWeights`); learned weighting
-  schemes subclass it and expose their parameters through `torch.nn.Module`.
+
+How the named losses become one total (Eq. 8's fixed weights and the learned schemes)
+is `earcore.learning.combiners`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from earcore.errors import ConfigError
-
 __all__ = [
     "PAPER_V_WEIGHTS",
     "PAPER_VII_WEIGHTS",
-    "FixedWeights",
-    "LossCombiner",
     "base_loss",
     "class_weights",
     "joint_loss",
@@ -102,44 +98,3 @@ def base_loss(predicted: Tensor, target: Tensor) -> Tensor:
 def type_loss(logits: Tensor, labels: Tensor) -> Tensor:
     """Eq. 7: `logits` (N, R), `labels` (N,) class indices."""
     return F.cross_entropy(logits, labels.long())
-
-
-class LossCombiner(torch.nn.Module):
-    """Named losses → (total, the weights used). Subclasses implement `weights`;
-    learned schemes hold parameters (trained with the network's optimiser) and may
-    add terms through `extra`."""
-
-    def weights(self, losses: Mapping[str, Tensor]) -> dict[str, Tensor | float]:
-        raise NotImplementedError
-
-    def extra(self, losses: Mapping[str, Tensor]) -> Tensor | None:
-        """A term added to the weighted sum (e.g. a learned-variance regulariser)."""
-        return None
-
-    def forward(self, losses: Mapping[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
-        if not losses:
-            raise ValueError("no losses to combine")
-        w = self.weights(losses)
-        total = sum((w[name] * value for name, value in losses.items()), torch.zeros((), device=next(iter(losses.values())).device))
-        more = self.extra(losses)
-        if more is not None:
-            total = total + more
-        return total, {name: float(v) for name, v in w.items()}
-
-
-class FixedWeights(LossCombiner):
-    """Eq. 8: a fixed weight per named loss; a loss with no weight is an error (so a new
-    objective is never silently left out or counted once)."""
-
-    def __init__(self, weights: Mapping[str, float]):
-        super().__init__()
-        for name, value in weights.items():
-            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0):
-                raise ConfigError(f"loss weight {name!r} must be a finite number >= 0, got {value!r}")
-        self.fixed = {str(k): float(v) for k, v in weights.items()}
-
-    def weights(self, losses: Mapping[str, Tensor]) -> dict[str, Tensor | float]:
-        missing = sorted(set(losses) - set(self.fixed))
-        if missing:
-            raise ConfigError(f"no weight for loss(es) {missing}; weights given: {sorted(self.fixed)}")
-        return {name: self.fixed[name] for name in losses}

@@ -23,8 +23,8 @@ from torch import Tensor
 from earcore.errors import ConfigError
 from earcore.learning import distributed
 from earcore.learning.checkpoint import CHECKPOINT_NAME, Checkpoint, CheckpointError, load_checkpoint, rng_state, save_checkpoint, set_rng_state
+from earcore.learning.combiners import LossCombiner
 from earcore.learning.config import TrainConfig
-from earcore.learning.losses import LossCombiner
 from earcore.learning.metrics_log import MetricsLog, plot_metrics
 
 __all__ = ["Objective", "TrainResult", "collate", "evaluate_losses", "resolve_device", "to_device", "train"]
@@ -126,6 +126,18 @@ def evaluate_losses(objective: Objective, combiner: LossCombiner, batch_size: in
     return run
 
 
+def _shared_losses(losses: Mapping[str, Tensor], world: distributed.World) -> dict[str, float]:
+    """The step's losses for the combiner to learn from: every process's mean under
+    DDP, so that learned weights stay the same in every process."""
+    names = list(losses)
+    values = torch.stack([losses[n].detach().float().reshape(()) for n in names])
+    if world.distributed:
+        values = values.to(next(iter(losses.values())).device)
+        dist.all_reduce(values)
+        values = values / world.size
+    return dict(zip(names, values.cpu().tolist()))
+
+
 def _optimiser(config: TrainConfig, params: list[torch.nn.Parameter]) -> torch.optim.Optimizer:
     if config.optimiser == "sgd":
         return torch.optim.SGD(params, lr=config.lr_start, momentum=config.momentum, weight_decay=config.weight_decay)
@@ -187,7 +199,9 @@ def train(
     torch.manual_seed(config.seed)
     model.to(device)
     combiner.to(device)
-    params = [p for p in list(model.parameters()) + list(combiner.parameters()) if p.requires_grad]
+    params = [p for p in list(model.parameters()) + combiner.network_parameters() if p.requires_grad]
+    if not params:
+        raise ConfigError("nothing to train: every parameter of the network is frozen")
     optimiser = _optimiser(config, params)
     step, seconds = 0, 0.0
     if state is not None:
@@ -235,6 +249,7 @@ def train(
             )
 
     evaluations: list[dict[str, float]] = []
+    best = {"value": float("inf"), "since": 0}
 
     def evaluation() -> None:
         if val_set is None or not world.main:
@@ -248,6 +263,14 @@ def train(
         values["eval_seconds"] = time.perf_counter() - started
         evaluations.append({"step": step, "seconds": seconds, **values})
         metrics.write("eval", step, seconds, values)
+        if config.patience is not None:
+            if config.patience_metric not in values:
+                raise ConfigError(f"patience watches {config.patience_metric!r}, which the evaluation does not give; it gives {', '.join(sorted(values))}")
+            value = float(values[config.patience_metric])
+            if value < best["value"]:
+                best["value"], best["since"] = value, 0
+            else:
+                best["since"] += 1
         say(f"step {step} ({seconds / 60:.1f} min): " + ", ".join(f"{k} {v:.4g}" for k, v in values.items() if isinstance(v, float)))
 
     per_process = config.batch_size // world.size
@@ -266,7 +289,7 @@ def train(
     try:
         while True:
             rate = config.learning_rate(config.progress(step, seconds))
-            stop = config.progress(step, seconds) >= 1.0
+            stop = config.progress(step, seconds) >= 1.0 or (config.patience is not None and best["since"] >= config.patience)
             if world.distributed:  # rank 0's clock decides for everyone
                 shared = torch.tensor([float(stop), rate], dtype=torch.float64, device=device)
                 dist.broadcast(shared, 0)
@@ -287,6 +310,7 @@ def train(
             if config.grad_clip is not None:
                 torch.nn.utils.clip_grad_norm_(params, config.grad_clip)
             optimiser.step()
+            combiner.update(_shared_losses(losses, world))
             step += 1
             if device.type == "cuda":
                 torch.cuda.synchronize(device)
@@ -322,5 +346,7 @@ def train(
         evaluation()
     if world.main:
         plot_metrics(folder / "metrics.jsonl")
+    if config.patience is not None and best["since"] >= config.patience:
+        say(f"stopped: {config.patience} evaluations without a better {config.patience_metric} (best {best['value']:.4g})")
     say(f"done: {step} steps in {seconds / 60:.1f} training minutes; checkpoint {path}")
     return TrainResult(folder=folder, steps=step, seconds=seconds, evaluations=evaluations)

@@ -21,12 +21,14 @@ import torch
 
 from earcore.errors import ConfigError, EarcoreError
 from earcore.learning.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
+from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import SCHEDULES, TrainConfig, load_config
-from earcore.learning.losses import FixedWeights
+from earcore.learning.freeze import freeze
 from earcore.learning.train import TrainResult, train
 from earcore.pose.evaluate import Evaluation, evaluate, evaluator, subset
 from earcore.pose.networks import NETWORKS, PRESETS, PoseNetwork, build_network
 from earcore.pose.objectives import default_weights, objective_for
+from earcore.pose.transfer import TRAINABLE, trainable_modules, transfer_weights
 
 __all__ = ["build_parser", "check_resume", "fit_statistics", "load_trained", "loss_weights", "main", "run"]
 
@@ -116,10 +118,30 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     p.add_argument("--eval-minutes", type=float, default=None, help="evaluate on the test split every this many training minutes (default 5)")
     p.add_argument("--zoom", type=int, default=None, help="keypoint network: boxes around the robot from images this many times its input (2: 256x212 data)")
     p.add_argument("--option", action="append", default=[], metavar="KEY=JSON", help="a network option, e.g. --option width=0.75 --option mask_stride=1")
+    p.add_argument(
+        "--transfer-from", type=Path, default=None, metavar="CHECKPOINT", help="start from this trained network (a run folder or checkpoint): what fits is kept"
+    )
+    p.add_argument("--trainable", default=None, help=f"which parts train: {', '.join(TRAINABLE)} (default all) or module paths, comma-separated")
+    p.add_argument("--loss-combiner", choices=COMBINERS, default=None, help="how the losses become one total (default fixed: the papers' weights)")
+    p.add_argument("--combiner-option", action="append", default=[], metavar="KEY=JSON", help="a combiner setting, e.g. --combiner-option lr=1e-3")
+    p.add_argument("--patience", type=int, default=None, help="stop after this many evaluations without a lower joint error")
     p.add_argument("--config", type=Path, default=None, help="a TrainConfig JSON file (the command line's options override it)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
+
+
+def _key_values(items: list[str], flag: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ConfigError(f"{flag} must be KEY=VALUE, got {item!r}")
+        try:
+            out[key] = json.loads(text)
+        except json.JSONDecodeError:
+            out[key] = text
+    return out
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
@@ -143,6 +165,17 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
             changes[key] = value
     if args.lr is not None:
         changes["lr_start"], changes["lr_end"] = args.lr
+    if args.transfer_from is not None:
+        changes["transfer_from"] = str(args.transfer_from)
+    if args.trainable is not None:
+        parts = [t.strip() for t in args.trainable.split(",") if t.strip()]
+        changes["trainable"] = parts[0] if len(parts) == 1 and parts[0] in TRAINABLE else parts
+    if args.loss_combiner is not None:
+        changes["loss_combiner"] = args.loss_combiner
+    if args.combiner_option:
+        changes["combiner_options"] = {**base.get("combiner_options", {}), **_key_values(args.combiner_option, "--combiner-option")}
+    if args.patience is not None:
+        changes["patience"], changes["patience_metric"] = args.patience, "joints_median_cm"
     if args.steps is not None or args.minutes is not None:
         changes["steps"], changes["minutes"] = args.steps, args.minutes
     options = dict(base.get("network_options", {}))
@@ -150,14 +183,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         options.update(PRESETS[args.preset])
     elif not base:
         options.update(PRESETS["small"])
-    for item in args.option:
-        key, sep, text = item.partition("=")
-        if not sep:
-            raise ConfigError(f"--option must be KEY=VALUE, got {item!r}")
-        try:
-            options[key] = json.loads(text)
-        except json.JSONDecodeError:
-            options[key] = text
+    options.update(_key_values(args.option, "--option"))
     if args.zoom is not None:
         options["zoom"] = args.zoom
     changes["network_options"] = options
@@ -203,6 +229,11 @@ def run(
             train_set = ZoomedImages(train_set, zoom, seed=config.seed)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
+    source = load_checkpoint(config.transfer_from) if config.transfer_from is not None else None
+    if source is not None:
+        if source.meta.get("network") != config.network:
+            raise ConfigError(f"{config.transfer_from} holds a {source.meta.get('network')} network; train it as --network {source.meta.get('network')}")
+        options = {**dict(source.meta.get("options", {})), **{k: v for k, v in options.items() if k == "zoom"}}
     options["input_size"] = list(train_set.image_size)
     options["num_keypoints"] = int(train_set.num_keypoints)
     options["num_robots"] = len(train_set.robots)
@@ -211,7 +242,16 @@ def run(
     if resume:
         check_resume(Path(out), network)
     config = config.replace(network_options=network.options.to_dict())
-    fit_statistics(network, train_set, seed=config.seed)
+    import earcore.learning.distributed as dist_env
+
+    say = print if dist_env.from_environment().main else (lambda _: None)
+    if source is None:
+        fit_statistics(network, train_set, seed=config.seed)
+    elif not (resume and (Path(out) / CHECKPOINT_NAME).exists()):  # the transferred network keeps its output scaling and camera
+        say(f"transferred from {config.transfer_from}: {transfer_weights(network, source.model, source.meta, list(train_set.robots)).describe()}")
+    frozen = freeze(network, trainable_modules(network, config.trainable))
+    if config.trainable != "all":
+        say(frozen.describe())
     manifest = getattr(train_set, "manifest", {})
     meta = {
         "network": config.network,
@@ -222,14 +262,16 @@ def run(
         "input_size": list(train_set.image_size),
         "data": str(data),
         "extra": [str(e) for e in extra],
+        "transferred_from": config.transfer_from,
     }
+    combiner = combiner_for(config.loss_combiner, list(weights), fixed=weights, seed=config.seed, **config.combiner_options)
     result = train(
         network,
         objective_for(config.network, seed=config.seed),
         train_set,
         config,
         out,
-        combiner=FixedWeights(weights),
+        combiner=combiner,
         val_set=test_set if len(test_set) else None,
         evaluate=evaluator,
         meta=meta,
@@ -238,8 +280,6 @@ def run(
     )
     if not len(test_set):
         return result, None
-    import earcore.learning.distributed as dist_env
-
     if not dist_env.from_environment().main:
         return result, None
     trained, _ = load_trained(out, "cpu")

@@ -15,9 +15,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from tiny import TinyNet, TinyObjective, TinySet  # noqa: E402
 
 from earcore.errors import ConfigError  # noqa: E402
+from earcore.learning.combiners import FixedWeights  # noqa: E402
 from earcore.learning.config import TrainConfig  # noqa: E402
 from earcore.learning.distributed import EpochSampler  # noqa: E402
-from earcore.learning.losses import FixedWeights  # noqa: E402
 from earcore.learning.train import train  # noqa: E402
 
 

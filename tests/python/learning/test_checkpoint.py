@@ -11,8 +11,8 @@ import torch
 
 from earcore.errors import ConfigError
 from earcore.learning.checkpoint import CheckpointError, load_checkpoint
+from earcore.learning.combiners import FixedWeights
 from earcore.learning.config import TrainConfig
-from earcore.learning.losses import FixedWeights
 from earcore.learning.metrics_log import read_metrics
 from earcore.learning.train import train
 

@@ -12,8 +12,8 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
+from earcore.learning.combiners import FixedWeights
 from earcore.learning.config import TrainConfig
-from earcore.learning.losses import FixedWeights
 from earcore.learning.train import train
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -7,8 +7,7 @@ import math
 import pytest
 import torch
 
-from earcore.errors import ConfigError
-from earcore.learning.losses import PAPER_V_WEIGHTS, FixedWeights, base_loss, class_weights, joint_loss, mask_loss, type_loss
+from earcore.learning.losses import base_loss, class_weights, joint_loss, mask_loss, type_loss
 
 
 def sig(x: float) -> float:
@@ -67,14 +66,3 @@ def test_a_perfect_prediction_has_finite_gradients():
     pred = torch.zeros(1, 2, 3, requires_grad=True)
     joint_loss(pred, torch.zeros(1, 2, 3)).backward()
     assert torch.isfinite(pred.grad).all()
-
-
-def test_fixed_weights_are_eq8_and_refuse_unweighted_losses():
-    losses = {"mask": torch.tensor(0.2), "joints": torch.tensor(0.1), "base": torch.tensor(0.05), "type": torch.tensor(1.0)}
-    total, weights = FixedWeights(PAPER_V_WEIGHTS)(losses)
-    assert float(total) == pytest.approx(1.0 * 0.2 + 1.5 * 0.1 + 1.5 * 0.05 + 0.3 * 1.0)
-    assert weights == PAPER_V_WEIGHTS
-    with pytest.raises(ConfigError, match="extra"):
-        FixedWeights(PAPER_V_WEIGHTS)({**losses, "extra": torch.tensor(1.0)})
-    with pytest.raises(ConfigError, match="mask"):
-        FixedWeights({"mask": -1.0})

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from earcore.errors import ConfigError
-from earcore.learning.losses import FixedWeights
+from earcore.learning.combiners import FixedWeights
 from earcore.learning.train import collate
 from earcore.pose.networks import NETWORKS, build_network
 from earcore.pose.objectives import default_weights, objective_for
