@@ -65,6 +65,9 @@ def evaluate_main(argv: list[str] | None = None) -> int:
         default=None,
         help="refine the keypoint network's 2D keypoints: fit the robot's kinematics (fit, the default) or PnP with the labels' joints (pnp)",
     )
+    parser.add_argument(
+        "--other-robots", action="store_true", help="evaluate images of robots the network does not know too (their type counts as wrong): what a network forgot"
+    )
     args = parser.parse_args(rest)
     from earcore.errors import EarcoreError
     from earcore.learning.dataset import ImageDataset
@@ -80,7 +83,9 @@ def evaluate_main(argv: list[str] | None = None) -> int:
             return fail("earcore evaluate pose", f"the data's images are {data.image_size}, the network takes {tuple(network.options.input_size)}")
         if len(data) == 0:
             return fail("earcore evaluate pose", f"no {args.split} images in {args.data}")
-        table = evaluate(network, data, device, robots=meta.get("robots", data.robots), keypoint_names=meta.get("keypoints"), refined=args.refine)
+        table = evaluate(
+            network, data, device, robots=meta.get("robots", data.robots), keypoint_names=meta.get("keypoints"), refined=args.refine, foreign=args.other_robots
+        )
     except (EarcoreError, ValueError) as exc:
         return fail("earcore evaluate pose", str(exc), 1)
     out = args.out or (args.checkpoint if args.checkpoint.is_dir() else args.checkpoint.parent)

@@ -56,6 +56,8 @@ class TrainConfig:
     trainable: str | list[str] = "all"
     #: start from this trained network's weights (a run folder or checkpoint)
     transfer_from: str | None = None
+    #: train on this many images drawn at random from the training set (None: all)
+    train_samples: int | None = None
     #: stop once this many evaluations in a row brought no new best `patience_metric` (None: never)
     patience: int | None = None
     #: the evaluation value `patience` watches; lower is better
@@ -112,6 +114,8 @@ class TrainConfig:
             raise ConfigError(f"transfer_from must be a path, got {self.transfer_from!r}")
         if self.patience is not None:
             validate.count(self.patience, "patience")
+        if self.train_samples is not None:
+            validate.count(self.train_samples, "train_samples")
         if not isinstance(self.patience_metric, str) or not self.patience_metric:
             raise ConfigError(f"patience_metric must be a name, got {self.patience_metric!r}")
         validate.one_of(self.device, DEVICES, "device")

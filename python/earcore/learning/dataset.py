@@ -233,6 +233,33 @@ class ImageDatasets(torch.utils.data.Dataset):
         raise AssertionError("unreachable: the index was checked against the total length")
 
 
+class SampledImages(torch.utils.data.Dataset):
+    """`count` images drawn at random (without replacement, the same for the same seed)
+    from a dataset, which describes them (robots, keypoints, image size): the small
+    training sets of transfer learning."""
+
+    def __init__(self, dataset: Any, count: int, seed: int = 0) -> None:
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise ValueError(f"count must be a whole number >= 1, got {count!r}")
+        if count > len(dataset):
+            raise ValueError(f"{count} images asked for, the set has {len(dataset)}")
+        self.dataset = dataset
+        self.indices = np.sort(np.random.default_rng(seed).choice(len(dataset), size=count, replace=False))
+        for name in ("folder", "manifest", "robots", "num_keypoints", "max_dof", "image_size", "split"):
+            if hasattr(dataset, name):
+                setattr(self, name, getattr(dataset, name))
+
+    def set_epoch(self, epoch: int) -> None:
+        if hasattr(self.dataset, "set_epoch"):
+            self.dataset.set_epoch(epoch)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        return self.dataset[int(self.indices[index])]
+
+
 class ZoomedImages(torch.utils.data.Dataset):
     """The items of `dataset` (images `zoom` times the network's input size) at the input
     size: with probability `whole` the whole image shrunk, otherwise a box around the

@@ -208,22 +208,45 @@ def refine_predictions(p: dict[str, np.ndarray], robots: Sequence[str], frames: 
 
 
 def check_keypoints(model: torch.nn.Module, dataset: Any) -> None:
-    """A `PoseError` unless the dataset's images have as many keypoints as the network gives."""
+    """A `PoseError` when a robot of the dataset has more keypoints (its manifest's
+    names) than the network gives; fewer are fine (the network's extra keypoints, those
+    of its robots with more joints, are left out)."""
     options = getattr(model, "options", None)
     network = getattr(options, "num_keypoints", None)
-    data = getattr(dataset, "num_keypoints", None)
-    if network is not None and data is not None and int(network) != int(data):
-        robots = ", ".join(getattr(dataset, "robots", [])) or "its robots"
-        raise PoseError(f"the data has {data} keypoints per image ({robots}), the network gives {network}: evaluate it on data of the robots it was trained on")
+    if network is None:
+        return
+    names = getattr(dataset, "manifest", {}).get("keypoints", {})
+    selected = list(getattr(dataset, "selected", getattr(dataset, "robots", [])))
+    counts = {r: len(names[r]) for r in selected if r in names}
+    if not counts and getattr(dataset, "num_keypoints", None) is not None:
+        counts = {", ".join(selected) or "its robots": int(dataset.num_keypoints)}
+    over = {r: c for r, c in counts.items() if c > int(network)}
+    if over:
+        robot, count = next(iter(over.items()))
+        raise PoseError(f"the data's {robot} has {count} keypoints per image, the network gives {network}: evaluate it on data of robots with at most {network}")
 
 
-def robot_lookup(data_robots: Sequence[str], network_robots: Sequence[str]) -> np.ndarray:
+def _align_keypoints(p: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Predicted and true keypoints to one count: the network's extra ones dropped, or
+    the labels' beyond the network's when no image has them (a `PoseError` otherwise)."""
+    k_net, k_data = p["keypoints"].shape[1], p["keypoints_true"].shape[1]
+    if k_net > k_data:
+        p["keypoints"] = p["keypoints"][:, :k_data]
+    elif k_net < k_data:
+        if p["valid"][:, k_net:].any():
+            raise PoseError(f"images of the data have {k_data} keypoints, the network gives {k_net}")
+        p["keypoints_true"], p["valid"] = p["keypoints_true"][:, :k_net], p["valid"][:, :k_net]
+    return p
+
+
+def robot_lookup(data_robots: Sequence[str], network_robots: Sequence[str], *, foreign: bool = False) -> np.ndarray:
     """For each of the dataset's robot indices, the network's index of the same robot
-    (matched by name); a `PoseError` naming the robots the network does not know."""
+    (matched by name); a robot the network does not know is a `PoseError` naming it,
+    or, with `foreign`, -1 (its images' type is then always wrong)."""
     unknown = [r for r in data_robots if r not in network_robots]
-    if unknown:
+    if unknown and not foreign:
         raise PoseError(f"the network knows {', '.join(network_robots) or 'no robots'}, not {', '.join(unknown)} (in the data)")
-    return np.array([list(network_robots).index(r) for r in data_robots] or [0], dtype=np.int64)
+    return np.array([list(network_robots).index(r) if r in network_robots else -1 for r in data_robots] or [0], dtype=np.int64)
 
 
 def inference_ms(model: torch.nn.Module, image_shape: Sequence[int], device: torch.device, repeats: int = 20) -> float:
@@ -263,30 +286,38 @@ def evaluate(
     keypoint_names: dict[str, list[str]] | None = None,
     timing: bool = True,
     refined: str | bool | None = None,
+    foreign: bool = False,
 ) -> Evaluation:
     """Metrics per robot and over all images of `dataset` (`limit`: that many drawn at
     random, `subset`). `robots` are the network's robots (its type head's classes, in
     order; default: the dataset's `.robots`): the dataset's robots are matched to them by
     name, and a robot the network does not know, or another number of keypoints than
-    the network gives, is a `PoseError`. `refined`: after the kinematic fit
-    ("fit", or True) or PnP with the joint angles known ("pnp"): `refine_predictions`."""
+    the network gives, is a `PoseError`; with `foreign`, images of robots the network
+    does not know are evaluated too (their type counts as wrong: what a network that
+    forgot a robot still sees). `refined`: after the kinematic fit ("fit", or True) or
+    PnP with the joint angles known ("pnp"): `refine_predictions`."""
     device = torch.device(device)
     names = list(robots if robots is not None else getattr(dataset, "robots", []))
     check_keypoints(model, dataset)
-    lookup = robot_lookup(list(getattr(dataset, "robots", names)), names)
+    data_names = list(getattr(dataset, "robots", names))
+    robot_lookup(list(getattr(dataset, "selected", data_names)), names, foreign=foreign)  # the robots of the images evaluated
+    lookup = robot_lookup(data_names, names, foreign=True)
     given = getattr(dataset, "manifest", {}).get("keypoints", {})
     counts = [len(given.get(name, [])) or int(getattr(model, "K", 0)) for name in names] or None
-    p = predict(model, dataset, device, limit, counts=counts)
-    p["robot"] = lookup[p["robot"]]
+    p = _align_keypoints(predict(model, dataset, device, limit, counts=counts))
+    shown = p["robot"].copy()  # the dataset's robot indices
+    p["robot"] = lookup[shown]
     mode = "fit" if refined is True else (refined or None)
     if mode is not None:
+        if (p["robot"] < 0).any():
+            raise PoseError("refinement needs each image's robot among the network's (the kinematics are the robot's)")
         p = refine_predictions(p, names, getattr(dataset, "manifest", {}).get("keypoint_frames", {}), mode=mode)
     ms = inference_ms(model, dataset[0]["image"].shape, device) if timing else float("nan")
     metrics: dict[str, dict[str, float]] = {}
     per_keypoint: dict[str, list[float]] = {}
-    for r in sorted(set(p["robot"].tolist())):
-        name = names[r] if r < len(names) else f"robot {r}"
-        metrics[name], per_keypoint[name] = _metrics(p, p["robot"] == r)
+    for r in sorted(set(shown.tolist())):
+        name = data_names[r] if r < len(data_names) else f"robot {r}"
+        metrics[name], per_keypoint[name] = _metrics(p, shown == r)
         metrics[name]["inference_ms"] = ms
     metrics["all"], _ = _metrics(p, np.ones(len(p["robot"]), bool))
     metrics["all"]["inference_ms"] = ms

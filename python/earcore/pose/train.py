@@ -124,6 +124,7 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     p.add_argument("--trainable", default=None, help=f"which parts train: {', '.join(TRAINABLE)} (default all) or module paths, comma-separated")
     p.add_argument("--loss-combiner", choices=COMBINERS, default=None, help="how the losses become one total (default fixed: the papers' weights)")
     p.add_argument("--combiner-option", action="append", default=[], metavar="KEY=JSON", help="a combiner setting, e.g. --combiner-option lr=1e-3")
+    p.add_argument("--train-samples", type=int, default=None, metavar="N", help="train on N images drawn at random from the training images")
     p.add_argument("--patience", type=int, default=None, help="stop after this many evaluations without a lower joint error")
     p.add_argument("--config", type=Path, default=None, help="a TrainConfig JSON file (the command line's options override it)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
@@ -174,6 +175,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         changes["loss_combiner"] = args.loss_combiner
     if args.combiner_option:
         changes["combiner_options"] = {**base.get("combiner_options", {}), **_key_values(args.combiner_option, "--combiner-option")}
+    if args.train_samples is not None:
+        changes["train_samples"] = args.train_samples
     if args.patience is not None:
         changes["patience"], changes["patience_metric"] = args.patience, "joints_median_cm"
     if args.steps is not None or args.minutes is not None:
@@ -220,6 +223,13 @@ def run(
         test_set = ImageDataset(data, split="test", robots=robots, noise=False, seed=config.seed)
     else:
         train_set, test_set = datasets
+    if config.train_samples is not None:
+        from earcore.learning.dataset import SampledImages
+
+        try:
+            train_set = SampledImages(train_set, config.train_samples, seed=config.seed)
+        except ValueError as exc:
+            raise ConfigError(f"train_samples: {exc}") from None
     options = dict(config.network_options)
     zoom = options.get("zoom", 1)
     if zoom != 1:

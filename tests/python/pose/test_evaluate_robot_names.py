@@ -3,7 +3,10 @@ held-out set of one robot, robots in another order, another arm): the dataset's 
 indices (its manifest's order) are matched by name to the network's (the type head's
 classes, the checkpoint's `meta["robots"]`), so each image is reported under its own
 robot and its type is counted against the network's class for that robot; a dataset
-with another keypoint count is refused in one line before anything is predicted."""
+whose robots have more keypoints than the network gives is refused in one line before
+anything is predicted, one with fewer is evaluated on its own; images of a robot the
+network does not know are refused, or, with --other-robots, evaluated with their type
+counted wrong (what a network forgot)."""
 
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
@@ -71,3 +75,29 @@ def test_a_set_with_another_keypoint_count_is_refused_clearly(tmp_path, capsys):
         pytest.fail(f"not a clear error: {exc}")
     err = capsys.readouterr().err
     assert code != 0 and "keypoint" in err and "broadcast" not in err, err
+
+
+def test_fewer_keypoints_and_robots_the_network_does_not_know(tmp_path, capsys):
+    from earcore.app.pose import evaluate_main
+
+    torch.manual_seed(0)
+    net = build_network("multi", {"input_size": (32, 24), "num_keypoints": 8, "num_robots": 1, "width": 0.25, "fc": 16, "head": 8})
+    meta = {"network": "multi", "options": net.options.to_dict(), "robots": ["iiwa"], "keypoints": {}, "input_size": [32, 24]}
+    run = tmp_path / "iiwa-run"
+    save_checkpoint(run / "checkpoint.pt", Checkpoint(step=1, seconds=1.0, model=net.state_dict(), config={"network": "multi"}, meta=meta))
+    data = write_folder(tmp_path / "ur", robots=("ur3", "ur10"), per_robot=2, width=32, height=24)  # 7 keypoints, the network 8
+    args = ["pose", "--checkpoint", str(run), "--data", str(data), "--split", "all", "--out", str(tmp_path / "out")]
+    assert evaluate_main(args) != 0
+    assert "not ur3, ur10" in capsys.readouterr().err
+    assert evaluate_main([*args, "--other-robots"]) == 0
+    metrics = json.loads((tmp_path / "out" / "results-all.json").read_text())["metrics"]
+    assert metrics["ur3"]["samples"] == 2 and metrics["ur10"]["samples"] == 2
+    assert metrics["all"]["type_accuracy"] == 0.0
+    # the joint error over the 7 keypoints the data has, by hand from the predictions
+    from earcore.learning.dataset import ImageDataset
+    from earcore.pose.evaluate import predict
+
+    p = predict(net.eval(), ImageDataset(data, split=None, noise=False), torch.device("cpu"))
+    d = np.linalg.norm(p["keypoints"][:, :7] - p["keypoints_true"], axis=-1)
+    per_image = (d * p["valid"]).sum(1) / p["valid"].sum(1)
+    assert metrics["all"]["joints_mean_cm"] == pytest.approx(100 * per_image.mean(), rel=1e-5)

@@ -136,3 +136,16 @@ def test_every_parameter_frozen_is_an_error(source, tmp_path):
     sets = (FakeDataset(8, 32, 32, keypoints=4, seed=0), FakeDataset(2, 32, 32, keypoints=4, seed=1))
     with pytest.raises(ConfigError, match="no parameters under"):
         run(_config(transfer_from=str(source), trainable=["nothing_here"]), Path("unused"), tmp_path / "x", datasets=sets, progress=False)
+
+
+def test_a_few_images_drawn_from_the_training_set(tmp_path):
+    from earcore.learning.dataset import SampledImages
+
+    full = FakeDataset(8, 32, 32, keypoints=4, seed=0)
+    a, b = SampledImages(full, 5, seed=1), SampledImages(full, 5, seed=1)
+    assert len(a) == 5 and len(set(a.indices.tolist())) == 5 and a.indices.tolist() == b.indices.tolist()
+    assert a.indices.tolist() != SampledImages(full, 5, seed=2).indices.tolist()
+    assert a.robots == full.robots and a.image_size == (32, 32)
+    assert torch.equal(a[0]["image"], full[int(a.indices[0])]["image"])
+    with pytest.raises(ConfigError, match="train_samples: 9 images asked for, the set has 8"):
+        run(_config(train_samples=9), Path("unused"), tmp_path / "x", datasets=(full, FakeDataset(2, 32, 32, keypoints=4, seed=1)), progress=False)
