@@ -107,7 +107,20 @@ def main() -> int:
     # Paper VI: the full training beside the sweep, then Paper VII's two stages.
     full = start(train_command(out / "iiwa-full", args.iiwa, args.full_minutes, "--eval-minutes", "2.5"), out / "iiwa-full.log")
     for n in sizes:
-        more = ("--transfer-from", str(args.source), "--trainable", "paper-vi", "--train-samples", str(n), "--patience", "3", "--eval-minutes", "0.5")
+        more = (
+            "--transfer-from",
+            str(args.source),
+            "--trainable",
+            "paper-vi",
+            "--train-samples",
+            str(n),
+            "--batch",
+            str(64 if n >= 64 else n // 2),
+            "--patience",
+            "3",
+            "--eval-minutes",
+            "0.5",
+        )
         wait(start(train_command(out / f"vi-n{n}", args.iiwa, budget, *more), out / f"vi-n{n}.log"))
     stage1 = ("--transfer-from", str(args.source), "--trainable", "dense", "--patience", "3", "--eval-minutes", "0.5")
     wait(start(train_command(out / "vii-stage1", args.mixed, args.stage1_minutes, *stage1), out / "vii-stage1.log"))
