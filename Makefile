@@ -12,7 +12,7 @@ PIP_FLAGS := --disable-pip-version-check -q
 LINT_TOOLS := "ruff>=0.17,<0.18" "mypy>=1.10"
 export PIP_CACHE_DIR ?= $(HOME)/.cache/pip
 
-.PHONY: help demo pose bench-pose map-demo test test-rust test-python develop wheel bench bench-python lint fuzz clean system-deps
+.PHONY: help demo pose bench-pose bench-transfer map-demo test test-rust test-python develop wheel bench bench-python lint fuzz clean system-deps
 
 help: ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-14s %s\n", $$1, $$2}'
@@ -77,6 +77,14 @@ bench-pose: develop $(VENV)/.learning ## labelled-image speed; the three pose ne
 	$(VENV)/bin/earcore dataset robots --out benches/out/data/ur-heldout --seed 1001 --scale 0.2 --quiet
 	$(PY) benches/pose_accuracy.py --data benches/out/data/ur --extra benches/out/data/ur-random --heldout benches/out/data/ur-heldout \
 	  --minutes 57 --refine --out benches/out/pose --ship keypoint
+
+bench-transfer: develop $(VENV)/.learning ## Papers VI-VII from bench-pose's UR network, and the loss combiners over 8 runs each (~2 h)
+	@test -f benches/out/pose/multi/checkpoint.pt || { echo "make bench-pose first: its UR network is the source"; exit 1; }
+	$(VENV)/bin/earcore dataset robots --out benches/out/data/iiwa --robots iiwa --seed 11 --quiet
+	$(VENV)/bin/earcore dataset robots --out benches/out/data/mixed --robots ur3,ur5,ur10,iiwa,panda --count 400 --seed 12 --quiet
+	$(VENV)/bin/earcore dataset robots --out benches/out/data/ur64 --size 64x53 --seed 13 --quiet
+	$(PY) benches/pose_transfer.py --source benches/out/pose/multi --iiwa benches/out/data/iiwa --mixed benches/out/data/mixed --out benches/out/transfer
+	$(PY) benches/loss_combiners.py --data benches/out/data/ur64 --runs 8 --steps 500 --batch 16 --eval-every 20 --jobs 2 --out benches/out/combiners
 
 bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python-fcl, open3d-cpu + pyoctomap, small_gicp)
 	@ldconfig -p | grep -q libusb-1.0 || { echo "installing libusb-1.0-0 (open3d needs it)"; \

@@ -35,6 +35,8 @@ class Checkpoint:
     config: dict[str, Any] | None = None
     #: what the network needs to be rebuilt (its name and options, robots, keypoint names, ...)
     meta: dict[str, Any] = field(default_factory=dict)
+    #: the early stop's state: the best watched value and the evaluations since it
+    patience: dict[str, float] | None = None
 
 
 def rng_state() -> dict[str, Any]:

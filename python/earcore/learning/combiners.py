@@ -67,6 +67,12 @@ def _number(value: Tensor | float) -> float:
     return float(value.detach()) if isinstance(value, Tensor) else float(value)
 
 
+def _check_warmup(warmup: int) -> int:
+    if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 2:
+        raise ConfigError(f"warmup must be a whole number of steps >= 2 (a variance needs two losses), got {warmup!r}")
+    return warmup
+
+
 def _check_decay(decay: float) -> float:
     if isinstance(decay, bool) or not isinstance(decay, (int, float)) or not 0.0 < decay < 1.0:
         raise ConfigError(f"decay must be in (0, 1), got {decay!r}")
@@ -162,7 +168,7 @@ class RunningStats(nn.Module):
         self.register_buffer("var", torch.zeros(k, dtype=torch.float64))
 
     def vector(self, losses: Mapping[str, Any]) -> Tensor:
-        return torch.tensor([float(losses[n]) for n in self.names], dtype=torch.float64)
+        return torch.tensor([float(losses[n]) for n in self.names], dtype=torch.float64, device=self.mean.device)
 
     def add(self, losses: Mapping[str, Any]) -> None:
         x = self.vector(losses)
@@ -191,9 +197,9 @@ class KGCWeights(LossCombiner):
 
     def __init__(self, names: Sequence[str], *, epsilon: float = 0.0, by_mean: bool = False, decay: float = 0.98, warmup: int = 20):
         super().__init__(names)
-        if not (math.isfinite(epsilon) and epsilon >= 0):
+        if isinstance(epsilon, bool) or not isinstance(epsilon, (int, float)) or not (math.isfinite(epsilon) and epsilon >= 0):
             raise ConfigError(f"epsilon must be a finite number >= 0, got {epsilon!r}")
-        self.epsilon, self.by_mean, self.warmup = float(epsilon), bool(by_mean), int(warmup)
+        self.epsilon, self.by_mean, self.warmup = float(epsilon), bool(by_mean), _check_warmup(warmup)
         self.stats: RunningStats = RunningStats(self.names, decay)
 
     def spread(self) -> Tensor:
@@ -257,7 +263,7 @@ class DynamicWeightAverage(LossCombiner):
         super().__init__(names)
         if isinstance(period, bool) or not isinstance(period, int) or period < 1:
             raise ConfigError(f"period must be a whole number >= 1, got {period!r}")
-        if not (math.isfinite(temperature) and temperature > 0):
+        if isinstance(temperature, bool) or not isinstance(temperature, (int, float)) or not (math.isfinite(temperature) and temperature > 0):
             raise ConfigError(f"temperature must be > 0, got {temperature!r}")
         self.period, self.temperature = period, float(temperature)
         k = len(self.names)
@@ -276,7 +282,7 @@ class DynamicWeightAverage(LossCombiner):
         return dict(zip(self.names, self.current()))
 
     def update(self, losses: Mapping[str, float]) -> None:
-        self.running.add_(torch.tensor([float(losses[n]) for n in self.names], dtype=torch.float64))
+        self.running.add_(torch.tensor([float(losses[n]) for n in self.names], dtype=torch.float64, device=self.running.device))
         self.count.add_(1)
         if int(self.count) % self.period == 0:
             self.before.copy_(self.last)
@@ -304,9 +310,9 @@ class AuxNet(LossCombiner):
         super().__init__(names)
         if isinstance(hidden, bool) or not isinstance(hidden, int) or hidden < 1:
             raise ConfigError(f"hidden must be a whole number >= 1, got {hidden!r}")
-        if not (math.isfinite(lr) and lr > 0):
+        if isinstance(lr, bool) or not isinstance(lr, (int, float)) or not (math.isfinite(lr) and lr > 0):
             raise ConfigError(f"lr must be > 0, got {lr!r}")
-        self.warmup = int(warmup)
+        self.warmup = _check_warmup(warmup)
         self.stats: RunningStats = RunningStats(self.names, decay)
         self.register_buffer("total_mean", torch.zeros((), dtype=torch.float64))
         k = len(self.names)
@@ -368,8 +374,8 @@ class AuxNet(LossCombiner):
         aux.backward()
         self.optimiser.step()
         with torch.no_grad():
-            w = self.raw_weights(losses).double().cpu()
-            total = float((self.stats.vector(losses) / w + torch.log(w)).sum())
+            w = self.raw_weights(losses).double()
+            total = float((self.stats.vector(losses).to(w) / w + torch.log(w)).sum())
         if int(self.stats.count) == 0:
             self.total_mean.fill_(total)
         else:

@@ -4,7 +4,8 @@ Transfer learning (Papers VI and VII) keeps the transferred convolutions fixed a
 retrains the rest. `freeze(model, trainable)` leaves `requires_grad` on only for the
 parameters under the named module paths ("joints_head", "red_b.1", ...; "" for
 everything) and holds every batch-normalisation layer whose parameters are all frozen
-in evaluation mode, so its running statistics stay as transferred (in training mode
+in evaluation mode (a layer outside every named path, with or without parameters), so
+its running statistics stay as transferred (in training mode
 they would drift to the new images' and change the frozen features). A frozen
 parameter is not given to the optimiser, so it stays bit-identical.
 """
@@ -61,10 +62,12 @@ def freeze(model: nn.Module, trainable: Sequence[str]) -> Frozen:
             on_count += p.numel()
         else:
             off_count += p.numel()
-    for module in model.modules():
-        if isinstance(module, nn.modules.batchnorm._BatchNorm):
-            params = list(module.parameters(recurse=False))
-            if params and not any(p.requires_grad for p in params):
-                module.register_forward_pre_hook(_hold_in_eval)
-                module.eval()
+    for handle in getattr(model, "_earcore_frozen_norms", []):  # an earlier freeze's holds
+        handle.remove()
+    holds = []
+    for path, module in model.named_modules():
+        if isinstance(module, nn.modules.batchnorm._BatchNorm) and not any(_under(path, q) or _under(q, path) for q in prefixes):
+            holds.append(module.register_forward_pre_hook(_hold_in_eval))
+            module.eval()
+    object.__setattr__(model, "_earcore_frozen_norms", holds)
     return Frozen(tuple(prefixes), tuple(off), on_count, off_count)

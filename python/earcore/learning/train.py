@@ -196,6 +196,7 @@ def train(
         if state.config is not None and state.config.get("network") != config.network:
             raise ConfigError(f"{path} was trained as {state.config.get('network')!r}, not {config.network!r}")
 
+    best: dict[str, float] = {"value": float("inf"), "since": 0}  # the early stop's state (`patience`)
     torch.manual_seed(config.seed)
     model.to(device)
     combiner.to(device)
@@ -216,6 +217,8 @@ def train(
             combiner.load_state_dict(state.combiner)
         if state.rng is not None:
             set_rng_state(state.rng)
+        if state.patience is not None:
+            best.update(state.patience)
         step, seconds = state.step, state.seconds
         say(f"resumed {folder} at step {step} ({seconds / 60:.1f} training minutes)")
     if world.main:
@@ -245,11 +248,11 @@ def train(
                     rng=rng_state(),
                     config=config.to_dict(),
                     meta=dict(meta or {}),
+                    patience=dict(best),
                 ),
             )
 
     evaluations: list[dict[str, float]] = []
-    best = {"value": float("inf"), "since": 0}
 
     def evaluation() -> None:
         if val_set is None or not world.main:
@@ -307,6 +310,11 @@ def train(
                 raise FloatingPointError(f"the loss became {float(total)} at step {step} ({ {k: float(v) for k, v in losses.items()} })")
             optimiser.zero_grad(set_to_none=True)
             total.backward()
+            if world.distributed:  # DDP averages the model's gradients, not those of the combiner's parameters
+                for p in combiner.network_parameters():
+                    if p.grad is not None:
+                        dist.all_reduce(p.grad)
+                        p.grad.div_(world.size)
             if config.grad_clip is not None:
                 torch.nn.utils.clip_grad_norm_(params, config.grad_clip)
             optimiser.step()

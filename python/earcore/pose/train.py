@@ -30,6 +30,9 @@ from earcore.pose.networks import NETWORKS, PRESETS, PoseNetwork, build_network
 from earcore.pose.objectives import default_weights, objective_for
 from earcore.pose.transfer import TRAINABLE, trainable_modules, transfer_weights
 
+#: What the periodic evaluation gives that `patience` can watch (lower is better).
+PATIENCE_METRICS = ("joints_median_cm", "joints_mean_cm", "base_median_cm", "base_mean_cm")
+
 __all__ = ["build_parser", "check_resume", "fit_statistics", "load_trained", "loss_weights", "main", "run"]
 
 
@@ -178,7 +181,9 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     if args.train_samples is not None:
         changes["train_samples"] = args.train_samples
     if args.patience is not None:
-        changes["patience"], changes["patience_metric"] = args.patience, "joints_median_cm"
+        changes["patience"] = args.patience
+        if base.get("patience_metric", "val_total") == "val_total":  # the generic default: not a pose evaluation value
+            changes["patience_metric"] = "joints_median_cm"
     if args.steps is not None or args.minutes is not None:
         changes["steps"], changes["minutes"] = args.steps, args.minutes
     options = dict(base.get("network_options", {}))
@@ -214,6 +219,8 @@ def run(
     folders, evaluate on `data`'s test split (`datasets`: a (train, test) pair of
     Datasets instead)."""
     weights = loss_weights(config.network, dict(config.loss_weights))
+    if config.patience is not None and config.patience_metric not in PATIENCE_METRICS:
+        raise ConfigError(f"patience_metric must be one of the evaluation's {', '.join(PATIENCE_METRICS)} (lower is better), got {config.patience_metric!r}")
     if datasets is None:
         from earcore.learning.dataset import ImageDataset, ImageDatasets  # the Dataset over the earcore-images format
 
@@ -230,7 +237,20 @@ def run(
             train_set = SampledImages(train_set, config.train_samples, seed=config.seed)
         except ValueError as exc:
             raise ConfigError(f"train_samples: {exc}") from None
+    import earcore.learning.distributed as dist_env
+
+    say = print if dist_env.from_environment().main else (lambda _: None)
     options = dict(config.network_options)
+    source = load_checkpoint(config.transfer_from) if config.transfer_from is not None else None
+    if source is not None:
+        if source.meta.get("network") != config.network:
+            raise ConfigError(f"{config.transfer_from} holds a {source.meta.get('network')} network; train it as --network {source.meta.get('network')}")
+        shape = dict(source.meta.get("options", {}))
+        from_data = ("input_size", "num_keypoints", "num_robots", "zoom")
+        ignored = sorted(k for k, v in options.items() if k not in from_data and k in shape and shape[k] != v)
+        if ignored:
+            say(f"the network's shape comes from {config.transfer_from}; not used: {', '.join(f'{k}={options[k]!r}' for k in ignored)}")
+        options = {**shape, **{k: v for k, v in options.items() if k == "zoom"}}  # the source's zoom unless --zoom says otherwise
     zoom = options.get("zoom", 1)
     if zoom != 1:
         from earcore.learning.dataset import ZoomedImages
@@ -239,11 +259,6 @@ def run(
             train_set = ZoomedImages(train_set, zoom, seed=config.seed)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-    source = load_checkpoint(config.transfer_from) if config.transfer_from is not None else None
-    if source is not None:
-        if source.meta.get("network") != config.network:
-            raise ConfigError(f"{config.transfer_from} holds a {source.meta.get('network')} network; train it as --network {source.meta.get('network')}")
-        options = {**dict(source.meta.get("options", {})), **{k: v for k, v in options.items() if k == "zoom"}}
     options["input_size"] = list(train_set.image_size)
     options["num_keypoints"] = int(train_set.num_keypoints)
     options["num_robots"] = len(train_set.robots)
@@ -252,9 +267,6 @@ def run(
     if resume:
         check_resume(Path(out), network)
     config = config.replace(network_options=network.options.to_dict())
-    import earcore.learning.distributed as dist_env
-
-    say = print if dist_env.from_environment().main else (lambda _: None)
     if source is None:
         fit_statistics(network, train_set, seed=config.seed)
     elif not (resume and (Path(out) / CHECKPOINT_NAME).exists()):  # the transferred network keeps its output scaling and camera

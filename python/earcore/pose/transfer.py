@@ -45,22 +45,28 @@ TRAINABLE = ("all", "paper-vi", "dense", "late")
 
 
 def trainable_modules(network: PoseNetwork, trainable: str | Sequence[str]) -> list[str]:
-    """The module paths that train: a `TRAINABLE` name or the paths themselves."""
-    if isinstance(trainable, str):
-        if trainable not in TRAINABLE:
-            raise ConfigError(f"trainable must be one of {', '.join(TRAINABLE)} or a list of module paths, got {trainable!r}")
-        if trainable == "all":
-            return [""]
-        dense = list(_DENSE.get(network.name, []))
-        if trainable == "dense":
-            return dense
-        if trainable == "late":
-            return dense + list(_LATE.get(network.name, []))
-        if network.name != "multi":
-            raise ConfigError(f"paper-vi names Paper V's layers; the {network.name} network has other ones (use dense, late, all or module paths)")
-        last_red = len(network.red_b) - 1  # type: ignore[arg-type]
-        return dense + ([f"red_b.{last_red}"] if last_red >= 0 else []) + ["mask_out"]
-    return [str(p) for p in trainable]
+    """The module paths that train: `TRAINABLE` names and module paths, in any mix."""
+    parts = [trainable] if isinstance(trainable, str) else [str(p) for p in trainable]
+    out: list[str] = []
+    for part in parts:
+        for path in _named_set(network, part) if part in TRAINABLE else [part]:
+            if path not in out:
+                out.append(path)
+    return out
+
+
+def _named_set(network: PoseNetwork, name: str) -> list[str]:
+    if name == "all":
+        return [""]
+    dense = list(_DENSE.get(network.name, []))
+    if name == "dense":
+        return dense
+    if name == "late":
+        return dense + list(_LATE.get(network.name, []))
+    if network.name != "multi":
+        raise ConfigError(f"paper-vi names Paper V's layers; the {network.name} network has other ones (use dense, late, all or module paths)")
+    last_red = len(network.red_b) - 1  # type: ignore[arg-type]
+    return dense + ([f"red_b.{last_red}"] if last_red >= 0 else []) + ["mask_out"]
 
 
 @dataclass

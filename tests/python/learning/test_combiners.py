@@ -146,7 +146,7 @@ def test_auxnet_starts_as_the_sum_then_weighs_by_its_outputs():
 
 
 def test_auxnet_objective_is_the_relative_change_of_the_total():
-    aux = AuxNet(NAMES, warmup=1, seed=1)
+    aux = AuxNet(NAMES, warmup=2, seed=1)
     for iou, dist in SEQUENCE[:4]:
         aux.update({"iou": iou, "distance": dist})
     losses = {"iou": 0.5, "distance": 11.0}
@@ -159,7 +159,7 @@ def test_auxnet_objective_is_the_relative_change_of_the_total():
 
 def test_auxnet_learns_each_weight_towards_its_loss():
     """For steady losses Eq. 2's minimum over w is w_i = L_i: AuxNet's own optimiser gets there."""
-    aux = AuxNet(NAMES, warmup=1, lr=0.01, seed=0)
+    aux = AuxNet(NAMES, warmup=2, lr=0.01, seed=0)
     steady = {"iou": 0.3, "distance": 6.0}
     for _ in range(3000):
         aux.update(steady)
@@ -168,8 +168,9 @@ def test_auxnet_learns_each_weight_towards_its_loss():
 
 
 def test_auxnet_takes_no_gradient_from_the_network_loss_and_none_to_the_network():
-    aux = AuxNet(NAMES, warmup=1)
+    aux = AuxNet(NAMES, warmup=2)
     aux.update({"iou": 0.4, "distance": 5.0})
+    aux.update({"iou": 0.3, "distance": 4.0})
     aux.optimiser.zero_grad(set_to_none=True)
     p = torch.tensor(2.0, requires_grad=True)
     losses = {"iou": p * 0.2, "distance": p * 3.0}
@@ -181,12 +182,17 @@ def test_auxnet_takes_no_gradient_from_the_network_loss_and_none_to_the_network(
 
 
 def test_learned_state_round_trips_through_the_state_dict():
-    for name in ("kgc", "dwa", "auxnet", "uncertainty"):
-        a, b = combiner_for(name, NAMES, seed=5), combiner_for(name, NAMES, seed=6)
+    options = {"kgc": {}, "dwa": {"period": 5}, "auxnet": {}, "uncertainty": {}}
+    for name, extra in options.items():
+        a, b = combiner_for(name, NAMES, seed=5, **extra), combiner_for(name, NAMES, seed=6, **extra)
         for iou, dist in SEQUENCE * 10:
             a.update({"iou": iou, "distance": dist})
-        b.load_state_dict(a.state_dict())
+        if name == "uncertainty":
+            with torch.no_grad():
+                a.log_var.copy_(torch.tensor([0.3, -1.2]))
         losses = as_tensors({"iou": 0.5, "distance": 7.0})
+        assert a(losses)[1] != b(losses)[1], f"{name}: learned nothing, the round trip would prove nothing"
+        b.load_state_dict(a.state_dict())
         assert a(losses)[1] == b(losses)[1], name
         if name == "auxnet":
             assert b.optimiser.state_dict()["state"], "AuxNet's Adam state travels with it"
@@ -204,3 +210,9 @@ def test_names_options_and_losses_are_checked():
         combiner_for("kgc", NAMES)(as_tensors({"iou": 1.0}))
     with pytest.raises(ConfigError, match="decay"):
         combiner_for("auxnet", NAMES, decay=1.0)
+    with pytest.raises(ConfigError, match="warmup"):
+        combiner_for("kgc", NAMES, warmup=0)
+    with pytest.raises(ConfigError, match="warmup"):
+        combiner_for("auxnet", NAMES, warmup=20.5)
+    with pytest.raises(ConfigError, match="epsilon"):
+        combiner_for("kgc-eps", NAMES, epsilon="abc")

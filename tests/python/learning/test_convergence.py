@@ -80,6 +80,17 @@ def test_ks_statistic_and_pvalue_match_scipy_exact_and_the_limit_distribution():
             assert ours.pvalue == pytest.approx(limit, rel=1e-9)
 
 
+def test_ks_large_and_lopsided_samples():
+    # perfectly interleaved large samples: D tiny, p = 1 (the limit series, summed naively, says 0.04)
+    a = np.arange(0, 400_000, 2, dtype=float)
+    r = ks_2samp(a, a + 1.0)
+    assert r.pvalue == pytest.approx(1.0) and not r.different()
+    # a small sample against a large one is counted exactly, as SciPy's exact test does
+    rng = np.random.default_rng(5)
+    small, large = rng.normal(0.5, 1, 3), rng.normal(0, 1, 5000)
+    assert ks_2samp(small, large).pvalue == pytest.approx(scipy.stats.ks_2samp(small, large, method="exact").pvalue, rel=1e-6)
+
+
 def test_ks_counted_by_hand():
     # a = {1, 2}, b = {3, 4}: D = 1; of the C(4, 2) = 6 orderings only two ({a, a, b, b}
     # and {b, b, a, a}) reach D = 1, so p = 2/6.

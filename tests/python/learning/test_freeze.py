@@ -77,3 +77,16 @@ def test_names_that_match_nothing_and_nothing_to_train(tmp_path):
         p.requires_grad_(False)
     with pytest.raises(ConfigError, match="nothing to train"):
         train(net, Objective(), Data(), CONFIG, tmp_path / "run", combiner=FixedWeights({"joints": 1.0}), progress=False, log=None)
+
+
+def test_statistics_without_parameters_are_held_and_a_second_freeze_replaces_the_first():
+    net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.BatchNorm2d(4, affine=False), torch.nn.Flatten(), torch.nn.Linear(16, 2))
+    freeze(net, ["3"])
+    net.train()
+    before = net[1].running_mean.clone()
+    net(torch.rand(4, 3, 4, 4))
+    assert torch.equal(before, net[1].running_mean), "a frozen part's batch norm without parameters drifted"
+    freeze(net, [""])
+    net.train()
+    net(torch.rand(4, 3, 4, 4))
+    assert not torch.equal(before, net[1].running_mean), "unfrozen again, its statistics must follow the data"

@@ -20,6 +20,7 @@ from fake_data import FakeDataset  # noqa: E402
 from earcore.errors import ConfigError  # noqa: E402
 from earcore.learning.checkpoint import load_checkpoint  # noqa: E402
 from earcore.learning.config import TrainConfig  # noqa: E402
+from earcore.learning.freeze import freeze  # noqa: E402
 from earcore.pose.networks import build_network  # noqa: E402
 from earcore.pose.train import run  # noqa: E402
 from earcore.pose.transfer import trainable_modules, transfer_weights  # noqa: E402
@@ -87,8 +88,9 @@ def test_bad_transfers_are_refused(source):
     with pytest.raises(ConfigError, match="multi network"):
         transfer_weights(keypoint, state.model, state.meta, ["red", "green"])
     net = build_network("multi", {**OPTIONS, "input_size": (32, 32)})
-    with pytest.raises(ConfigError, match="one of"):
-        trainable_modules(net, "stage-7")
+    with pytest.raises(ConfigError, match="no parameters under"):
+        freeze(net, trainable_modules(net, "stage-7"))
+    assert trainable_modules(net, ["dense", "mask_out", "joints_head"]) == ["blue_fc", "green_fc", "joints_head", "type_head", "base_head", "mask_out"]
     with pytest.raises(ConfigError, match="paper-vi"):
         trainable_modules(keypoint, "paper-vi")
 
@@ -149,3 +151,10 @@ def test_a_few_images_drawn_from_the_training_set(tmp_path):
     assert torch.equal(a[0]["image"], full[int(a.indices[0])]["image"])
     with pytest.raises(ConfigError, match="train_samples: 9 images asked for, the set has 8"):
         run(_config(train_samples=9), Path("unused"), tmp_path / "x", datasets=(full, FakeDataset(2, 32, 32, keypoints=4, seed=1)), progress=False)
+
+
+def test_patience_on_a_value_the_pose_evaluation_does_not_give_is_refused_before_training(tmp_path):
+    sets = (FakeDataset(8, 32, 32, keypoints=4, seed=0), FakeDataset(2, 32, 32, keypoints=4, seed=1))
+    with pytest.raises(ConfigError, match="patience_metric must be one of"):
+        run(_config(patience=2), Path("unused"), tmp_path / "x", datasets=sets, progress=False)
+    assert not (tmp_path / "x").exists()
