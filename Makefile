@@ -83,7 +83,8 @@ bench-transfer: develop $(VENV)/.learning ## Papers VI-VII from bench-pose's UR 
 	$(VENV)/bin/earcore dataset robots --out benches/out/data/iiwa --robots iiwa --seed 11 --quiet
 	$(VENV)/bin/earcore dataset robots --out benches/out/data/mixed --robots ur3,ur5,ur10,iiwa,panda --count 400 --seed 12 --quiet
 	$(VENV)/bin/earcore dataset robots --out benches/out/data/ur64 --size 64x53 --seed 13 --quiet
-	$(PY) benches/pose_transfer.py --source benches/out/pose/multi --iiwa benches/out/data/iiwa --mixed benches/out/data/mixed --out benches/out/transfer
+	$(PY) benches/pose_transfer.py --source benches/out/pose/multi --ur benches/out/data/ur --iiwa benches/out/data/iiwa \
+	  --new benches/out/data/mixed --new-robots iiwa,panda --out benches/out/transfer
 	$(PY) benches/loss_combiners.py --data benches/out/data/ur64 --runs 8 --steps 500 --batch 16 --eval-every 20 --jobs 2 --out benches/out/combiners
 
 bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python-fcl, open3d-cpu + pyoctomap, small_gicp)

@@ -8,15 +8,17 @@
   `--full-minutes`. Table II's layout, the sweep (Fig. 4c's accuracy and training
   time against N), and what the transferred network still knows of the UR robots
   (Paper VI forgets them).
-- Paper VII: the same UR network, two stages on a set of the old and the new robots
-  in equal numbers (`--mixed`: ur3, ur5, ur10, iiwa, panda): stage 1 trains only the
-  dense layers until the joint error stops falling, stage 2 also the later
-  convolutions. Table II's layout per robot, and every old robot before and after.
+- Paper VII: the same UR network, two stages on the old and the new robots in equal
+  numbers (`--per-robot` training images of each: the UR ones from the source's own
+  training images `--ur`, the new ones from `--new`): stage 1 trains only the dense
+  layers until the joint error stops falling, stage 2 also the later convolutions.
+  Table II's layout per robot, and every old robot before and after on its own test
+  split.
 
     earcore dataset robots --out data/iiwa --robots iiwa --seed 11
     earcore dataset robots --out data/mixed --robots ur3,ur5,ur10,iiwa,panda --count 400 --seed 12
-    PYTHONPATH=python python benches/pose_transfer.py --source runs/ur-multi --iiwa data/iiwa \\
-        --mixed data/mixed --out benches/out/transfer
+    PYTHONPATH=python python benches/pose_transfer.py --source runs/ur-multi --ur data/ur --iiwa data/iiwa \\
+        --new data/mixed --new-robots iiwa,panda --out benches/out/transfer
 
 Runs already in `--out` are kept (rerunning only reports). One thread per run; two
 runs at once where they are independent.
@@ -36,7 +38,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from pose_accuracy import machine  # noqa: E402
 
 EARCORE = [sys.executable, "-m", "earcore.pose.train"]
-OLD = ("ur3", "ur5", "ur10")
 ROWS = (
     ("mask_accuracy", "Mask accuracy", "{:.1%}"),
     ("type_accuracy", "Robot type accuracy", "{:.1%}"),
@@ -93,7 +94,15 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--source", type=Path, required=True, help="the multi-objective network trained on the UR robots (run folder)")
     parser.add_argument("--iiwa", type=Path, required=True, help="earcore-images folder of iiwa recordings")
-    parser.add_argument("--mixed", type=Path, required=True, help="earcore-images folder of ur3, ur5, ur10, iiwa and panda in equal numbers")
+    parser.add_argument(
+        "--ur",
+        type=Path,
+        required=True,
+        help="the UR images the source was trained on (its train split joins Paper VII's transfer set, its test split measures forgetting)",
+    )
+    parser.add_argument("--new", type=Path, required=True, help="earcore-images folder with the new robots' recordings")
+    parser.add_argument("--new-robots", default="iiwa,panda", help="the new robots (of --new)")
+    parser.add_argument("--per-robot", type=int, default=320, help="Paper VII: training images of each robot, old and new")
     parser.add_argument("--out", type=Path, default=Path("benches/out/transfer"))
     parser.add_argument("--full-minutes", type=float, default=30.0)
     parser.add_argument("--sizes", default="300,50,100,1000,1470")
@@ -122,15 +131,20 @@ def main() -> int:
             "0.5",
         )
         wait(start(train_command(out / f"vi-n{n}", args.iiwa, budget, *more), out / f"vi-n{n}.log"))
-    stage1 = ("--transfer-from", str(args.source), "--trainable", "dense", "--patience", "3", "--eval-minutes", "0.5")
-    wait(start(train_command(out / "vii-stage1", args.mixed, args.stage1_minutes, *stage1), out / "vii-stage1.log"))
-    stage2 = ("--transfer-from", str(out / "vii-stage1"), "--trainable", "late", "--eval-minutes", "1")
-    wait(start(train_command(out / "vii-stage2", args.mixed, args.stage2_minutes, *stage2), out / "vii-stage2.log"))
+    small = max((n for n in sizes if n <= 300), default=min(sizes))
+    for t in ("late", "all"):  # the same small set with more of the network training
+        more = ("--transfer-from", str(args.source), "--trainable", t, "--train-samples", str(small), "--patience", "3", "--eval-minutes", "0.5")
+        wait(start(train_command(out / f"vi-n{small}-{t}", args.iiwa, budget, *more), out / f"vi-n{small}-{t}.log"))
+    new_robots = args.new_robots.split(",")
+    union = ("--robots", *new_robots, "--join", str(args.ur), "--train-samples", str(args.per_robot), "--per-robot")
+    stage1 = (*union, "--transfer-from", str(args.source), "--trainable", "dense", "--patience", "3", "--eval-minutes", "0.5")
+    wait(start(train_command(out / "vii-stage1", args.new, args.stage1_minutes, *stage1), out / "vii-stage1.log"))
+    stage2 = (*union, "--transfer-from", str(out / "vii-stage1"), "--trainable", "late", "--eval-minutes", "1")
+    wait(start(train_command(out / "vii-stage2", args.new, args.stage2_minutes, *stage2), out / "vii-stage2.log"))
     wait(full)
 
     full_info = run_info(out / "iiwa-full")
     sweep = {n: run_info(out / f"vi-n{n}") for n in sizes}
-    small = max((n for n in sizes if n <= 300), default=sizes[0])
     vi = sweep[small]
     lines = [
         f"Transfer to new robots, {date.today().isoformat()}, {machine()}",
@@ -142,31 +156,33 @@ def main() -> int:
         "|---|---|---|",
     ]
     for key, label, fmt in ROWS:
-        if key == "type_accuracy":
-            continue
-        lines.append(f"| {label} | {cell(full_info['metrics']['all'], key, fmt)} | {cell(vi['metrics']['all'], key, fmt)} |")
+        if key != "type_accuracy":
+            lines.append(f"| {label} | {cell(full_info['metrics']['all'], key, fmt)} | {cell(vi['metrics']['all'], key, fmt)} |")
     lines.append(f"| Training time | {full_info['minutes']:.1f} min | {vi['minutes']:.1f} min |")
     lines += [
         "",
         "The sweep (Fig. 4c): transfer on N iiwa images, at most 1/8 of the full training's time, stopped after 3 evaluations without a lower joint error:",
         "",
+        "| N | Trains | Joints median (cm) | Base median (cm) | Mask accuracy | Training time (min) | Steps |",
+        "|---|---|---|---|---|---|---|",
     ]
-    lines += ["| N | Joints median (cm) | Base median (cm) | Mask accuracy | Training time (min) | Steps |", "|---|---|---|---|---|---|"]
-    for n in sorted(sweep):
-        m = sweep[n]["metrics"]["all"]
+    variants = [(n, "paper-vi", sweep[n]) for n in sorted(sweep)] + [(small, t, run_info(out / f"vi-n{small}-{t}")) for t in ("late", "all")]
+    for n, trains, info in variants:
+        m = info["metrics"]["all"]
         lines.append(
-            f"| {n} | {m['joints_median_cm']:.2f} | {m['base_median_cm']:.2f} | {m['mask_accuracy']:.1%} | {sweep[n]['minutes']:.1f} | {sweep[n]['steps']} |"
+            f"| {n} | {trains} | {m['joints_median_cm']:.2f} | {m['base_median_cm']:.2f} | {m['mask_accuracy']:.1%} | {info['minutes']:.1f} | {info['steps']} |"
         )
 
-    before = evaluated(args.source, args.mixed, list(OLD))
-    forgot = evaluated(out / f"vi-n{small}", args.mixed, list(OLD), other=True)
-    after_info = run_info(out / "vii-stage2")
-    stage1_info = run_info(out / "vii-stage1")
+    before = evaluated(args.source, args.ur, None)
+    forgot = evaluated(out / f"vi-n{small}", args.ur, None, other=True)
+    after_old = evaluated(out / "vii-stage2", args.ur, None)
+    stage1_info, after_info = run_info(out / "vii-stage1"), run_info(out / "vii-stage2")
     after = after_info["metrics"]
     robots = [r for r in after if r != "all"]
     lines += [
         "",
-        f"Paper VII, Table II's layout (test split of {args.mixed}; stage 1 {stage1_info['minutes']:.1f} min, stage 2 {after_info['minutes']:.1f} min):",
+        f"Paper VII, Table II's layout ({args.per_robot} training images per robot; test splits of {args.ur} and {args.new}; "
+        f"stage 1 {stage1_info['minutes']:.1f} min, stage 2 {after_info['minutes']:.1f} min):",
         "",
         "| Measure | " + " | ".join(robots) + " |",
         "|---|" + "---|" * len(robots),
@@ -175,14 +191,15 @@ def main() -> int:
         lines.append(f"| {label} | " + " | ".join(cell(after[r], key, fmt) for r in robots) + " |")
     lines += [
         "",
-        "The old robots before and after (joint / base median, cm; type accuracy), and Paper VI's one-stage network (iiwa only) on them:",
+        f"The old robots on their own test split ({args.ur}) before and after (joint / base median in cm, type accuracy), "
+        "and Paper VI's one-stage network (iiwa only) on them:",
         "",
-        "| Robot | Before (UR network) | After two stages | Change of the joint error | Paper VI's network (forgot) |",
+        "| Robot | Before (UR network) | After two stages | Change of the joint error | Paper VI's network |",
         "|---|---|---|---|---|",
     ]
-    for r in OLD:
-        b, a, f = before.get(r, {}), after.get(r, {}), forgot.get(r, {})
-        change = 100.0 * (a["joints_median_cm"] / b["joints_median_cm"] - 1.0) if b and a else float("nan")
+    for r in [r for r in before if r != "all"]:
+        b, a, f = before[r], after_old.get(r, {}), forgot.get(r, {})
+        change = 100.0 * (a["joints_median_cm"] / b["joints_median_cm"] - 1.0) if a else float("nan")
         lines.append(f"| {r} | {summary(b)} | {summary(a)} | {change:+.1f} % | {summary(f)} |")
     text = "\n".join(lines) + "\n"
     (out / "report.md").write_text(text)

@@ -58,6 +58,8 @@ class TrainConfig:
     transfer_from: str | None = None
     #: train on this many images drawn at random from the training set (None: all)
     train_samples: int | None = None
+    #: `train_samples` images of each robot instead
+    samples_per_robot: bool = False
     #: stop once this many evaluations in a row brought no new best `patience_metric` (None: never)
     patience: int | None = None
     #: the evaluation value `patience` watches; lower is better
@@ -116,6 +118,8 @@ class TrainConfig:
             validate.count(self.patience, "patience")
         if self.train_samples is not None:
             validate.count(self.train_samples, "train_samples")
+        if not isinstance(self.samples_per_robot, bool):
+            raise ConfigError(f"samples_per_robot must be true or false, got {self.samples_per_robot!r}")
         if not isinstance(self.patience_metric, str) or not self.patience_metric:
             raise ConfigError(f"patience_metric must be a name, got {self.patience_metric!r}")
         validate.one_of(self.device, DEVICES, "device")

@@ -159,6 +159,11 @@ class ImageDataset(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self._load()["rgb"])
 
+    def robot_labels(self) -> np.ndarray:
+        """Each image's robot index (among `robots`)."""
+        a = self._load()
+        return a["robot"] if "robot" in a else np.zeros(0, np.int64)
+
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         a = self._load()
         n = len(a["rgb"])
@@ -188,31 +193,37 @@ class ImageDataset(torch.utils.data.Dataset):
 
 
 class ImageDatasets(torch.utils.data.Dataset):
-    """Several `ImageDataset`s as one (a recordings set and a random-camera set, say):
-    they must show the same robots in the same class order, with as many keypoints and
-    images of one size; the first one's manifest describes them all."""
+    """Several `ImageDataset`s as one (a recordings set and a random-camera set; the old
+    robots' images and a new robot's). Images must be of one size; the robots are
+    united by name in order of first appearance (an image's `robot` is its robot's
+    index among them), the keypoints and joint angles padded to the most any robot
+    has (padding marked invalid)."""
 
-    def __init__(self, parts: list[ImageDataset]) -> None:
+    def __init__(self, parts: list[Any]) -> None:
         if not parts:
             raise ValueError("ImageDatasets needs at least one dataset")
         first = parts[0]
         for other in parts[1:]:
-            for what, mine, theirs in (
-                ("robots", first.robots, other.robots),
-                ("keypoints per image", first.num_keypoints, other.num_keypoints),
-                ("image size", first.image_size, other.image_size),
-                ("joints", first.max_dof, other.max_dof),
-            ):
-                if mine != theirs:
-                    raise DatasetError(f"{other.folder} cannot join {first.folder}: {what} {theirs} there, {mine} here")
+            if tuple(other.image_size) != tuple(first.image_size):
+                raise DatasetError(f"{other.folder} cannot join {first.folder}: image size {tuple(other.image_size)} there, {tuple(first.image_size)} here")
         self.parts = list(parts)
         self.folder = first.folder
-        self.manifest = first.manifest
-        self.robots = first.robots
-        self.num_keypoints = first.num_keypoints
-        self.max_dof = first.max_dof
+        self.robots: list[str] = []
+        for part in parts:
+            self.robots += [r for r in part.robots if r not in self.robots]
+        self.num_keypoints = max(int(p.num_keypoints) for p in parts)
+        self.max_dof = max(int(p.max_dof) for p in parts)
         self.image_size = first.image_size
         self.split = first.split
+        self.manifest = dict(first.manifest)
+        for key in ("keypoints", "keypoint_frames", "dof"):
+            merged: dict[str, Any] = {}
+            for part in parts:
+                merged.update({k: v for k, v in part.manifest.get(key, {}).items() if k not in merged})
+            if merged:
+                self.manifest[key] = merged
+        self.manifest["robots"] = list(self.robots)
+        self._maps = [np.array([self.robots.index(r) for r in part.robots], dtype=np.int64) for part in parts]
 
     def set_epoch(self, epoch: int) -> None:
         for part in self.parts:
@@ -221,30 +232,55 @@ class ImageDatasets(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return sum(len(part) for part in self.parts)
 
+    def robot_labels(self) -> np.ndarray:
+        """Each image's robot index (among `robots`), without loading the images again."""
+        return np.concatenate([m[part.robot_labels()] for m, part in zip(self._maps, self.parts)]) if len(self) else np.zeros(0, np.int64)
+
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         n = len(self)
         if not -n <= index < n:
             raise IndexError(f"index {index} out of range for {n} samples")
         i = index % n
-        for part in self.parts:
+        for m, part in zip(self._maps, self.parts):
             if i < len(part):
-                return part[i]
+                return self._united(part[i], m)
             i -= len(part)
         raise AssertionError("unreachable: the index was checked against the total length")
+
+    def _united(self, item: dict[str, torch.Tensor], robot_map: np.ndarray) -> dict[str, torch.Tensor]:
+        out = dict(item)
+        out["robot"] = torch.tensor(int(robot_map[int(item["robot"])]), dtype=torch.int64)
+        k, d = self.num_keypoints, self.max_dof
+        for key, size in (("keypoints", k), ("pixels", k), ("keypoint_valid", k), ("keypoint_in_image", k), ("joints", d)):
+            value = item.get(key)
+            if value is not None and value.shape[0] < size:
+                pad = torch.zeros((size - value.shape[0], *value.shape[1:]), dtype=value.dtype)
+                out[key] = torch.cat([value, pad])
+        return out
 
 
 class SampledImages(torch.utils.data.Dataset):
     """`count` images drawn at random (without replacement, the same for the same seed)
     from a dataset, which describes them (robots, keypoints, image size): the small
-    training sets of transfer learning."""
+    training sets of transfer learning. With `per_robot`, `count` images of each robot
+    (the dataset's `robot_labels()`; a robot with fewer gives all it has)."""
 
-    def __init__(self, dataset: Any, count: int, seed: int = 0) -> None:
+    def __init__(self, dataset: Any, count: int, seed: int = 0, *, per_robot: bool = False) -> None:
         if isinstance(count, bool) or not isinstance(count, int) or count < 1:
             raise ValueError(f"count must be a whole number >= 1, got {count!r}")
-        if count > len(dataset):
-            raise ValueError(f"{count} images asked for, the set has {len(dataset)}")
+        rng = np.random.default_rng(seed)
+        if per_robot:
+            labels = np.asarray(dataset.robot_labels())
+            picks = []
+            for r in np.unique(labels):
+                rows = np.flatnonzero(labels == r)
+                picks.append(rng.choice(rows, size=min(count, len(rows)), replace=False))
+            self.indices = np.sort(np.concatenate(picks)) if picks else np.zeros(0, np.int64)
+        else:
+            if count > len(dataset):
+                raise ValueError(f"{count} images asked for, the set has {len(dataset)}")
+            self.indices = np.sort(rng.choice(len(dataset), size=count, replace=False))
         self.dataset = dataset
-        self.indices = np.sort(np.random.default_rng(seed).choice(len(dataset), size=count, replace=False))
         for name in ("folder", "manifest", "robots", "num_keypoints", "max_dof", "image_size", "split"):
             if hasattr(dataset, name):
                 setattr(self, name, getattr(dataset, name))

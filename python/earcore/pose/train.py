@@ -104,7 +104,14 @@ def loss_weights(network: str, given: dict[str, float]) -> dict[str, float]:
 def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser, prog: str = "python -m earcore.pose.train") -> argparse.ArgumentParser:
     p = parser_class(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", type=Path, required=True, help="an earcore-images dataset folder")
-    p.add_argument("--extra", type=Path, action="append", default=[], help="more training images: all of this folder (same robots, size), repeatable")
+    p.add_argument("--extra", type=Path, action="append", default=[], help="more training images: all of this folder (same image size), repeatable")
+    p.add_argument(
+        "--join",
+        type=Path,
+        action="append",
+        default=[],
+        help="another dataset: its train split joins the training images, its test split the test images (robots united by name), repeatable",
+    )
     p.add_argument("--network", choices=NETWORKS, default=None, help="multi (Paper V, default), cascade (Paper IV) or keypoint")
     p.add_argument("--out", type=Path, required=True, help="the run folder (config, checkpoint, metrics, results)")
     p.add_argument("--preset", choices=sorted(PRESETS), default=None, help="network shape: small (shipped, default) or paper")
@@ -128,6 +135,7 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     p.add_argument("--loss-combiner", choices=COMBINERS, default=None, help="how the losses become one total (default fixed: the papers' weights)")
     p.add_argument("--combiner-option", action="append", default=[], metavar="KEY=JSON", help="a combiner setting, e.g. --combiner-option lr=1e-3")
     p.add_argument("--train-samples", type=int, default=None, metavar="N", help="train on N images drawn at random from the training images")
+    p.add_argument("--per-robot", action="store_true", help="--train-samples N images of each robot")
     p.add_argument("--patience", type=int, default=None, help="stop after this many evaluations without a lower joint error")
     p.add_argument("--config", type=Path, default=None, help="a TrainConfig JSON file (the command line's options override it)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
@@ -180,6 +188,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         changes["combiner_options"] = {**base.get("combiner_options", {}), **_key_values(args.combiner_option, "--combiner-option")}
     if args.train_samples is not None:
         changes["train_samples"] = args.train_samples
+    if args.per_robot:
+        changes["samples_per_robot"] = True
     if args.patience is not None:
         changes["patience"] = args.patience
         if base.get("patience_metric", "val_total") == "val_total":  # the generic default: not a pose evaluation value
@@ -196,7 +206,15 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         options["zoom"] = args.zoom
     changes["network_options"] = options
     notes = dict(base.get("notes", {}))
-    notes.update({"data": str(args.data), "extra": [str(e) for e in args.extra], "robots": args.robots, "preset": args.preset or notes.get("preset", "small")})
+    notes.update(
+        {
+            "data": str(args.data),
+            "extra": [str(e) for e in args.extra],
+            "join": [str(j) for j in args.join],
+            "robots": args.robots,
+            "preset": args.preset or notes.get("preset", "small"),
+        }
+    )
     changes["notes"] = notes
     merged = {**base, **changes}
     if not base and "network" not in changes:
@@ -211,30 +229,41 @@ def run(
     *,
     robots: list[str] | None = None,
     extra: list[Path] | tuple[Path, ...] = (),
+    join: list[Path] | tuple[Path, ...] = (),
     resume: bool = False,
     progress: bool = True,
     datasets: tuple[Any, Any] | None = None,
 ) -> tuple[TrainResult, Evaluation | None]:
-    """Train `config.network` on `data`'s train split and every image of the `extra`
-    folders, evaluate on `data`'s test split (`datasets`: a (train, test) pair of
-    Datasets instead)."""
+    """Train `config.network` on `data`'s train split, every image of the `extra`
+    folders and the train splits of the `join` folders; evaluate on the test splits of
+    `data` and the `join` folders (`datasets`: a (train, test) pair of Datasets
+    instead)."""
     weights = loss_weights(config.network, dict(config.loss_weights))
     if config.patience is not None and config.patience_metric not in PATIENCE_METRICS:
         raise ConfigError(f"patience_metric must be one of the evaluation's {', '.join(PATIENCE_METRICS)} (lower is better), got {config.patience_metric!r}")
     if datasets is None:
         from earcore.learning.dataset import ImageDataset, ImageDatasets  # the Dataset over the earcore-images format
 
+        def subset(folder: Path) -> list[str] | None:  # --robots picks among a joined folder's own robots
+            if robots is None:
+                return None
+            return [r for r in robots if r in ImageDataset(folder, split=None).robots]
+
         train_set: Any = ImageDataset(data, split="train", robots=robots, noise=True, seed=config.seed)
-        if extra:
-            train_set = ImageDatasets([train_set, *(ImageDataset(e, split=None, robots=robots, noise=True, seed=config.seed + 1 + j) for j, e in enumerate(extra))])
-        test_set = ImageDataset(data, split="test", robots=robots, noise=False, seed=config.seed)
+        test_set: Any = ImageDataset(data, split="test", robots=robots, noise=False, seed=config.seed)
+        joined = [ImageDataset(f, split="train", robots=subset(f), noise=True, seed=config.seed + 101 + j) for j, f in enumerate(join)]
+        more = [ImageDataset(e, split=None, robots=subset(e), noise=True, seed=config.seed + 1 + j) for j, e in enumerate(extra)]
+        if joined or more:
+            train_set = ImageDatasets([train_set, *joined, *more])
+        if join:
+            test_set = ImageDatasets([test_set, *(ImageDataset(f, split="test", robots=subset(f), noise=False, seed=config.seed) for f in join)])
     else:
         train_set, test_set = datasets
     if config.train_samples is not None:
         from earcore.learning.dataset import SampledImages
 
         try:
-            train_set = SampledImages(train_set, config.train_samples, seed=config.seed)
+            train_set = SampledImages(train_set, config.train_samples, seed=config.seed, per_robot=config.samples_per_robot)
         except ValueError as exc:
             raise ConfigError(f"train_samples: {exc}") from None
     import earcore.learning.distributed as dist_env
@@ -284,6 +313,7 @@ def run(
         "input_size": list(train_set.image_size),
         "data": str(data),
         "extra": [str(e) for e in extra],
+        "join": [str(j) for j in join],
         "transferred_from": config.transfer_from,
     }
     combiner = combiner_for(config.loss_combiner, list(weights), fixed=weights, seed=config.seed, **config.combiner_options)
@@ -318,7 +348,7 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
     except ConfigError as exc:
         parser.error(str(exc))
     try:
-        _, table = run(config, args.data, args.out, robots=args.robots, extra=args.extra, resume=args.resume, progress=not args.no_progress)
+        _, table = run(config, args.data, args.out, robots=args.robots, extra=args.extra, join=args.join, resume=args.resume, progress=not args.no_progress)
     except ConfigError as exc:  # a setting that does not fit the data or the run (batch size, loss weights)
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

@@ -6,12 +6,17 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("pybullet")
+
+sys.path.insert(0, str(Path(__file__).parent))
+from format_folder import write_folder  # noqa: E402
 
 from earcore.learning.dataset import ImageDataset  # noqa: E402
 from earcore.learning.errors import DatasetError  # noqa: E402
@@ -150,7 +155,7 @@ def test_quaternions_scalar_first_give_back_the_rotations_they_came_from():
     assert np.allclose(rotation_from_quaternion([np.cos(half), 0, 0, np.sin(half)]), rotation_from_vector([0, 0, np.radians(30)]))
 
 
-def test_datasets_join_in_order_and_refuse_other_robots(folder, tmp_path):
+def test_datasets_join_in_order_and_unite_robots_by_name(folder, tmp_path):
     from earcore.learning.dataset import ImageDatasets
 
     train, test = ImageDataset(folder, split="train", noise=False), ImageDataset(folder, split="test", noise=False)
@@ -169,11 +174,25 @@ def test_datasets_join_in_order_and_refuse_other_robots(folder, tmp_path):
     first = noisy[len(train)]["image"].clone()
     noisy.set_epoch(1)
     assert not torch.equal(noisy[len(train)]["image"], first)
-    other = copy(folder, tmp_path)
-    manifest = json.loads((other / "manifest.json").read_text())
-    manifest["robots"] = ["panda", "ur3"]
-    (other / "manifest.json").write_text(json.dumps(manifest))
-    with pytest.raises(DatasetError, match="robots"):
-        ImageDatasets([train, ImageDataset(other, split=None)])
+    # Other robots are united by name; their keypoints and joints padded and marked invalid.
+    w, h = train.image_size
+    iiwa = write_folder(tmp_path / "iiwa", robots=("iiwa", "ur3"), per_robot=2, width=w, height=h, seed=3)
+    other = ImageDataset(iiwa, split=None, noise=False)
+    united = ImageDatasets([train, other])
+    assert united.robots == [*train.robots, "iiwa"] and united.num_keypoints == max(train.num_keypoints, other.num_keypoints)
+    labels = united.robot_labels()
+    for i in range(len(other)):
+        got, want = united[len(train) + i], other[i]
+        name = other.robots[int(want["robot"])]
+        assert united.robots[int(got["robot"])] == name and int(labels[len(train) + i]) == int(got["robot"])
+        k = want["keypoints"].shape[0]
+        assert torch.equal(got["keypoints"][:k], want["keypoints"]) and not got["keypoint_valid"][k:].any()
+    short = ImageDatasets([other, train])  # fewer keypoints joining more: padded
+    item = short[len(other)]
+    assert item["keypoints"].shape[0] == short.num_keypoints and not item["keypoint_valid"][train.num_keypoints :].any()
+    assert set(united.manifest["keypoints"]) == set(united.robots)
+    small = write_folder(tmp_path / "small", robots=("ur3",), per_robot=2, width=16, height=12)
+    with pytest.raises(DatasetError, match="image size"):
+        ImageDatasets([train, ImageDataset(small, split=None)])
     with pytest.raises(ValueError):
         ImageDatasets([])

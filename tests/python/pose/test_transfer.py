@@ -10,6 +10,7 @@ import shutil
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
@@ -158,3 +159,22 @@ def test_patience_on_a_value_the_pose_evaluation_does_not_give_is_refused_before
     with pytest.raises(ConfigError, match="patience_metric must be one of"):
         run(_config(patience=2), Path("unused"), tmp_path / "x", datasets=sets, progress=False)
     assert not (tmp_path / "x").exists()
+
+
+def test_joined_sets_unite_robots_and_a_few_images_of_each_robot(tmp_path):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learning"))
+    from format_folder import write_folder
+
+    from earcore.learning.dataset import ImageDataset, ImageDatasets, SampledImages
+
+    old = write_folder(tmp_path / "old", robots=("ur3", "ur10"), per_robot=10, width=32, height=24)
+    new = write_folder(tmp_path / "new", robots=("iiwa",), per_robot=10, width=32, height=24, seed=1)
+    both = ImageDatasets([ImageDataset(old, split=None, noise=False), ImageDataset(new, split=None, noise=False)])
+    few = SampledImages(both, 3, seed=0, per_robot=True)
+    labels = both.robot_labels()[few.indices]
+    assert sorted(np.bincount(labels).tolist()) == [3, 3, 3]
+    config = _config(train_samples=3, samples_per_robot=True, batch_size=3, network_options={**OPTIONS})
+    result, table = run(config, old, tmp_path / "run", join=[new], progress=False)
+    meta = load_checkpoint(tmp_path / "run").meta
+    assert meta["robots"] == ["ur3", "ur10", "iiwa"] and meta["join"] == [str(new)]
+    assert table is not None and {"ur3", "ur10", "iiwa"} <= set(table.metrics)
