@@ -237,26 +237,22 @@ def run(
     """Train `config.network` on `data`'s train split, every image of the `extra`
     folders and the train splits of the `join` folders; evaluate on the test splits of
     `data` and the `join` folders (`datasets`: a (train, test) pair of Datasets
-    instead)."""
+    instead). `robots` picks among the images of `data` and `extra`; a joined folder
+    brings all its robots."""
     weights = loss_weights(config.network, dict(config.loss_weights))
     if config.patience is not None and config.patience_metric not in PATIENCE_METRICS:
         raise ConfigError(f"patience_metric must be one of the evaluation's {', '.join(PATIENCE_METRICS)} (lower is better), got {config.patience_metric!r}")
     if datasets is None:
         from earcore.learning.dataset import ImageDataset, ImageDatasets  # the Dataset over the earcore-images format
 
-        def subset(folder: Path) -> list[str] | None:  # --robots picks among a joined folder's own robots
-            if robots is None:
-                return None
-            return [r for r in robots if r in ImageDataset(folder, split=None).robots]
-
         train_set: Any = ImageDataset(data, split="train", robots=robots, noise=True, seed=config.seed)
         test_set: Any = ImageDataset(data, split="test", robots=robots, noise=False, seed=config.seed)
-        joined = [ImageDataset(f, split="train", robots=subset(f), noise=True, seed=config.seed + 101 + j) for j, f in enumerate(join)]
-        more = [ImageDataset(e, split=None, robots=subset(e), noise=True, seed=config.seed + 1 + j) for j, e in enumerate(extra)]
+        joined = [ImageDataset(f, split="train", noise=True, seed=config.seed + 101 + j) for j, f in enumerate(join)]
+        more = [ImageDataset(e, split=None, robots=robots, noise=True, seed=config.seed + 1 + j) for j, e in enumerate(extra)]
         if joined or more:
             train_set = ImageDatasets([train_set, *joined, *more])
         if join:
-            test_set = ImageDatasets([test_set, *(ImageDataset(f, split="test", robots=subset(f), noise=False, seed=config.seed) for f in join)])
+            test_set = ImageDatasets([test_set, *(ImageDataset(f, split="test", noise=False, seed=config.seed) for f in join)])
     else:
         train_set, test_set = datasets
     if config.train_samples is not None:

@@ -178,3 +178,16 @@ def test_joined_sets_unite_robots_and_a_few_images_of_each_robot(tmp_path):
     meta = load_checkpoint(tmp_path / "run").meta
     assert meta["robots"] == ["ur3", "ur10", "iiwa"] and meta["join"] == [str(new)]
     assert table is not None and {"ur3", "ur10", "iiwa"} <= set(table.metrics)
+
+
+def test_robots_pick_in_the_data_and_a_joined_set_brings_all_its_robots(tmp_path):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learning"))
+    from format_folder import write_folder
+
+    new = write_folder(tmp_path / "new", robots=("ur3", "iiwa"), per_robot=6, width=32, height=24, seed=1)
+    old = write_folder(tmp_path / "old", robots=("ur3", "ur10"), per_robot=6, width=32, height=24)
+    config = _config(steps=1, batch_size=4)
+    _, table = run(config, new, tmp_path / "run", robots=["iiwa"], join=[old], progress=False)
+    assert table is not None
+    shown = {r: int(m["samples"]) for r, m in table.metrics.items() if r != "all"}
+    assert set(shown) == {"iiwa", "ur3", "ur10"} and shown["ur3"] > 0 and shown["ur10"] > 0, shown
