@@ -1,6 +1,6 @@
 """Training on a recordings set plus every image of other sets (`--extra`): the network's
 output statistics come from the union, the run says what it was trained on, and a set
-of other robots is refused before training starts."""
+whose robots come in another order is united with it by name."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ torch = pytest.importorskip("torch")
 
 from earcore.learning.config import TrainConfig  # noqa: E402
 from earcore.learning.dataset import ImageDataset  # noqa: E402
-from earcore.learning.errors import DatasetError  # noqa: E402
 from earcore.pose.train import load_trained, run  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "learning"))
@@ -45,9 +44,15 @@ def test_extra_images_join_the_training_set(tmp_path):
     assert not np.allclose(net.out_mean.numpy(), alone.mean(0), atol=1e-5)
 
 
-def test_extra_images_of_other_robots_are_refused(tmp_path):
+def test_extra_images_of_robots_in_another_order_are_united_by_name(tmp_path):
+    from earcore.learning.dataset import ImageDatasets
+
     main = write_folder(tmp_path / "main", robots=("ur3", "ur10"), per_robot=4)
     other = write_folder(tmp_path / "other", robots=("ur10", "ur3"), per_robot=4)
-    with pytest.raises(DatasetError, match="robots"):
-        run(config(), main, tmp_path / "run", extra=[other], progress=False)
-    assert not (tmp_path / "run" / "checkpoint.pt").exists()
+    both = ImageDatasets([ImageDataset(main, split=None, noise=False), ImageDataset(other, split=None, noise=False)])
+    theirs = ImageDataset(other, split=None, noise=False)
+    for i in range(len(theirs)):
+        assert both.robots[int(both[8 + i]["robot"])] == theirs.robots[int(theirs[i]["robot"])]
+    run(config(), main, tmp_path / "run", extra=[other], progress=False)
+    _, meta = load_trained(tmp_path / "run")
+    assert meta["robots"] == ["ur3", "ur10"]
