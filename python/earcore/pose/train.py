@@ -110,7 +110,7 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
         type=Path,
         action="append",
         default=[],
-        help="another dataset: its train split joins the training images, its test split the test images (robots united by name), repeatable",
+        help="another dataset, all its robots (--robots picks in --data): its train split joins the training images, its test split the test images; repeatable",
     )
     p.add_argument("--network", choices=NETWORKS, default=None, help="multi (Paper V, default), cascade (Paper IV) or keypoint")
     p.add_argument("--out", type=Path, required=True, help="the run folder (config, checkpoint, metrics, results)")
