@@ -411,9 +411,11 @@ def combiner_for(name: str, names: Sequence[str], *, fixed: Mapping[str, float] 
     if unknown:
         raise ConfigError(f"the {name} combiner takes no option(s) {unknown}; it takes {sorted(allowed) or 'none'}")
     if name == "fixed":
-        if fixed is None:
-            raise ConfigError("the fixed combiner needs its weights")
-        return FixedWeights({n: fixed[n] for n in names} if set(names) <= set(fixed) else dict(fixed))
+        given = dict(fixed or {})
+        missing = sorted(set(names) - set(given))
+        if missing:
+            raise ConfigError(f"the fixed combiner has no weight for loss(es) {missing}")
+        return FixedWeights({n: given[n] for n in names})
     if name == "sum":
         return FixedWeights({n: 1.0 for n in names})
     if name == "kgc":

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from earcore.learning.convergence import Convergence, convergence_point
-from earcore.learning.metrics_log import _pyplot, read_metrics
+from earcore.learning.metrics_log import pyplot, read_metrics
 from earcore.learning.significance import KSResult, ks_2samp
 
 __all__ = ["Comparison", "MethodRuns", "compare_methods", "eval_curve", "plot_convergence_boxes"]
@@ -115,7 +115,7 @@ def plot_convergence_boxes(comparison: Comparison, out: str | Path, *, title: st
     """Fig. 13's layout: per method a horizontal box of convergence iterations at the
     median error and a vertical box of errors at the median iteration (None without
     matplotlib)."""
-    plt = _pyplot()
+    plt = pyplot()
     if plt is None:
         return None
     fig, ax = plt.subplots(figsize=(7.5, 5.0))

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["MetricsLog", "plot_comparison", "plot_metrics", "read_metrics"]
+__all__ = ["MetricsLog", "plot_comparison", "plot_metrics", "pyplot", "read_metrics"]
 
 
 def _plain(value: Any) -> Any:
@@ -85,7 +85,7 @@ def curve_keys(rows: list[dict]) -> list[str]:
     return sorted({k for r in rows for k, v in r.items() if k not in BOOKKEEPING and not k.startswith("w_") and isinstance(v, (int, float))})
 
 
-def _pyplot() -> Any:
+def pyplot() -> Any:
     """matplotlib's pyplot without a display; None if matplotlib is not installed."""
     try:
         import matplotlib
@@ -102,7 +102,7 @@ def plot_comparison(runs: Mapping[str, str | Path], keys: list[str], out: str | 
     one line per run (`runs`: label → metrics file), against training minutes. Returns
     the PNG written; None if matplotlib is not installed. A metric no run logged is a
     `ValueError` naming those that were logged."""
-    plt = _pyplot()
+    plt = pyplot()
     if plt is None:
         return None
     rows = {label: [r for r in read_metrics(path) if r.get("kind") == "eval"] for label, path in runs.items()}
@@ -134,7 +134,7 @@ def plot_metrics(path: str | Path, out: str | Path | None = None) -> list[Path]:
     """Curves of a metrics file: `losses.png` (training losses against step) and
     `eval.png` (each evaluation metric against training minutes: the accuracy-vs-time
     curve). Returns the files written; none if matplotlib is not installed."""
-    plt = _pyplot()
+    plt = pyplot()
     if plt is None:
         return []
     path = Path(path)
