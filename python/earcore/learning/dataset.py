@@ -123,8 +123,8 @@ class ImageDataset(torch.utils.data.Dataset):
             intrinsics[:, 0, 0], intrinsics[:, 1, 1], intrinsics[:, 0, 2], intrinsics[:, 1, 2] = scalars.T
             intrinsics[:, 2, 2] = 1.0
             for key, value in (
-                ("rgb", shard.rgb[keep]),
-                ("links", shard.links[keep]),
+                ("rgb", shard.images["rgb"][keep]),
+                ("links", shard.images["links"][keep]),
                 ("keypoints", np.where(valid[..., None], xyz, 0.0).astype(np.float32)),
                 ("pixels", np.where(valid[..., None], uv, 0.0).astype(np.float32)),
                 ("keypoint_valid", valid),

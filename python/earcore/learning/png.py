@@ -1,10 +1,11 @@
 """A minimal PNG codec for 8-bit images, so the training path needs no imaging library.
 
-`encode` / `write` store gray (H, W), RGB (H, W, 3) or RGBA (H, W, 4) uint8 images
-with filter 0 on every row and zlib compression. `decode` / `read` read such files
-with numpy and zlib alone (non-interlaced, 8-bit, filter 0 on every row); any other
-PNG (other filters, bit depths, palettes, interlacing) is handed to OpenCV, then to
-Pillow, whichever is installed. Corrupt data raises `DatasetError`.
+`encode` / `write` store gray (H, W), RGB (H, W, 3) or RGBA (H, W, 4) uint8 images and
+16-bit gray (H, W) uint16 images (depth in mm) with filter 0 on every row and zlib
+compression. `decode` / `read` read such files with numpy and zlib alone
+(non-interlaced, filter 0 on every row); any other PNG (other filters, bit depths,
+palettes, interlacing) is handed to OpenCV, then to Pillow, whichever is installed.
+Corrupt data raises `DatasetError`.
 """
 
 from __future__ import annotations
@@ -31,20 +32,25 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
 
 
 def encode(image: np.ndarray, level: int = 6) -> bytes:
-    """The PNG bytes of a uint8 image (H, W), (H, W, 1), (H, W, 3) or (H, W, 4)."""
+    """The PNG bytes of a uint8 image (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), or of
+    a uint16 gray image (H, W) (16 bits per pixel)."""
     a = np.asarray(image)
-    if a.dtype != np.uint8:
-        raise ValueError(f"PNG images must be uint8, got {a.dtype}")
+    if a.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"PNG images must be uint8 (or uint16 gray), got {a.dtype}")
     if a.ndim == 3 and a.shape[2] == 1:
         a = a[..., 0]
     channels = 1 if a.ndim == 2 else (a.shape[2] if a.ndim == 3 else 0)
     if channels not in _COLOUR_TYPE or a.shape[0] < 1 or a.shape[1] < 1:
         raise ValueError(f"expected an (H, W), (H, W, 3) or (H, W, 4) image, got shape {a.shape}")
+    if a.dtype == np.uint16 and channels != 1:
+        raise ValueError(f"16-bit PNG images must be gray (H, W), got shape {a.shape}")
     h, w = a.shape[:2]
-    rows = np.empty((h, 1 + w * channels), dtype=np.uint8)
+    bits = 8 * a.dtype.itemsize
+    row_bytes = w * channels * a.dtype.itemsize
+    rows = np.empty((h, 1 + row_bytes), dtype=np.uint8)
     rows[:, 0] = 0  # filter type 0 (none) on every row
-    rows[:, 1:] = a.reshape(h, w * channels)
-    header = struct.pack(">IIBBBBB", w, h, 8, _COLOUR_TYPE[channels], 0, 0, 0)
+    rows[:, 1:] = np.ascontiguousarray(a.astype(a.dtype.newbyteorder(">"), copy=False)).view(np.uint8).reshape(h, row_bytes)
+    header = struct.pack(">IIBBBBB", w, h, bits, _COLOUR_TYPE[channels], 0, 0, 0)
     return SIGNATURE + _chunk(b"IHDR", header) + _chunk(b"IDAT", zlib.compress(rows.tobytes(), level)) + _chunk(b"IEND", b"")
 
 
@@ -94,19 +100,22 @@ def decode(data: bytes, name: str = "PNG data") -> np.ndarray:
     w, h, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", header)
     if w == 0 or h == 0:
         raise DatasetError(f"{name}: PNG of size {w}×{h}")
-    if other or depth != 8 or colour not in _CHANNELS or interlace != 0:
+    if other or colour not in _CHANNELS or interlace != 0 or not (depth == 8 or (depth == 16 and colour == 0)):
         return _fallback(data, name)
     try:
         raw = zlib.decompress(b"".join(idat))
     except zlib.error as exc:
         raise DatasetError(f"{name}: corrupt PNG image data ({exc})") from None
     channels = _CHANNELS[colour]
-    stride = 1 + w * channels
+    size = depth // 8
+    stride = 1 + w * channels * size
     if len(raw) != h * stride:
-        raise DatasetError(f"{name}: corrupt PNG: {len(raw)} bytes of image data for {w}×{h}×{channels}")
+        raise DatasetError(f"{name}: corrupt PNG: {len(raw)} bytes of image data for {w}×{h}×{channels}×{depth} bits")
     rows = np.frombuffer(raw, dtype=np.uint8).reshape(h, stride)
     if rows[:, 0].any():
         return _fallback(data, name)  # filtered rows: a general decoder undoes them
+    if size == 2:
+        return np.ascontiguousarray(rows[:, 1:]).view(">u2").reshape(h, w).astype(np.uint16)
     image = rows[:, 1:].reshape(h, w, channels)
     return image[..., 0].copy() if channels == 1 else image.copy()
 

@@ -2,12 +2,20 @@
 read (a tar of PNGs and a CSV per shard, a JSON manifest).
 
     DATASET/
-      manifest.json        format, version, kind, width, height, seed, mode, robots,
-                           keypoints, num_keypoints, links, max_dof, shards, generator
-                           (and, optional: keypoint_frames, dof)
-      shard-00000.tar      <key>.rgb.png (H×W×3) and <key>.links.png (H×W; 0 = not the
-                           robot, i >= 1 = link i-1 of manifest["links"][robot])
-      shard-00000.csv      one row per sample (`columns`)
+      manifest.json        format, version, kind, width, height, seed, mode, shards,
+                           generator, and what the kind adds (below); optional `layers`
+                           {name: pixel format} (absent: the robots' rgb + links)
+      shard-00000.tar      <key>.<layer>.png per sample and layer
+      shard-00000.csv      one row per sample
+
+Kinds:
+
+* ``robots``: manifest adds robots, keypoints, num_keypoints, links, max_dof (optional:
+  keypoint_frames, dof); layers `rgb` (H×W×3) and `links` (H×W; 0 = not the robot,
+  i >= 1 = link i-1 of manifest["links"][robot]); the CSV's columns are `columns`.
+* ``parts``: manifest adds classes and max_instances; layers `rgb`, `depth` (H×W,
+  16 bits, mm; 0 = no return) and `instances` (H×W; 0 = background, i >= 1 = the
+  row's instance i-1); see `earcore.sim.part_images`.
 
 Shards are written atomically (a temporary name, then a rename; the CSV last), so a
 shard whose CSV exists is complete and an interrupted run resumes by skipping it.
@@ -35,6 +43,7 @@ __all__ = [
     "VERSION",
     "Sample",
     "Shard",
+    "manifest_layers",
     "columns",
     "complete_shards",
     "read_manifest",
@@ -47,8 +56,16 @@ __all__ = [
 FORMAT = "earcore-images"
 VERSION = 1
 MANIFEST = "manifest.json"
-#: Keys every manifest has.
-MANIFEST_KEYS = ("format", "version", "kind", "width", "height", "seed", "mode", "robots", "keypoints", "num_keypoints", "links", "max_dof", "shards", "generator")
+#: Keys every manifest has, and those each kind adds.
+COMMON_KEYS = ("format", "version", "kind", "width", "height", "seed", "mode", "shards", "generator")
+KIND_KEYS = {
+    "robots": ("robots", "keypoints", "num_keypoints", "links", "max_dof"),
+    "parts": ("classes", "max_instances"),
+}
+#: Pixel formats of a layer: channels and dtype.
+PIXELS: dict[str, tuple[int, Any]] = {"rgb8": (3, np.uint8), "gray8": (1, np.uint8), "gray16": (1, np.uint16)}
+#: The layers of a dataset whose manifest names none (the robots').
+ROBOT_LAYERS = {"rgb": "rgb8", "links": "gray8"}
 BASE_COLUMNS = ("base_x", "base_y", "base_z", "base_qw", "base_qx", "base_qy", "base_qz")
 
 
@@ -65,24 +82,27 @@ def columns(max_dof: int, num_keypoints: int) -> list[str]:
     return names + list(BASE_COLUMNS) + ["coverage"]
 
 
+def manifest_layers(manifest: dict[str, Any]) -> dict[str, str]:
+    """The layers (name → pixel format) of a dataset's images."""
+    return dict(manifest.get("layers", ROBOT_LAYERS))
+
+
 @dataclass
 class Sample:
-    """One labelled image: `rgb` (H, W, 3) uint8, `links` (H, W) uint8 and its CSV row
-    (column → value; None or missing for an empty cell)."""
+    """One labelled image: its layers (name → (H, W, 3) or (H, W) array, e.g. `rgb`
+    and `links`) and its CSV row (column → value; None or missing for an empty cell)."""
 
     key: str
-    rgb: np.ndarray
-    links: np.ndarray
+    images: dict[str, np.ndarray]
     row: dict[str, Any]
 
 
 @dataclass
 class Shard:
-    """A shard read into memory: images (N, H, W, 3), links (N, H, W), and the CSV's
-    columns as strings (`text`) in row order."""
+    """A shard read into memory: each layer's images stacked ((N, H, W, 3) or
+    (N, H, W)), and the CSV's columns as strings (`text`) in row order."""
 
-    rgb: np.ndarray
-    links: np.ndarray
+    images: dict[str, np.ndarray]
     text: dict[str, list[str]]
 
     def numbers(self, column: str, path: Path | str = "") -> np.ndarray:
@@ -118,7 +138,7 @@ def write_shard(folder: str | Path, name: str, samples: Sequence[Sample], header
     buffer = io.BytesIO()
     with tarfile.open(fileobj=buffer, mode="w", format=tarfile.USTAR_FORMAT) as tar:
         for s in samples:
-            for suffix, image in (("rgb", s.rgb), ("links", s.links)):
+            for suffix, image in s.images.items():
                 data = png.encode(image, level)
                 info = tarfile.TarInfo(f"{s.key}.{suffix}.png")
                 info.size = len(data)
@@ -142,10 +162,20 @@ def complete_shards(folder: str | Path) -> set[str]:
     return {p.stem for p in folder.glob("shard-*.csv") if (folder / f"{p.stem}.tar").is_file()}
 
 
-def read_shard(folder: str | Path, name: str, width: int, height: int, required: Iterable[str] = (), samples: int | None = None) -> Shard:
-    """Read a shard: every CSV row's two PNGs from the tar, checked against the image
-    size; `required` columns must be present, and `samples` (the manifest's count, if
-    given) rows. Raises `DatasetError` naming the file."""
+def read_shard(
+    folder: str | Path,
+    name: str,
+    width: int,
+    height: int,
+    required: Iterable[str] = (),
+    samples: int | None = None,
+    layers: dict[str, str] | None = None,
+) -> Shard:
+    """Read a shard: every CSV row's PNG of each layer (name → pixel format; default the
+    robots' rgb + links) from the tar, checked against the image size and format;
+    `required` columns must be present, and `samples` (the manifest's count, if given)
+    rows. Raises `DatasetError` naming the file."""
+    layers = dict(ROBOT_LAYERS if layers is None else layers)
     folder = Path(folder)
     csv_path, tar_path = folder / f"{name}.csv", folder / f"{name}.tar"
     try:
@@ -184,22 +214,28 @@ def read_shard(folder: str | Path, name: str, width: int, height: int, required:
     except (tarfile.TarError, EOFError, OSError) as exc:
         raise DatasetError(f"{tar_path}: corrupt or truncated tar ({exc})") from None
     n = len(body)
-    rgb = np.empty((n, height, width, 3), dtype=np.uint8)
-    links = np.empty((n, height, width), dtype=np.uint8)
-    for i, key in enumerate(text["key"]):
-        for suffix, out, shape in (("rgb", rgb, (height, width, 3)), ("links", links, (height, width))):
-            member = f"{key}.{suffix}.png"
+    images: dict[str, np.ndarray] = {}
+    for layer, pixels in layers.items():
+        channels, dtype = PIXELS[pixels]
+        shape = (height, width, 3) if channels == 3 else (height, width)
+        out = images[layer] = np.empty((n, *shape), dtype=dtype)
+        for i, key in enumerate(text["key"]):
+            member = f"{key}.{layer}.png"
             if member not in files:
                 raise DatasetError(f"{tar_path}: no {member} for the CSV's row {i + 2}")
             image = png.decode(files[member], f"{tar_path}:{member}")
-            if image.shape != shape or image.dtype != np.uint8:
-                raise DatasetError(f"{tar_path}:{member}: {image.shape} {image.dtype} image, expected {shape} uint8")
+            if image.shape != shape or image.dtype != dtype:
+                raise DatasetError(f"{tar_path}:{member}: {image.shape} {image.dtype} image, expected {shape} {np.dtype(dtype).name}")
             out[i] = image
-    return Shard(rgb, links, text)
+    return Shard(images, text)
+
+
+def _required_keys(manifest: dict[str, Any]) -> tuple[str, ...]:
+    return COMMON_KEYS + KIND_KEYS.get(manifest.get("kind", "robots"), ())
 
 
 def write_manifest(folder: str | Path, manifest: dict[str, Any]) -> None:
-    missing = [k for k in MANIFEST_KEYS if k not in manifest]
+    missing = [k for k in _required_keys(manifest) if k not in manifest]
     if missing:
         raise ValueError(f"manifest lacks {missing}")
     _atomic_write(Path(folder) / MANIFEST, (json.dumps(manifest, indent=1, sort_keys=False) + "\n").encode())
@@ -222,10 +258,13 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
         raise DatasetError(f"{path}: format {found!r}, expected {FORMAT!r}")
     if manifest.get("version") != VERSION:
         raise DatasetError(f"{path}: format version {manifest.get('version')!r}; this earcore reads version {VERSION}")
-    missing = [k for k in MANIFEST_KEYS if k not in manifest]
+    if manifest.get("kind") not in KIND_KEYS:
+        raise DatasetError(f"{path}: kind {manifest.get('kind')!r}; this earcore reads {', '.join(KIND_KEYS)}")
+    missing = [k for k in _required_keys(manifest) if k not in manifest]
     if missing:
         raise DatasetError(f"{path}: missing {', '.join(missing)}")
-    for key in ("width", "height", "num_keypoints", "max_dof"):
+    numbers = {"robots": ("num_keypoints", "max_dof"), "parts": ("max_instances",)}[manifest["kind"]]
+    for key in ("width", "height", *numbers):
         v = manifest[key]
         if isinstance(v, bool) or not isinstance(v, int) or v < (1 if key in ("width", "height") else 0):
             raise DatasetError(f"{path}: {key} must be a whole number, got {v!r}")
@@ -235,7 +274,15 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
     for s in shards:
         if not isinstance(s["name"], str) or isinstance(s["samples"], bool) or not isinstance(s["samples"], int) or s["samples"] < 0:
             raise DatasetError(f"{path}: shards must be a list of {{name (text), samples (a whole number >= 0)}}, got {s!r}")
-    _check_robots(manifest, path)
+    layers = manifest.get("layers", ROBOT_LAYERS)
+    if not isinstance(layers, dict) or not layers or not all(isinstance(k, str) and v in PIXELS for k, v in layers.items()):
+        raise DatasetError(f"{path}: layers must be a table {{name: pixel format}} with formats among {', '.join(PIXELS)}, got {layers!r}")
+    if manifest["kind"] == "robots":
+        _check_robots(manifest, path)
+    else:
+        classes = manifest["classes"]
+        if not isinstance(classes, list) or not classes or not all(isinstance(c, str) for c in classes) or len(set(classes)) != len(classes):
+            raise DatasetError(f"{path}: classes must be a list of distinct names, got {classes!r}")
     return manifest
 
 

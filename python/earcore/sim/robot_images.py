@@ -559,7 +559,7 @@ class RobotImageRenderer:
         links = np.where(mine, robot.lut[np.clip(seg >> 24, 0, len(robot.lut) - 1)], 0).astype(np.uint8)
         world = self._keypoints(robot, q)[0]
         row = self._labels(spec, robot, q, K, world_from_camera, world, links)
-        return RenderedSample(Sample(spec.key, rgb, links, row), world_from_camera, K, q, world, seg, robot.body, {"layout": layout})
+        return RenderedSample(Sample(spec.key, {"rgb": rgb, "links": links}, row), world_from_camera, K, q, world, seg, robot.body, {"layout": layout})
 
     def _labels(self, spec, robot: _Robot, q, K, world_from_camera, world, links) -> dict[str, Any]:
         w, h = self.options.width, self.options.height

@@ -65,7 +65,7 @@ def write_folder(
             rgb = rng.integers(0, 255, (height, width, 3), dtype=np.uint8)
             links = np.zeros((height, width), np.uint8)
             links[height // 3 : 2 * height // 3, width // 3 : 2 * width // 3] = 1
-            samples.append(Sample(f"{robot}-{i:05d}", rgb, links, row))
+            samples.append(Sample(f"{robot}-{i:05d}", {"rgb": rgb, "links": links}, row))
         size = shard_size or count
         shards += [samples[i : i + size] for i in range(0, count, size)]
     for i, s in enumerate(shards):

@@ -31,7 +31,7 @@ def samples(n=3):
     out = []
     for i in range(n):
         row = {"robot": "ur5", "recording": i, "split": "train", "fx": 10.5 + i, "q0": -0.25 * i, "kp0_u": None}
-        out.append(Sample(f"s{i}", rng.integers(0, 256, (H, W, 3), dtype=np.uint8), rng.integers(0, 9, (H, W), dtype=np.uint8), row))
+        out.append(Sample(f"s{i}", {"rgb": rng.integers(0, 256, (H, W, 3), dtype=np.uint8), "links": rng.integers(0, 9, (H, W), dtype=np.uint8)}, row))
     return out
 
 
@@ -48,13 +48,13 @@ def test_a_shard_reads_back_and_opens_with_plain_tools(tmp_path):
         names = tar.getnames()
         assert names == [f"s{i}.{k}.png" for i in range(3) for k in ("rgb", "links")]
         data = tar.extractfile("s1.rgb.png").read()
-    assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)[..., ::-1], written[1].rgb)
+    assert np.array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)[..., ::-1], written[1].images["rgb"])
     rows = list(csv.DictReader(open(tmp_path / "shard-00000.csv")))
     assert [r["key"] for r in rows] == ["s0", "s1", "s2"]
     assert float(rows[2]["q0"]) == -0.5 and rows[2]["kp0_u"] == "" and rows[1]["fx"] == "11.5"
     shard = read_shard(tmp_path, "shard-00000", W, H, required=["fx"])
-    assert np.array_equal(shard.rgb, np.stack([s.rgb for s in written]))
-    assert np.array_equal(shard.links, np.stack([s.links for s in written]))
+    assert np.array_equal(shard.images["rgb"], np.stack([s.images["rgb"] for s in written]))
+    assert np.array_equal(shard.images["links"], np.stack([s.images["links"] for s in written]))
     assert np.isnan(shard.numbers("kp0_u")).all()
     assert complete_shards(tmp_path) == {"shard-00000"}
 
@@ -87,7 +87,7 @@ def test_damage_is_reported_with_the_file(tmp_path):
     # An image whose bytes were damaged inside the tar.
     buffer = io.BytesIO()
     with tarfile.open(fileobj=buffer, mode="w") as out:
-        data = bytearray(png.encode(samples(1)[0].rgb))
+        data = bytearray(png.encode(samples(1)[0].images["rgb"]))
         data[-20] ^= 0x55
         info = tarfile.TarInfo("s0.rgb.png")
         info.size = len(data)

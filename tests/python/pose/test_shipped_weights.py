@@ -31,11 +31,11 @@ def test_shipped_weights_find_unseen_robots():
     for s in samples:
         row = s.row
         k = np.array([[row["fx"], 0, row["cx"]], [0, row["fy"], row["cy"]], [0, 0, 1]])
-        found = estimate(s.rgb, k)
+        found = estimate(s.images["rgb"], k)
         truth = np.array([[row[f"kp{i}_{c}"] for c in "xyz"] for i in range(7)])
         if found.keypoints.shape == truth.shape:
             errors.append(np.linalg.norm(found.keypoints - truth, axis=1).mean())
-        mask = s.links > 0
+        mask = s.images["links"] > 0
         ious.append(np.logical_and(found.mask, mask).sum() / max(1, np.logical_or(found.mask, mask).sum()))
         right.append(found.robot == row["robot"])
     # On 30 such images the shipped weights found the type in 77 %, masks of median IoU

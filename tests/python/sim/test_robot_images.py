@@ -36,7 +36,7 @@ def test_keypoints_and_base_project_onto_the_robot(clean):
     _, samples = clean
     checked = 0
     for s in samples:
-        row, robot = s.sample.row, s.sample.links > 0
+        row, robot = s.sample.row, s.sample.images["links"] > 0
         vs, us = np.nonzero(robot)
         if len(us) == 0:
             continue
@@ -81,11 +81,11 @@ def test_the_mask_is_the_renderers_segmentation_of_the_robot(clean):
             renderer=p.ER_TINY_RENDERER,
             **s.extra["layout"].lighting.arguments(),
         )
-        assert np.array_equal(s.sample.links > 0, np.reshape(seg, (106, 128)) == s.robot_body)
+        assert np.array_equal(s.sample.images["links"] > 0, np.reshape(seg, (106, 128)) == s.robot_body)
         # Each link value names a link with geometry, decoded from pybullet's link index.
         names = renderer.robot.model.link_names
-        for value in np.unique(s.sample.links[s.sample.links > 0]):
-            pixels = np.reshape(s.segmentation, (106, 128))[s.sample.links == value]
+        for value in np.unique(s.sample.images["links"][s.sample.images["links"] > 0]):
+            pixels = np.reshape(s.segmentation, (106, 128))[s.sample.images["links"] == value]
             link = (pixels >> 24) - 1
             assert len(np.unique(link)) == 1
             pb_name = p.getBodyInfo(s.robot_body)[0].decode() if link[0] < 0 else p.getJointInfo(s.robot_body, int(link[0]))[12].decode()
@@ -161,9 +161,9 @@ def test_the_same_seed_gives_the_same_bytes_another_seed_other_images():
     a.render(plan_shards(options)[0][0])  # another sample in between changes nothing
     again, fresh = a.render(spec).sample, b.render(spec).sample
     for other in (again, fresh):
-        assert np.array_equal(first.rgb, other.rgb) and np.array_equal(first.links, other.links) and first.row == other.row
+        assert all(np.array_equal(first.images[k], other.images[k]) for k in ("rgb", "links")) and first.row == other.row
     c = RobotImageRenderer(RobotImageOptions(robots=("ur5",), mode="recordings", scale=0.004, shard_size=4, seed=1))
-    assert not np.array_equal(c.render(spec).sample.rgb, first.rgb)
+    assert not np.array_equal(c.render(spec).sample.images["rgb"], first.images["rgb"])
     for r in (a, b, c):
         r.close()
 
@@ -196,7 +196,7 @@ def test_random_mode_moves_the_camera_every_image_out_of_the_arms_reach_with_the
     renderer.close()
     assert len({tuple(np.round(s.world_from_camera[:3, 3], 6)) for s in out}) == 40
     coverage = np.array([s.sample.row["coverage"] for s in out])
-    assert np.all(coverage == [float((s.sample.links > 0).mean()) for s in out])
+    assert np.all(coverage == [float((s.sample.images["links"] > 0).mean()) for s in out])
     # No keypoint near the lens: the camera is out of the arm's reach (0.85 m for a UR5).
     eyes = np.stack([s.world_from_camera[:3, 3] for s in out])
     nearest = np.array([np.linalg.norm(s.keypoints_world - eye, axis=1).min() for s, eye in zip(out, eyes)])
