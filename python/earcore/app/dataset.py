@@ -40,7 +40,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def _parser() -> Parser:
     parser = Parser(prog="earcore dataset", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("kind", choices=["robots"], help="what to generate (robots: robot pose images)")
+    parser.add_argument("kind", choices=["robots", "parts"], help="what to generate (robots: robot pose images; parts: see `earcore dataset parts --help`)")
     parser.add_argument("--out", type=Path, required=True, help="the dataset folder (created; resumed if it exists)")
     parser.add_argument("--robots", default="ur3,ur5,ur10", help="comma-separated, class order (default ur3,ur5,ur10; also iiwa, panda)")
     parser.add_argument(
@@ -97,30 +97,35 @@ class _Progress:
             print(file=sys.stderr)
 
 
-def _local(options, todo: list[int], folder: Path, workers: int) -> Iterator[int]:
-    from earcore.sim.robot_images import generate_shard
+def _generator(module: str):
+    """The `generate_shard` of a generator module (earcore.sim.robot_images, ...)."""
+    import importlib
 
+    return importlib.import_module(module).generate_shard
+
+
+def _local(module: str, options, todo: list[int], folder: Path, workers: int) -> Iterator[int]:
     if workers == 1:
+        generate_shard = _generator(module)
         for index in todo:
             yield generate_shard(options, index, folder)
         return
     context = multiprocessing.get_context("spawn")  # each worker opens its own pybullet world
     with context.Pool(workers) as pool:
-        yield from pool.imap_unordered(_shard_task, [(options, i, folder) for i in todo], chunksize=1)
+        yield from pool.imap_unordered(_shard_task, [(module, options, i, folder) for i in todo], chunksize=1)
 
 
 def _shard_task(args) -> int:
-    from earcore.sim.robot_images import generate_shard
+    module, *rest = args
+    return _generator(module)(*rest)
 
-    return generate_shard(*args)
 
-
-def _ray(options, todo: list[int], folder: Path, address: str) -> Iterator[int]:
+def _ray(module: str, options, todo: list[int], folder: Path, address: str) -> Iterator[int]:
     try:
         import ray
     except ImportError:
         raise ImportError("--ray needs Ray: pip install 'ray[default]'") from None
-    from earcore.sim.robot_images import generate_shard
+    generate_shard = _generator(module)
 
     if not ray.is_initialized():
         try:
@@ -137,61 +142,81 @@ def _ray(options, todo: list[int], folder: Path, address: str) -> Iterator[int]:
         yield ray.get(done[0])
 
 
+def _robot_options(args):
+    from earcore.sim.robot_images import RobotImageOptions
+
+    width, height = args.size
+    options = RobotImageOptions(
+        robots=tuple(r.strip().lower() for r in args.robots.split(",") if r.strip()),
+        mode=args.mode,
+        width=width,
+        height=height,
+        seed=args.seed,
+        scale=1.0 if args.scale is None else args.scale,
+        count=args.count,
+        meshes=args.meshes,
+        distractors=not args.no_distractors,
+        person=args.person,
+        shard_size=args.shard_size,
+    ).validate()
+    if options.mode == "random" and args.count is None and args.scale is None:
+        print(f"{PROG}: random mode without --count: the papers' totals per robot", file=sys.stderr)
+    return options
+
+
 def main(argv: list[str] | None = None) -> int:
-    from earcore.learning.errors import DatasetError
-    from earcore.learning.shards import complete_shards, read_manifest, write_manifest
-    from earcore.sim.robot_images import RobotImageOptions, manifest_for, plan_shards
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "parts":
+        from earcore.app.parts import generate_main
+
+        return generate_main(argv[1:], prog="earcore dataset parts")
     from earcore.validate import ConfigError
 
     args = _parser().parse_args(argv)
-    width, height = args.size
     try:
-        options = RobotImageOptions(
-            robots=tuple(r.strip().lower() for r in args.robots.split(",") if r.strip()),
-            mode=args.mode,
-            width=width,
-            height=height,
-            seed=args.seed,
-            scale=1.0 if args.scale is None else args.scale,
-            count=args.count,
-            meshes=args.meshes,
-            distractors=not args.no_distractors,
-            person=args.person,
-            shard_size=args.shard_size,
-        ).validate()
+        options = _robot_options(args)
     except ConfigError as exc:
         return fail(PROG, str(exc))
-    if options.mode == "random" and args.count is None and args.scale is None:
-        print(f"{PROG}: random mode without --count: the papers' totals per robot", file=sys.stderr)
-    shards = plan_shards(options)
-    manifest = manifest_for(options, shards)
-    folder: Path = args.out
+    return render(PROG, "earcore.sim.robot_images", options, args.out, args.workers, args.ray, args.ray_address, args.quiet)
+
+
+def render(prog: str, module: str, options, folder: Path, workers: int | None, use_ray: bool, ray_address: str, quiet: bool) -> int:
+    """Render (or complete) the dataset `options` describe into `folder` with the
+    generator `module` (its plan_shards, manifest_for and generate_shard)."""
+    import importlib
+
+    from earcore.learning.errors import DatasetError
+    from earcore.learning.shards import complete_shards, read_manifest, write_manifest
+
+    generator = importlib.import_module(module)
+    shards = generator.plan_shards(options)
+    manifest = generator.manifest_for(options, shards)
     if (folder / "manifest.json").exists():
         try:
             existing = read_manifest(folder)
         except DatasetError as exc:
-            return fail(PROG, f"{exc}; choose another --out")
+            return fail(prog, f"{exc}; choose another --out")
         if existing != manifest:
             theirs, ours = existing.get("generator", {}), manifest["generator"]
             changed = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k)) or ["format"]
             return fail(
-                PROG,
+                prog,
                 f"{folder} holds a dataset made with other options ({', '.join(changed)} differ); rerun with its options to complete it, or choose another --out",
             )
     elif folder.exists() and any(folder.iterdir()):
-        return fail(PROG, f"{folder} exists and is not a dataset folder; choose an empty or new --out")
+        return fail(prog, f"{folder} exists and is not a dataset folder; choose an empty or new --out")
     folder.mkdir(parents=True, exist_ok=True)
     write_manifest(folder, manifest)
     complete = complete_shards(folder)
     todo = [i for i, entry in enumerate(manifest["shards"]) if entry["name"] not in complete]
     total = sum(len(s) for s in shards)
     done = total - sum(len(shards[i]) for i in todo)
-    workers = min(args.workers or multiprocessing.cpu_count(), max(1, len(todo)))
+    workers = min(workers or multiprocessing.cpu_count(), max(1, len(todo)))
     started = time.perf_counter()
-    progress = _Progress(total, done, args.quiet)
+    progress = _Progress(total, done, quiet)
     rendered = 0
     try:
-        source = _ray(options, todo, folder, args.ray_address) if args.ray else _local(options, todo, folder, workers)
+        source = _ray(module, options, todo, folder, ray_address) if use_ray else _local(module, options, todo, folder, workers)
         for n in source:
             rendered += n
             progress.update(n)

@@ -15,7 +15,7 @@ from typing import Any
 import earcore.validate as validate  # not `from earcore import`: without the core, the package's __getattr__ answers first
 from earcore.errors import ConfigError
 
-__all__ = ["TrainConfig", "load_config"]
+__all__ = ["TrainConfig", "key_values", "load_config"]
 
 OPTIMISERS = ("adam", "adamw", "sgd")
 SCHEDULES = ("exponential", "cosine", "linear", "constant")
@@ -202,3 +202,18 @@ def load_config(path: str | Path) -> TrainConfig:
         return TrainConfig.from_dict(data)
     except (ConfigError, TypeError) as exc:
         raise ConfigError(f"{path}: {exc}") from None
+
+
+def key_values(items: list[str], flag: str) -> dict[str, Any]:
+    """KEY=VALUE command-line items as a dict, each value read as JSON where it is JSON
+    (numbers, lists, true/false) and as text otherwise."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ConfigError(f"{flag} must be KEY=VALUE, got {item!r}")
+        try:
+            out[key] = json.loads(text)
+        except json.JSONDecodeError:
+            out[key] = text
+    return out

@@ -12,6 +12,18 @@
 - `base_loss` (Eq. 6): the Euclidean distance of the base position, batch mean.
 - `type_loss` (Eq. 7): categorical cross-entropy, batch mean.
 
+The parts detector's (IROS 2018, §V):
+
+- `soft_iou_error`: 1 − the differentiable IoU of activations a in [0, 1] and a 0/1
+  target g, ``Σ a·g / Σ (a + g − a·g)`` per image over every class channel and pixel
+  (activations on a class the image lacks count against it), batch mean.
+- `centroid_distance`: the distance (pixels) of the activation-weighted centroid to the
+  pickup point. The paper's definition takes a class channel's whole image; with several
+  parts of one class each part gets the pixels nearer to its pickup point than to the
+  others' of its class (its Voronoi cell), which is the paper's where a class appears
+  once. Mean over the batch's parts.
+- `pickup_error` (Eq. 4): ``d² / (d² + 1)`` of a distance d in cm: 0.5 at 1 cm.
+
 How the named losses become one total (Eq. 8's fixed weights and the learned schemes)
 is `earcore.learning.combiners`.
 """
@@ -30,8 +42,13 @@ __all__ = [
     "base_loss",
     "class_weights",
     "joint_loss",
+    "centroid_distance",
     "mask_loss",
+    "part_centroids",
+    "pickup_error",
+    "soft_iou_error",
     "type_loss",
+    "voronoi_cells",
 ]
 
 #: Paper V (and VI): W_mask 1.0, W_Jcoords 1.5, W_Bcoords 1.5, W_type 0.3.
@@ -98,3 +115,63 @@ def base_loss(predicted: Tensor, target: Tensor) -> Tensor:
 def type_loss(logits: Tensor, labels: Tensor) -> Tensor:
     """Eq. 7: `logits` (N, R), `labels` (N,) class indices."""
     return F.cross_entropy(logits, labels.long())
+
+
+def soft_iou_error(activations: Tensor, target: Tensor) -> Tensor:
+    """1 − soft IoU per image over channels and pixels, batch mean; `activations` in
+    [0, 1] and `target` (0/1) of the same shape (B, C, H, W). An image whose target and
+    activations are both empty has IoU 1."""
+    if activations.shape != target.shape:
+        raise ValueError(f"activations {tuple(activations.shape)} and target {tuple(target.shape)} differ in shape")
+    a, g = activations.flatten(1), target.flatten(1).to(activations.dtype)
+    inter = (a * g).sum(1)
+    union = (a + g - a * g).sum(1)
+    iou = torch.where(union > 0, inter / union.clamp(min=1e-12), torch.ones_like(union))
+    return (1.0 - iou).mean()
+
+
+def voronoi_cells(points: Tensor, classes: Tensor, valid: Tensor, height: int, width: int) -> Tensor:
+    """(B, M, H, W) 0/1: pixel (row v, column u) belongs to part m when m is valid and
+    no valid part of its class in the image has its point (u, v) nearer (ties: both)."""
+    v, u = torch.meshgrid(torch.arange(height, dtype=points.dtype, device=points.device), torch.arange(width, dtype=points.dtype, device=points.device), indexing="ij")
+    pixels = torch.stack([u, v], dim=-1).reshape(1, 1, -1, 2)
+    d2 = ((pixels - points[:, :, None, :]) ** 2).sum(-1)  # (B, M, HW)
+    same = (classes[:, :, None] == classes[:, None, :]) & valid[:, None, :] & valid[:, :, None]  # (B, M, M)
+    inf = torch.tensor(float("inf"), dtype=d2.dtype, device=d2.device)
+    rivals = torch.full_like(d2, float("inf"))  # distance to the nearest valid same-class point, self included
+    for k in range(points.shape[1]):
+        rivals = torch.minimum(rivals, torch.where(same[:, :, k, None], d2[:, k, None, :], inf))
+    cells = (d2 <= rivals) & valid[:, :, None]
+    return cells.reshape(*points.shape[:2], height, width).to(points.dtype)
+
+
+def part_centroids(activations: Tensor, points: Tensor, classes: Tensor, valid: Tensor, eps: float = 1e-6) -> Tensor:
+    """(B, M, 2) activation-weighted centroid (u, v) of each part's class channel within
+    its Voronoi cell (`voronoi_cells`); `activations` (B, C, H, W) >= 0, `points` (B, M, 2)
+    (u, v) px, `classes` (B, M) long, `valid` (B, M) bool. A cell without activation
+    gives (0, 0)."""
+    _, _, h, w = activations.shape
+    with torch.no_grad():
+        cells = voronoi_cells(points, classes, valid, h, w)
+    channel = torch.gather(activations, 1, classes.clamp(min=0)[:, :, None, None].expand(-1, -1, h, w))  # (B, M, H, W)
+    weight = channel * cells
+    v, u = torch.meshgrid(torch.arange(h, dtype=activations.dtype, device=activations.device), torch.arange(w, dtype=activations.dtype, device=activations.device), indexing="ij")
+    mass = weight.sum((2, 3)) + eps
+    return torch.stack([(weight * u).sum((2, 3)) / mass, (weight * v).sum((2, 3)) / mass], dim=-1)
+
+
+def centroid_distance(activations: Tensor, points: Tensor, classes: Tensor, valid: Tensor) -> Tensor:
+    """Mean over the valid parts of the distance (pixels) from `part_centroids` to the
+    part's point. With no valid part: 0 (no gradient)."""
+    if not bool(valid.any()):
+        return activations.sum() * 0.0
+    centroid = part_centroids(activations, points, classes, valid)
+    distance = torch.sqrt(((centroid - points) ** 2).sum(-1) + _TINY)
+    return distance[valid].mean()
+
+
+def pickup_error(distance_cm: Tensor) -> Tensor:
+    """Eq. 4 of the IROS 2018 paper: the chance a grasp at this distance (cm) from the
+    pickup point fails, d² / (d² + 1)."""
+    d2 = distance_cm**2
+    return d2 / (d2 + 1.0)

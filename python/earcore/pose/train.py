@@ -22,7 +22,7 @@ import torch
 from earcore.errors import ConfigError, EarcoreError
 from earcore.learning.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from earcore.learning.combiners import COMBINERS, combiner_for
-from earcore.learning.config import SCHEDULES, TrainConfig, load_config
+from earcore.learning.config import SCHEDULES, TrainConfig, key_values, load_config
 from earcore.learning.freeze import freeze
 from earcore.learning.train import TrainResult, train
 from earcore.pose.evaluate import Evaluation, evaluate, evaluator, subset
@@ -143,19 +143,6 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     return p
 
 
-def _key_values(items: list[str], flag: str) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, text = item.partition("=")
-        if not sep:
-            raise ConfigError(f"{flag} must be KEY=VALUE, got {item!r}")
-        try:
-            out[key] = json.loads(text)
-        except json.JSONDecodeError:
-            out[key] = text
-    return out
-
-
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     base: dict[str, Any] = {}
     if args.config is not None:
@@ -185,7 +172,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     if args.loss_combiner is not None:
         changes["loss_combiner"] = args.loss_combiner
     if args.combiner_option:
-        changes["combiner_options"] = {**base.get("combiner_options", {}), **_key_values(args.combiner_option, "--combiner-option")}
+        changes["combiner_options"] = {**base.get("combiner_options", {}), **key_values(args.combiner_option, "--combiner-option")}
     if args.train_samples is not None:
         changes["train_samples"] = args.train_samples
     if args.per_robot:
@@ -201,7 +188,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         options.update(PRESETS[args.preset])
     elif not base:
         options.update(PRESETS["small"])
-    options.update(_key_values(args.option, "--option"))
+    options.update(key_values(args.option, "--option"))
     if args.zoom is not None:
         options["zoom"] = args.zoom
     changes["network_options"] = options

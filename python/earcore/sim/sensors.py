@@ -14,6 +14,8 @@ quantisation); the numbers are documented on each preset and checked by the test
   baseline: steps of z²/348 m (1.1 cm at 2 m), as Khoshelham and Elberink (2012) report.
 * RealSense F200 (coded light, 640×480, 73°×59°, 0.2-1.2 m): axial σ(z) = 0.5 + 2.5 z² mm
   (an assumption matching its datasheet's ~1 mm at 0.5 m), whole-mm depth.
+* RealSense SR300 (the F200's successor, coded light, 640×480, 71.5°×55°, 0.2-1.5 m):
+  the F200's noise model; the parts camera of the IROS 2018 / AAMAS 2019 papers.
 * A colour-only camera ("webcam", 640×480, 60°×46.8°, a USB camera's typical barrel lens
   k1 = −0.12, k2 = 0.08): no depth at all (`has_depth` is False; its frames carry an
   empty depth image). Calibration finds its pose from the board's image alone (AX = ZB).
@@ -254,5 +256,6 @@ SENSORS: dict[str, SensorModel] = {
         depth_bias=DepthBias(scale=0.003, radial=-0.006),
     ),
     "f200": SensorModel("f200", 640, 480, 73.0, 59.0, 0.2, 1.2, 30.0, "coded"),
+    "sr300": SensorModel("sr300", 640, 480, 71.5, 55.0, 0.2, 1.5, 30.0, "coded"),
     "webcam": SensorModel("webcam", 640, 480, 60.0, 46.8, 0.1, 5.0, 30.0, "none", distortion=(-0.12, 0.08, 0.0, 0.0, 0.0)),
 }
