@@ -133,7 +133,9 @@ def soft_iou_error(activations: Tensor, target: Tensor) -> Tensor:
 def voronoi_cells(points: Tensor, classes: Tensor, valid: Tensor, height: int, width: int) -> Tensor:
     """(B, M, H, W) 0/1: pixel (row v, column u) belongs to part m when m is valid and
     no valid part of its class in the image has its point (u, v) nearer (ties: both)."""
-    v, u = torch.meshgrid(torch.arange(height, dtype=points.dtype, device=points.device), torch.arange(width, dtype=points.dtype, device=points.device), indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(height, dtype=points.dtype, device=points.device), torch.arange(width, dtype=points.dtype, device=points.device), indexing="ij"
+    )
     pixels = torch.stack([u, v], dim=-1).reshape(1, 1, -1, 2)
     d2 = ((pixels - points[:, :, None, :]) ** 2).sum(-1)  # (B, M, HW)
     same = (classes[:, :, None] == classes[:, None, :]) & valid[:, None, :] & valid[:, :, None]  # (B, M, M)
@@ -155,7 +157,9 @@ def part_centroids(activations: Tensor, points: Tensor, classes: Tensor, valid: 
         cells = voronoi_cells(points, classes, valid, h, w)
     channel = torch.gather(activations, 1, classes.clamp(min=0)[:, :, None, None].expand(-1, -1, h, w))  # (B, M, H, W)
     weight = channel * cells
-    v, u = torch.meshgrid(torch.arange(h, dtype=activations.dtype, device=activations.device), torch.arange(w, dtype=activations.dtype, device=activations.device), indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(h, dtype=activations.dtype, device=activations.device), torch.arange(w, dtype=activations.dtype, device=activations.device), indexing="ij"
+    )
     mass = weight.sum((2, 3)) + eps
     return torch.stack([(weight * u).sum((2, 3)) / mass, (weight * v).sum((2, 3)) / mass], dim=-1)
 

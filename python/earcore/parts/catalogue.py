@@ -72,9 +72,7 @@ class Part:
     name: str
     description: str
     pieces: tuple[Piece, ...]
-    hue: tuple[float, float]
-    saturation: tuple[float, float]
-    value: tuple[float, float]
+    hsv: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
     round: bool = False
     mesh: Mesh = field(init=False, repr=False, compare=False)
 
@@ -83,8 +81,8 @@ class Part:
 
     def colour(self, rng: np.random.Generator) -> tuple[float, float, float]:
         """A random RGB colour in [0, 1] within the type's range."""
-        h = rng.uniform(*self.hue) % 1.0
-        r, g, b = colorsys.hsv_to_rgb(h, rng.uniform(*self.saturation), rng.uniform(*self.value))
+        hue, saturation, value = self.hsv
+        r, g, b = colorsys.hsv_to_rgb(rng.uniform(*hue) % 1.0, rng.uniform(*saturation), rng.uniform(*value))
         return float(r), float(g), float(b)
 
     @property
@@ -175,24 +173,30 @@ def _lying(shape: str, size: float, length: float, bore: float = 0.0) -> Piece:
     return Piece(shape, size, length, bore, axis="x")
 
 
-_BLACK = dict(hue=(0.0, 1.0), saturation=(0.0, 0.15), value=(0.06, 0.2))
-_GREY = dict(hue=(0.55, 0.65), saturation=(0.0, 0.08), value=(0.55, 0.8))
-_STEEL = dict(hue=(0.55, 0.62), saturation=(0.02, 0.12), value=(0.45, 0.7))
+_BLACK = ((0.0, 1.0), (0.0, 0.15), (0.06, 0.2))
+_GREY = ((0.55, 0.65), (0.0, 0.08), (0.55, 0.8))
+_STEEL = ((0.55, 0.62), (0.02, 0.12), (0.45, 0.7))
 
 PARTS: tuple[Part, ...] = (
-    Part("F20_20_B", "small black aluminium profile, 20×20×100 mm", (_lying("square", 0.010, 0.100, 0.0021),), **_BLACK),
-    Part("F20_20_G", "small grey aluminium profile, 20×20×100 mm", (_lying("square", 0.010, 0.100, 0.0021),), **_GREY),
-    Part("S40_40_B", "large black aluminium profile, 40×40×100 mm", (_lying("square", 0.020, 0.100, 0.0042),), **_BLACK),
-    Part("S40_40_G", "large grey aluminium profile, 40×40×100 mm", (_lying("square", 0.020, 0.100, 0.0042),), **_GREY),
+    Part("F20_20_B", "small black aluminium profile, 20×20×100 mm", (_lying("square", 0.010, 0.100, 0.0021),), _BLACK),
+    Part("F20_20_G", "small grey aluminium profile, 20×20×100 mm", (_lying("square", 0.010, 0.100, 0.0021),), _GREY),
+    Part("S40_40_B", "large black aluminium profile, 40×40×100 mm", (_lying("square", 0.020, 0.100, 0.0042),), _BLACK),
+    Part("S40_40_G", "large grey aluminium profile, 40×40×100 mm", (_lying("square", 0.020, 0.100, 0.0042),), _GREY),
     Part(
         "M20_100",
         "M20×100 hexagon bolt (ISO 4017: 30 mm across flats, 12.5 mm head)",
         (Piece("hex", 0.015, 0.0125, axis="x", turn=np.pi / 6), Piece("round", 0.010, 0.100, origin=(0.0125, 0.0, 0.0), axis="x")),
-        **_STEEL,
+        _STEEL,
     ),
-    Part("M20", "M20 hexagon nut (DIN 934: 30 mm across flats, 16 mm)", (Piece("hex", 0.015, 0.016, 0.010),), **_STEEL, round=True),
-    Part("M30", "M30 hexagon nut (DIN 934: 46 mm across flats, 24 mm)", (Piece("hex", 0.023, 0.024, 0.015),), **_STEEL, round=True),
-    Part("R20", "plastic ring, 40 mm outside, 20 mm bore, 10 mm", (Piece("round", 0.020, 0.010, 0.010),), hue=(0.0, 1.0), saturation=(0.0, 0.1), value=(0.1, 0.3), round=True),
+    Part("M20", "M20 hexagon nut (DIN 934: 30 mm across flats, 16 mm)", (Piece("hex", 0.015, 0.016, 0.010),), _STEEL, round=True),
+    Part("M30", "M30 hexagon nut (DIN 934: 46 mm across flats, 24 mm)", (Piece("hex", 0.023, 0.024, 0.015),), _STEEL, round=True),
+    Part(
+        "R20",
+        "plastic ring, 40 mm outside, 20 mm bore, 10 mm",
+        (Piece("round", 0.020, 0.010, 0.010),),
+        ((0.0, 1.0), (0.0, 0.1), (0.1, 0.3)),
+        round=True,
+    ),
     Part(
         "Axis",
         "stepped steel axis, Ø 16 mm with Ø 12 mm journals, 100 mm",
@@ -201,9 +205,9 @@ PARTS: tuple[Part, ...] = (
             Piece("round", 0.008, 0.060, origin=(0.020, 0.0, 0.0), axis="x"),
             Piece("round", 0.006, 0.020, origin=(0.080, 0.0, 0.0), axis="x"),
         ),
-        **_STEEL,
+        _STEEL,
     ),
-    Part("Bearing", "ball bearing, 6202 size: 35 mm outside, 15 mm bore, 11 mm", (Piece("round", 0.0175, 0.011, 0.0075),), **_STEEL, round=True),
+    Part("Bearing", "ball bearing, 6202 size: 35 mm outside, 15 mm bore, 11 mm", (Piece("round", 0.0175, 0.011, 0.0075),), _STEEL, round=True),
     Part(
         "Bearing_Box",
         "bearing box: a 64×32×10 mm foot under a Ø 32 mm housing with a 17 mm bore",
@@ -211,18 +215,14 @@ PARTS: tuple[Part, ...] = (
             Piece("box", half=(0.032, 0.016, 0.005), origin=(0.0, 0.0, 0.005)),
             Piece("round", 0.016, 0.032, 0.0085, origin=(0.0, -0.016, 0.026), axis="y"),
         ),
-        hue=(0.55, 0.7),
-        saturation=(0.0, 0.5),
-        value=(0.3, 0.75),
+        ((0.55, 0.7), (0.0, 0.5), (0.3, 0.75)),
     ),
-    Part("Distance_Tube", "small grey aluminium ring (distance tube), 20 mm outside, 16 mm bore, 12 mm", (Piece("round", 0.010, 0.012, 0.008),), **_GREY, round=True),
+    Part("Distance_Tube", "small grey aluminium ring (distance tube), 20 mm outside, 16 mm bore, 12 mm", (Piece("round", 0.010, 0.012, 0.008),), _GREY, round=True),
     Part(
         "Motor",
         "DC motor: Ø 40×55 mm body, Ø 6×15 mm shaft",
         (Piece("round", 0.020, 0.055, axis="x"), Piece("round", 0.003, 0.015, origin=(0.055, 0.0, 0.0), axis="x")),
-        hue=(0.0, 1.0),
-        saturation=(0.0, 0.2),
-        value=(0.08, 0.35),
+        ((0.0, 1.0), (0.0, 0.2), (0.08, 0.35)),
     ),
 )
 

@@ -142,7 +142,9 @@ def _match(predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return out
 
 
-def evaluate(model: torch.nn.Module, dataset: Any, classes: list[str], device: torch.device | str = "cpu", batch_size: int = 32, limit: int | None = None) -> PartsEvaluation:
+def evaluate(
+    model: torch.nn.Module, dataset: Any, classes: list[str], device: torch.device | str = "cpu", batch_size: int = 32, limit: int | None = None
+) -> PartsEvaluation:
     """Pickup rate, distance and IoU per class over `dataset` (see the module doc)."""
     device = torch.device(device)
     rows = [ClassRow(c) for c in classes]

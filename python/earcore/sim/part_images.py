@@ -96,7 +96,12 @@ class PartImageOptions:
             raise ConfigError(f"classes: unknown part type(s) {', '.join(unknown)}; known: {', '.join(part_names())}")
         if len(set(self.classes)) != len(self.classes):
             raise ConfigError(f"classes: each part type once, got {list(self.classes)}")
-        for name, value, lo, hi in (("width", self.width, 16, 2048), ("height", self.height, 16, 2048), ("shard_size", self.shard_size, 1, 100000), ("count", self.count, 1, 10_000_000)):
+        for name, value, lo, hi in (
+            ("width", self.width, 16, 2048),
+            ("height", self.height, 16, 2048),
+            ("shard_size", self.shard_size, 1, 100000),
+            ("count", self.count, 1, 10_000_000),
+        ):
             if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
                 raise ConfigError(f"{name} must be a whole number in [{lo}, {hi}], got {value!r}")
         lo, hi = self.objects
@@ -196,6 +201,11 @@ def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
     return True
 
 
+def _at(p: Part, yaw: float, other: Placement, offset: np.ndarray, colour: tuple[float, float, float]) -> Placement:
+    """`p` placed at `offset` from `other`'s position."""
+    return Placement(p, yaw, float(other.x + offset[0]), float(other.y + offset[1]), colour)
+
+
 def place_parts(rng: np.random.Generator, parts: list[Part], centre: np.ndarray, touching: float) -> list[Placement]:
     """Random non-overlapping placements in the region around `centre`; with
     probability `touching` a part is slid against one already placed until they touch.
@@ -210,16 +220,16 @@ def place_parts(rng: np.random.Generator, parts: list[Part], centre: np.ndarray,
             direction = rng.normal(size=2)
             direction /= np.linalg.norm(direction)
             near, far = 0.0, 0.3  # distance from the other's centre: overlapping at near, free at far
-            candidate = Placement(p, yaw, *(np.array([other.x, other.y]) + far * direction), colour)
+            candidate = _at(p, yaw, other, far * direction, colour)
             if not any(_overlap(candidate.footprint(), q.footprint()) for q in placed):
                 for _ in range(20):
                     mid = (near + far) / 2
-                    candidate = Placement(p, yaw, *(np.array([other.x, other.y]) + mid * direction), colour)
+                    candidate = _at(p, yaw, other, mid * direction, colour)
                     if _overlap(candidate.footprint(), other.footprint()):
                         near = mid
                     else:
                         far = mid
-                candidate = Placement(p, yaw, *(np.array([other.x, other.y]) + far * direction), colour)
+                candidate = _at(p, yaw, other, far * direction, colour)
                 inside = np.all(np.abs(candidate.footprint() - centre) <= np.array(REGION) + 0.03)
                 if inside and not any(_overlap(candidate.footprint(), q.footprint()) for q in placed):
                     spot = candidate
@@ -406,7 +416,7 @@ class PartImageRenderer:
             "count": len(placements),
         }
 
-        def project(point_world: np.ndarray) -> np.ndarray:
+        def project(point_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             c = camera_from_world[:3, :3] @ point_world + camera_from_world[:3, 3]
             return np.array([K[0, 0] * c[0] / c[2] + K[0, 2], K[1, 1] * c[1] / c[2] + K[1, 2]]), c
 
@@ -450,4 +460,3 @@ def generate_shard(options: PartImageOptions, index: int, folder: str | Path) ->
     samples = [renderer.render(spec).sample for spec in specs]
     write_shard(folder, shard_name(index), samples, renderer.header)
     return len(samples)
-
