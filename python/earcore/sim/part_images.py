@@ -23,11 +23,12 @@ from typing import Any
 
 import numpy as np
 
-from earcore.learning.shards import Sample, shard_name, write_shard
+from earcore.learning.shards import Sample, shard_name
 from earcore.parts.catalogue import Part, part, part_names
 from earcore.sim.camera import opengl_projection, opengl_view
 from earcore.sim.image_scene import Lighting, procedural_texture
 from earcore.sim.sensors import SENSORS
+from earcore.sim.shard_worker import render_shard
 from earcore.transforms import axis_angle_matrix, look_at, quaternion
 from earcore.validate import ConfigError
 
@@ -444,19 +445,7 @@ class PartImageRenderer:
         return row
 
 
-_RENDERERS: dict[PartImageOptions, PartImageRenderer] = {}
-
-
 def generate_shard(options: PartImageOptions, index: int, folder: str | Path) -> int:
-    """Render shard `index` of the dataset into `folder` (atomically); returns its
-    number of images. The worker's renderer is kept for its next shard."""
-    renderer = _RENDERERS.get(options)
-    if renderer is None:
-        for old in _RENDERERS.values():
-            old.close()
-        _RENDERERS.clear()
-        renderer = _RENDERERS[options] = PartImageRenderer(options)
-    specs = plan_shards(options)[index]
-    samples = [renderer.render(spec).sample for spec in specs]
-    write_shard(folder, shard_name(index), samples, renderer.header)
-    return len(samples)
+    """Render shard `index` of the dataset and write it into `folder` (atomically);
+    returns its number of images. The worker's renderer is kept for its next shard."""
+    return render_shard(options, PartImageRenderer, plan_shards(options)[index], index, folder)

@@ -31,11 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from earcore.learning.shards import Sample, columns, shard_name, write_shard
+from earcore.learning.shards import Sample, columns, shard_name
 from earcore.robots import BUILTIN_MODELS, FLANGES, RobotModel, load, urdf_path
 from earcore.sim.camera import opengl_projection, opengl_view
 from earcore.sim.image_scene import ImageScene, draw_layout, draw_person
 from earcore.sim.sensors import SENSORS
+from earcore.sim.shard_worker import render_shard
 from earcore.transforms import axis_angle_matrix, look_at, quaternion
 from earcore.urdf import parse_urdf
 from earcore.validate import ConfigError
@@ -601,19 +602,8 @@ class RobotImageRenderer:
 
 # --- workers -------------------------------------------------------------------------
 
-_RENDERERS: dict[RobotImageOptions, RobotImageRenderer] = {}
-
 
 def generate_shard(options: RobotImageOptions, index: int, folder: str | Path) -> int:
     """Render shard `index` of the dataset and write it into `folder` (atomically);
     returns its number of images. The worker's renderer is kept for its next shard."""
-    renderer = _RENDERERS.get(options)
-    if renderer is None:
-        for old in _RENDERERS.values():
-            old.close()
-        _RENDERERS.clear()
-        renderer = _RENDERERS[options] = RobotImageRenderer(options)
-    specs = plan_shards(options)[index]
-    samples = [renderer.render(spec).sample for spec in specs]
-    write_shard(folder, shard_name(index), samples, renderer.header)
-    return len(samples)
+    return render_shard(options, RobotImageRenderer, plan_shards(options)[index], index, folder)
