@@ -20,9 +20,7 @@ import argparse
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from datetime import date
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +30,7 @@ from earcore.learning.compare_runs import compare_methods, eval_curve, plot_conv
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from pose_accuracy import machine  # noqa: E402
+from sweep import run_jobs  # noqa: E402
 
 #: The methods compared: fixed is the papers' weights (Paper V: 1, 1.5, 1.5, 0.3).
 METHODS = ("sum", "fixed", "kgc", "kgc-eps", "kgc-mean", "uncertainty", "dwa", "auxnet")
@@ -148,9 +147,7 @@ def main() -> int:
             for s in range(args.runs)
             for m in methods
         ]
-        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn")) as pool:
-            for k, done in enumerate(pool.map(one_run, jobs), 1):
-                print(f"[{k}/{len(jobs)}] {done}", flush=True)
+        run_jobs(one_run, jobs, args.jobs)
     text = report(args.out, methods, args.runs, args)
     (args.out / "report.md").write_text(text + "\n")
     print(text)

@@ -45,8 +45,7 @@ def evaluator(batch_size: int = 32):
             for start in range(0, n, batch_size):
                 batch = to_device(collate([dataset[i] for i in range(start, min(n, start + batch_size))]), device)
                 a = model(batch["image"])["activations"]
-                for i in range(a.shape[0]):
-                    iou.append(float(soft_iou_error(a[i : i + 1], batch["target"][i : i + 1])))
+                iou.append(float(soft_iou_error(a, batch["target"])) * a.shape[0])
                 centre = part_centroids(a, batch["points"], batch["classes"], batch["valid"])
                 d = centre - batch["points"]
                 k = batch["intrinsics"]
@@ -54,7 +53,7 @@ def evaluator(batch_size: int = 32):
                 px.append(torch.sqrt((d**2).sum(-1))[batch["valid"]].cpu())
                 cm.append(dist_cm[batch["valid"]].cpu())
         d_px, d_cm = torch.cat(px), torch.cat(cm)
-        iou_error = float(np.mean(iou))
+        iou_error = float(np.sum(iou)) / max(n, 1)
         pick = float(pickup_error(d_cm).mean()) if len(d_cm) else float("nan")
         return {
             "val_iou_error": iou_error,

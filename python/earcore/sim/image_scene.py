@@ -19,7 +19,7 @@ import numpy as np
 
 from earcore.sim.person import HumanArm
 
-__all__ = ["ImageScene", "Lighting", "SceneLayout", "draw_layout", "draw_person", "procedural_texture"]
+__all__ = ["ImageScene", "Lighting", "SceneLayout", "draw_layout", "draw_person", "load_textures", "procedural_texture", "random_colour"]
 
 #: Where unused bodies wait (far below the floor, never in view).
 HIDDEN = (0.0, 0.0, -60.0)
@@ -85,15 +85,30 @@ class SceneLayout:
     lighting: Lighting = field(default_factory=Lighting)
 
 
-def _colour(rng: np.random.Generator, saturation=(0.0, 0.8), value=(0.15, 0.95)) -> tuple[float, float, float]:
+def random_colour(rng: np.random.Generator, saturation=(0.0, 0.8), value=(0.15, 0.95)) -> tuple[float, float, float]:
     r, g, b = colorsys.hsv_to_rgb(rng.random(), rng.uniform(*saturation), rng.uniform(*value))
     return float(r), float(g), float(b)
+
+
+def load_textures(client, seed: int, count: int) -> list[int]:
+    """`count` procedural textures loaded into a pybullet world (their ids); the same
+    seed gives the same pool in every worker."""
+    from earcore.learning import png
+
+    rng = np.random.default_rng([seed, 51])
+    with tempfile.TemporaryDirectory(prefix="earcore-textures-") as folder:
+        out = []
+        for i in range(count):
+            path = Path(folder) / f"texture-{i}.png"
+            png.write(path, procedural_texture(rng))
+            out.append(client.loadTexture(str(path)))
+    return out
 
 
 def procedural_texture(rng: np.random.Generator, size: int = 64) -> np.ndarray:
     """A (size, size, 3) uint8 texture: checkers, stripes, wood-like grain, speckle or
     blotches, in two random colours."""
-    a, b = (np.array(_colour(rng)) for _ in range(2))
+    a, b = (np.array(random_colour(rng)) for _ in range(2))
     y, x = np.mgrid[0:size, 0:size] / size
     kind = rng.integers(5)
     if kind == 0:
@@ -123,10 +138,10 @@ def draw_layout(
     half = STAND if layout.table == len(TABLES) else TABLES[layout.table]
     # The robot stands somewhere on the top, at least 15 cm from its edges.
     layout.table_offset = tuple(float(rng.uniform(-max(h - 0.15, 0.0), max(h - 0.15, 0.0))) for h in half)  # type: ignore[assignment]
-    layout.table_colour = _colour(rng)
+    layout.table_colour = random_colour(rng)
     layout.table_texture = int(rng.integers(textures)) if rng.random() < 0.5 else -1
     layout.floor_depth = float(rng.uniform(0.7, 0.95))
-    layout.floor_colour = _colour(rng, value=(0.25, 0.9))
+    layout.floor_colour = random_colour(rng, value=(0.25, 0.9))
     layout.floor_texture = int(rng.integers(textures)) if rng.random() < 0.6 else -1
     # Walls behind the robot as the camera sees it.
     away = -camera_xy / max(float(np.linalg.norm(camera_xy)), 1e-9)
@@ -136,7 +151,7 @@ def draw_layout(
         d = np.array([c * away[0] - s * away[1], s * away[0] + c * away[1]])
         centre = d * rng.uniform(1.2, 3.0) * max(reach, 0.6)
         layout.walls.append(
-            (float(centre[0]), float(centre[1]), float(np.arctan2(d[1], d[0])), _colour(rng), int(rng.integers(textures)) if rng.random() < 0.5 else -1)
+            (float(centre[0]), float(centre[1]), float(np.arctan2(d[1], d[0])), random_colour(rng), int(rng.integers(textures)) if rng.random() < 0.5 else -1)
         )
     if distractors:
         count = int(rng.integers(0, 6))
@@ -144,11 +159,11 @@ def draw_layout(
             radius, angle = rng.uniform(0.3, 1.3) * reach, rng.uniform(0, 2 * np.pi)
             on_table = rng.random() < 0.6
             z = 0.0 if on_table else -layout.floor_depth
-            layout.distractors.append((int(index), (float(radius * np.cos(angle)), float(radius * np.sin(angle)), z), _colour(rng)))
+            layout.distractors.append((int(index), (float(radius * np.cos(angle)), float(radius * np.sin(angle)), z), random_colour(rng)))
     if rng.random() < person:
         layout.person = draw_person(rng, reach, camera_xy)
     # Robot links: a main colour and an accent (joint covers, the wrist), each link jittered.
-    main, accent = _colour(rng, (0.0, 0.6), (0.3, 1.0)), _colour(rng)
+    main, accent = random_colour(rng, (0.0, 0.6), (0.3, 1.0)), random_colour(rng)
     for _ in range(links):
         base = accent if rng.random() < 0.3 else main
         r, g, b = (float(v) for v in np.clip(np.array(base) + rng.normal(0, 0.04, 3), 0, 1))
@@ -174,7 +189,7 @@ def draw_person(rng: np.random.Generator, reach: float, camera_xy: np.ndarray):
     shoulder = np.array([*(towards * along + side * rng.uniform(0.35, 0.6)), rng.uniform(0.2, 0.6)])
     hand = np.array([*(towards * rng.uniform(0.05, 0.3) * reach + side * rng.uniform(-0.1, 0.2)), rng.uniform(0.05, 0.5)])
     skin = SKIN[int(rng.integers(len(SKIN)))]
-    sleeve = _colour(rng) if rng.random() < 0.7 else skin
+    sleeve = random_colour(rng) if rng.random() < 0.7 else skin
     return tuple(shoulder.tolist()), tuple(hand.tolist()), skin, sleeve
 
 
@@ -197,15 +212,7 @@ class ImageScene:
                 shape = p.createVisualShape(p.GEOM_SPHERE, radius=size)
             self.distractors.append(p.createMultiBody(0, -1, shape, HIDDEN))
         self.arm = HumanArm(p, (0.0, 0.0, -60.0), (0.0, 0.3, -60.0), [], arrive=0.0)
-        rng = np.random.default_rng([texture_seed, 51])
-        from earcore.learning import png
-
-        with tempfile.TemporaryDirectory(prefix="earcore-textures-") as folder:
-            self.textures = []
-            for i in range(textures):
-                path = Path(folder) / f"texture-{i}.png"
-                png.write(path, procedural_texture(rng))
-                self.textures.append(p.loadTexture(str(path)))
+        self.textures = load_textures(p, texture_seed, textures)
 
     def _box(self, half) -> int:
         shape = self.p.createVisualShape(self.p.GEOM_BOX, halfExtents=list(half))

@@ -26,7 +26,7 @@ import numpy as np
 from earcore.learning.shards import Sample, shard_name
 from earcore.parts.catalogue import Part, part, part_names
 from earcore.sim.camera import opengl_projection, opengl_view
-from earcore.sim.image_scene import Lighting, procedural_texture
+from earcore.sim.image_scene import Lighting, load_textures, random_colour
 from earcore.sim.sensors import SENSORS
 from earcore.sim.shard_worker import render_shard
 from earcore.transforms import axis_angle_matrix, look_at, quaternion
@@ -280,17 +280,7 @@ class PartImageRenderer:
         self.floor = self._box((3.0, 3.0, 0.01))
         self.sensor = SENSORS["sr300"].scaled(options.width / SENSORS["sr300"].width)
         self.header = part_columns(options.objects[1])
-        rng = np.random.default_rng([options.seed, 51])
-        import tempfile
-
-        from earcore.learning import png
-
-        with tempfile.TemporaryDirectory(prefix="earcore-textures-") as folder:
-            self.textures = []
-            for i in range(options.textures):
-                path = Path(folder) / f"texture-{i}.png"
-                png.write(path, procedural_texture(rng))
-                self.textures.append(p.loadTexture(str(path)))
+        self.textures = load_textures(p, options.seed, options.textures)
 
     def close(self) -> None:
         self.p.disconnect()
@@ -342,9 +332,7 @@ class PartImageRenderer:
             v = rng.uniform(0.75, 1.0)
             tint = rng.uniform(-0.04, 0.04, 3)
             return tuple(float(np.clip(v + t, 0, 1)) for t in tint), -1  # type: ignore[return-value]
-        from earcore.sim.image_scene import _colour
-
-        return _colour(rng), int(rng.integers(-1, len(self.textures)))
+        return random_colour(rng), int(rng.integers(-1, len(self.textures)))
 
     def _look(self, body: int, colour, texture: int) -> None:
         self.p.changeVisualShape(body, -1, rgbaColor=[*colour, 1.0], textureUniqueId=self.textures[texture] if texture >= 0 else -1)
