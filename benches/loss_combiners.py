@@ -29,8 +29,7 @@ from earcore.learning.combiners import COMBINERS
 from earcore.learning.compare_runs import compare_methods, eval_curve, plot_convergence_boxes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pose_accuracy import machine  # noqa: E402
-from sweep import run_jobs  # noqa: E402
+from sweep import machine, run_jobs  # noqa: E402
 
 #: The methods compared: fixed is the papers' weights (Paper V: 1, 1.5, 1.5, 0.3).
 METHODS = ("sum", "fixed", "kgc", "kgc-eps", "kgc-mean", "uncertainty", "dwa", "auxnet")

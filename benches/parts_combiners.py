@@ -29,8 +29,7 @@ import numpy as np
 from earcore.learning.compare_runs import compare_methods, eval_curve, plot_convergence_boxes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pose_accuracy import machine  # noqa: E402
-from sweep import run_jobs  # noqa: E402
+from sweep import machine_note, run_jobs  # noqa: E402
 
 #: method → (combiner, fixed weights, pixels per unit of the distance loss)
 METHODS: dict[str, tuple[str, dict[str, float], float]] = {
@@ -71,6 +70,7 @@ def one_run(job: dict) -> str:
         lr_end=job["lr"],
         schedule="constant",
         threads=1,
+        device=job["device"],
         seed=job["seed"],
         eval_every_steps=job["eval_every"],
         eval_every_minutes=None,
@@ -102,7 +102,7 @@ def report(out: Path, methods: list[str], runs: int, args: argparse.Namespace) -
     reference = "auxnet" if "auxnet" in curves else next(iter(curves))
     plot_convergence_boxes(comparison, out / "fig13-parts.png", title="Convergence vs combined error (parts detector)")
     lines = [
-        f"Loss combiners on the parts detector, {date.today().isoformat()}, {machine()}",
+        f"Loss combiners on the parts detector, {date.today().isoformat()}, {machine_note(out)}",
         f"data {args.data}, {runs} runs per method (seeds 0-{runs - 1}), {args.steps} steps of batch {args.batch}, "
         f"Adam lr {args.lr:g} constant, evaluation every {args.eval_every} steps on {args.eval_samples} test images",
         "",
@@ -133,6 +133,7 @@ def main() -> int:
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--eval-every", type=int, default=50)
     parser.add_argument("--eval-samples", type=int, default=256)
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     parser.add_argument("--jobs", type=int, default=2, help="runs at once (one thread each)")
     parser.add_argument("--report", action="store_true", help="only report the runs in --out")
     args = parser.parse_args()
@@ -152,11 +153,12 @@ def main() -> int:
                 "lr": args.lr,
                 "eval_every": args.eval_every,
                 "eval_samples": args.eval_samples,
+                "device": args.device,
             }
             for s in range(args.runs)
             for m in methods
         ]
-        run_jobs(one_run, jobs, args.jobs)
+        run_jobs(one_run, jobs, args.jobs, note=args.out)
     text = report(args.out, methods, args.runs, args)
     (args.out / "report.md").write_text(text + "\n")
     print(text)

@@ -20,33 +20,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import time
 from datetime import date
 from pathlib import Path
-
-import torch
 
 from earcore.learning.dataset import ImageDataset
 from earcore.learning.metrics_log import plot_comparison, read_metrics
 from earcore.pose.evaluate import evaluate
 from earcore.pose.train import build_parser, config_from_args, load_trained, run
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from sweep import machine  # noqa: E402
+
 #: The accuracy-vs-time curves drawn side by side (curves.png).
 CURVES = ("joints_median_cm", "base_median_cm", "mask_iou", "type_accuracy")
 SHIPPED = Path(__file__).resolve().parents[1] / "python" / "earcore" / "pose" / "weights" / "pose.onnx"
-
-
-def machine() -> str:
-    cpu = platform.processor() or "cpu"
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    gpu = f", {torch.cuda.get_device_name()}" if torch.cuda.is_available() else ""
-    return f"{cpu}, {os.cpu_count()} cores{gpu}; torch {torch.__version__}, Python {platform.python_version()}"
 
 
 def main() -> int:

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pose_accuracy import machine  # noqa: E402
+from sweep import machine  # noqa: E402
 
 EARCORE = [sys.executable, "-m", "earcore.pose.train"]
 ROWS = (

@@ -24,6 +24,13 @@ The parts detector's (IROS 2018, §V):
   once. Mean over the batch's parts.
 - `pickup_error` (Eq. 4): ``d² / (d² + 1)`` of a distance d in cm: 0.5 at 1 cm.
 
+The one-shot segmenter's (AAMAS 2019, Eqs. 1-2):
+
+- `vector_spread`: over every pair (i, j) of a batch's two sets of feature vectors, the
+  angle between X_i and Y_j in units of π/2 (so orthogonal is 1), counted as is where
+  the classes agree and as 1 − it where they differ; the mean over the b×b pairs. 0 when
+  each class has its own direction, orthogonal to every other class's.
+
 How the named losses become one total (Eq. 8's fixed weights and the learned schemes)
 is `earcore.learning.combiners`.
 """
@@ -48,6 +55,7 @@ __all__ = [
     "pickup_error",
     "soft_iou_error",
     "type_loss",
+    "vector_spread",
     "voronoi_cells",
 ]
 
@@ -179,3 +187,14 @@ def pickup_error(distance_cm: Tensor) -> Tensor:
     pickup point fails, d² / (d² + 1)."""
     d2 = distance_cm**2
     return d2 / (d2 + 1.0)
+
+
+def vector_spread(x: Tensor, y: Tensor, same: Tensor) -> Tensor:
+    """The vector-spread loss of `x` (B, D) against `y` (B', D) with `same` (B, B') True
+    where the classes of x_i and y_j agree. Angles use cos clamped inside (-1, 1), whose
+    arccos has a finite gradient; a zero vector counts as orthogonal to everything."""
+    if x.ndim != 2 or y.ndim != 2 or x.shape[1] != y.shape[1] or same.shape != (x.shape[0], y.shape[0]):
+        raise ValueError(f"vector_spread takes x (B, D), y (B', D) and same (B, B'), got {tuple(x.shape)}, {tuple(y.shape)}, {tuple(same.shape)}")
+    cos = F.normalize(x, dim=1, eps=1e-12) @ F.normalize(y, dim=1, eps=1e-12).T
+    angle = torch.arccos(cos.clamp(-1.0 + 1e-6, 1.0 - 1e-6)) / (math.pi / 2)
+    return torch.where(same, angle, 1.0 - angle).mean()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -82,3 +84,30 @@ def test_centroid_distance_gradient_moves_activation_towards_the_point():
 def test_pickup_error_is_eq4():
     d = torch.tensor([0.0, 1.0, 3.0, 100.0])
     assert pickup_error(d).tolist() == pytest.approx([0.0, 0.5, 0.9, 1e4 / (1e4 + 1)])
+
+
+def test_vector_spread_on_hand_made_vectors():
+    from earcore.learning.losses import vector_spread
+
+    e1, e2 = torch.tensor([1.0, 0.0]), torch.tensor([0.0, 1.0])
+    diag = torch.tensor([1.0, 1.0]) / math.sqrt(2)
+    # two classes along orthogonal axes, each matched with itself: the loss's minimum, 0
+    x = torch.stack([e1, e2])
+    same = torch.tensor([[True, False], [False, True]])
+    assert float(vector_spread(x, x * 3.0, same)) == pytest.approx(0.0, abs=2e-3)  # the length does not count
+    # the same vectors with the classes swapped: every pair is wrong, 1
+    assert float(vector_spread(x, x, ~same)) == pytest.approx(1.0, abs=2e-3)
+    # 45 degrees is half of orthogonal: 0.5 whether or not the classes agree
+    assert float(vector_spread(e1[None], diag[None], torch.tensor([[True]]))) == pytest.approx(0.5, abs=1e-4)
+    assert float(vector_spread(e1[None], diag[None], torch.tensor([[False]]))) == pytest.approx(0.5, abs=1e-4)
+    # a 2 x 3 case by hand: angles (in right angles) 0, 1, 0.5 / 1, 0, 0.5, same = the first of each row
+    y = torch.stack([e1, e2, diag])
+    s = torch.tensor([[True, False, False], [True, False, True]])
+    expected = ((0.0) + (1 - 1.0) + (1 - 0.5) + 1.0 + (1 - 0.0) + 0.5) / 6
+    assert float(vector_spread(x, y, s)) == pytest.approx(expected, abs=2e-3)
+    # the gradient turns a same-class pair towards each other
+    a = torch.tensor([[1.0, 0.2]], requires_grad=True)
+    vector_spread(a, e1[None], torch.tensor([[True]])).backward()
+    assert a.grad is not None and float(a.grad[0, 1]) > 0  # descending lowers the second component
+    with pytest.raises(ValueError, match="same"):
+        vector_spread(x, y, same)

@@ -1,0 +1,184 @@
+"""One-shot segmentation (AAMAS 2019): needle crops, the held-out protocol's pairs and
+trials against the labels, the classification metric on hand-made masks, the gating,
+and a tiny segmenter overfitting one batch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from earcore.learning.losses import soft_iou_error
+from earcore.learning.train import collate
+from earcore.parts.oneshot import build_oneshot
+from earcore.parts.oneshot_data import needle_crop, split_classes
+from earcore.parts.oneshot_evaluate import score_trials
+
+pytest.importorskip("pybullet")
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    from earcore.app.parts import main
+
+    root = tmp_path_factory.mktemp("oneshot")
+    common = ["--size", "64x48", "--workers", "1", "--quiet"]
+    assert main(["generate", "--out", str(root / "hay"), "--count", "40", "--objects", "2-5", "--seed", "5", *common]) == 0
+    assert main(["generate", "--out", str(root / "needles"), "--count", "60", "--objects", "1-1", "--seed", "6", *common]) == 0
+    return root / "hay", root / "needles"
+
+
+def test_needle_crop_is_the_square_around_the_part():
+    image = torch.zeros(3, 48, 64)
+    mask = np.zeros((48, 64), bool)
+    mask[10:20, 30:34] = True  # 10 rows x 4 columns
+    image[0][torch.from_numpy(mask)] = 1.0
+    crop, crop_mask = needle_crop(image, mask, size=16, margin=0.3)
+    # side 10 * 1.6 = 16 px around the centre (row 15, column 32): the crop is 1:1
+    assert crop.shape == (3, 16, 16) and crop_mask.shape == (1, 16, 16)
+    assert torch.equal(crop_mask[0] > 0, torch.from_numpy(mask[7:23, 24:40]))
+    assert torch.allclose(crop[0], image[0, 7:23, 24:40])
+    # at the image's edge the square moves inside
+    edge = np.zeros((48, 64), bool)
+    edge[0:4, 60:64] = True
+    _, m = needle_crop(torch.zeros(3, 48, 64), edge, size=8, margin=0.5)
+    assert int(m.sum()) == 16  # 4 x 4 part in an 8 x 8 window, 1:1
+    with pytest.raises(Exception, match="no part"):
+        needle_crop(image, np.zeros((48, 64), bool))
+
+
+def test_split_classes():
+    names = ["a", "b", "c", "d"]
+    assert split_classes(names, ["d", "b"]) == ([0, 2], [1, 3])
+    with pytest.raises(ValueError, match="unknown"):
+        split_classes(names, ["x"])
+    with pytest.raises(ValueError, match="distinct"):
+        split_classes(names, ["a", "a"])
+
+
+def test_pairs_and_trials_follow_the_protocol(folders):
+    from earcore.parts.dataset import PartImages
+    from earcore.parts.oneshot_data import HeldOutTrials, OneShotPairs, visible_pixels
+
+    hay, needles = folders
+    hay_all = PartImages(hay, split=None, noise=False)
+    counts = visible_pixels(hay_all)
+    a = hay_all._load()
+    # brute force: pixels per type from the instance layer and the labels
+    for k in range(len(counts)):
+        for c in range(13):
+            slots = [i for i in range(int(a["count"][k])) if a["classes"][k, i] == c]
+            assert counts[k, c] == sum(int((a["instances"][k] == i + 1).sum()) for i in slots)
+    present = (counts >= 12).any(0)
+    held = [int(c) for c in np.argsort(-(counts >= 12).sum(0))[:2]]  # the two most common types
+    assert present[held].all()
+    seen = [c for c in range(13) if c not in held]
+    pairs = OneShotPairs(hay_all, PartImages(needles, split=None, noise=False), [c for c in seen if c in _needle_types(needles)], depth=False)
+    for k in range(len(pairs)):
+        item = pairs[k]
+        image = int(pairs.images[k])
+        assert not np.isin(a["classes"][image], held).any()  # never a held-out part in training
+        cls = int(item["cls"])
+        assert cls not in held and counts[image, cls] >= 12
+        assert item["haystack"].shape == (3, 48, 64) and item["needle"].shape == (3, 32, 32)
+        assert int(item["target"].sum()) == counts[image, cls]  # flips keep the pixels
+        assert int(item["all"].sum()) == int((a["instances"][image] > 0).sum())
+        assert item["needle_mask"].sum() > 0
+    trials = HeldOutTrials(hay_all, PartImages(needles, split=None, noise=False), held)
+    assert len(trials) == 2 * int(((counts[:, held] >= 12).all(1)).sum())
+    for k in range(len(trials)):
+        image, cls, needle = trials.trials[k]
+        assert cls in held and (counts[image, held] >= 12).all()
+        item = trials[k]
+        assert int(item["valid"].sum()) == int((a["classes"][image] == cls).sum())
+        assert torch.equal(item["target"][0], item["masks"][cls])
+
+
+def _needle_types(needles):
+    from earcore.parts.dataset import PartImages
+    from earcore.parts.oneshot_data import visible_pixels
+
+    n = PartImages(needles, split=None, noise=False)
+    a = n._load()
+    ok = visible_pixels(n).sum(1) >= 12
+    return set(int(c) for c in a["classes"][ok, 0])
+
+
+def test_classification_metric_on_hand_made_masks():
+    masks = torch.zeros(4, 3, 4, 4)
+    masks[:, 0, :2, :2] = 1  # type 0: top left
+    masks[:, 1, 2:, 2:] = 1  # type 1: bottom right
+    belief = torch.zeros(4, 1, 4, 4)
+    belief[0, 0, :2, :2] = 0.9  # exactly type 0
+    belief[1, 0, 2:, 2:] = 0.9  # type 1, asked for type 0
+    belief[2, 0, :2, :2] = 0.9  # both halves: a tie
+    belief[2, 0, 2:, 2:] = 0.9
+    belief[3, 0, 0, 0] = 0.9  # one pixel of type 0: IoU 1/4
+    batch = {
+        "masks": masks,
+        "cls": torch.tensor([0, 0, 0, 0]),
+        "points": torch.tensor([[[0.5, 0.5]]] * 4),
+        "valid": torch.ones(4, 1, dtype=torch.bool),
+        "depth": torch.full((4, 1), 0.4),
+        "intrinsics": torch.tensor([[100.0, 100.0, 2.0, 2.0]] * 4),
+    }
+    r = score_trials(belief, batch)
+    assert r.chosen == [0, 1, -1, 0]
+    assert r.accuracy == pytest.approx(0.5)
+    assert r.iou == pytest.approx([1.0, 0.0, 0.5, 0.25])
+    # the correct trials' pickup: trial 0's centroid is (0.5, 0.5), on the point (error 0); trial 3's
+    # is (0, 0): 0.707 px at 0.4 m and f = 100 px = 0.283 cm, Eq. 4 gives d²/(d²+1)
+    d = 100 * 0.4 * np.sqrt(0.5) / 100
+    assert r.pickup_errors == pytest.approx([0.0, d**2 / (d**2 + 1)], abs=1e-4)
+
+
+def test_gates_switch_filters_by_the_needle():
+    torch.manual_seed(0)
+    net = build_oneshot(in_channels=3, widths=(8, 8, 8), dropout=0.0).eval()
+    needle = torch.rand(2, 3, 16, 16)
+    gates, vector = net.needle_gates(needle)
+    assert [g.shape for g in gates] == [(2, 8)] * 3 and vector.shape == (2, 8)
+    for g in gates:
+        assert torch.allclose(g.mean(1), torch.ones(2), atol=1e-4)  # a stack keeps its scale
+    # gating by hand: the gated encoder equals the plain one's stacks times the gates, stack by stack
+    haystack = torch.rand(2, 3, 24, 32)
+    plain = net.stacks[0](haystack)
+    gated = net.encode(haystack, gates)
+    assert torch.allclose(gated[0], plain * gates[0][:, :, None, None], atol=1e-5)
+    # different needles give different beliefs on the same haystack
+    other = torch.rand(2, 3, 16, 16) * torch.tensor([1.0, 0.0, 0.0])[:, None, None]
+    assert not torch.allclose(net.segment(needle, haystack), net.segment(other, haystack))
+    with pytest.raises(ValueError, match="multiples"):
+        net.segment(needle, torch.rand(1, 3, 25, 32))
+
+
+def test_a_tiny_segmenter_overfits_one_batch(folders):
+    from earcore.parts.dataset import PartImages
+    from earcore.parts.oneshot import TASKS
+    from earcore.parts.oneshot_data import OneShotPairs
+    from earcore.parts.oneshot_train import OneShotObjective
+
+    hay, needles = folders
+    seen = sorted(_needle_types(needles))
+    pairs = OneShotPairs(PartImages(hay, split=None, noise=False), PartImages(needles, split=None, noise=False), seen, depth=False)
+    batch = collate([pairs[k] for k in range(4)])
+    torch.manual_seed(0)
+    net = build_oneshot(in_channels=3, widths=(8, 16, 16, 16), dropout=0.0)
+    objective = OneShotObjective(TASKS)
+    optimiser = torch.optim.Adam(net.parameters(), lr=1e-2)
+    first = None
+    for _ in range(150):
+        losses = objective.losses(batch, net(*objective.inputs(batch)))
+        if first is None:
+            first = {k: float(v.detach()) for k, v in losses.items()}
+        optimiser.zero_grad()
+        sum(losses.values()).backward()
+        optimiser.step()
+    net.eval()
+    with torch.no_grad():
+        last = {k: float(v) for k, v in objective.losses(batch, net(*objective.inputs(batch))).items()}
+        belief = net.segment(batch["needle"], batch["haystack"])
+    assert first["needle"] > 0.8 and last["needle"] < 0.35
+    assert last["all"] < 0.35 and last["self"] < 0.35
+    assert last["spread"] < first["spread"]
+    assert float(soft_iou_error((belief > 0.5).float(), batch["target"])) < 0.4
