@@ -3,6 +3,7 @@
     earcore parts generate --out data/parts --count 2000            # labelled RGB-D images
     earcore parts train --data data/parts --out runs/parts --steps 3000 [--loss-combiner auxnet]
     earcore parts evaluate --checkpoint runs/parts --data data/parts [--split test]
+    earcore parts oneshot-train --haystacks data/parts --needles data/needles --held-out Axis,Motor --out runs/oneshot
 
 `earcore dataset parts` is `earcore parts generate`. Rerunning a generation completes
 its missing shards; a folder made with other options is refused.
@@ -113,7 +114,17 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     return 0
 
 
-COMMANDS = {"generate": generate_main, "train": train_main, "evaluate": evaluate_main}
+def oneshot_train_main(argv: list[str] | None = None) -> int:
+    from earcore.errors import EarcoreError
+    from earcore.parts.oneshot_train import main
+
+    try:
+        return main(argv, Parser, "earcore parts oneshot-train")
+    except EarcoreError as exc:
+        return fail("earcore parts oneshot-train", str(exc), 1)
+
+
+COMMANDS = {"generate": generate_main, "train": train_main, "evaluate": evaluate_main, "oneshot-train": oneshot_train_main}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -93,12 +93,15 @@ def visible_pixels(images: PartImages) -> np.ndarray:
     return out
 
 
-def _needles_by_class(needles: PartImages, classes: Sequence[int]) -> dict[int, np.ndarray]:
+def _needles_by_class(needles: PartImages, classes: Sequence[int], every: bool = True) -> dict[int, np.ndarray]:
+    """Single-part images per type; a type without one is an error with `every`, else left out."""
     a = needles._load()
     single = (a["count"] == 1) & (visible_pixels(needles).sum(1) >= MIN_PIXELS)
     out = {c: np.flatnonzero(single & (a["classes"][:, 0] == c)) for c in classes}
     empty = [needles.classes[c] for c, idx in out.items() if not len(idx)]
-    if empty:
+    if not every:
+        out = {c: idx for c, idx in out.items() if len(idx)}
+    if (empty and every) or not out:
         raise DatasetError(f"{needles.folder}: no single-part image of {', '.join(empty)} (generate needles with --objects 1-1)")
     return out
 
@@ -126,7 +129,7 @@ class NeedleCrops:
 
 class OneShotPairs(torch.utils.data.Dataset):
     """Training pairs over the haystacks that hold only `seen` types: item k is haystack
-    k with a target type drawn among its parts and two needles of that type (the second
+    k with a target type drawn among its visible parts that have needles and two needles of that type (the second
     for the vector spread), redrawn each epoch (`set_epoch`). Random flips; colour
     noise on the needles with `noise` (on the haystacks: their dataset's `noise`)."""
 
@@ -135,12 +138,13 @@ class OneShotPairs(torch.utils.data.Dataset):
         self.haystacks, self.needles, self.seen, self.noise = haystacks, needles, sorted(int(c) for c in seen), noise
         self.channels, self.seed, self.epoch = 4 if depth else 3, int(seed), 0
         a = haystacks._load()
-        self.visible = visible_pixels(haystacks) >= MIN_PIXELS
-        allowed = np.isin(a["classes"], [*self.seen, -1]).all(1) & self.visible.any(1)
+        self.by_class = _needles_by_class(needles, self.seen, every=False)
+        self.targets = visible_pixels(haystacks) >= MIN_PIXELS
+        self.targets[:, [c for c in range(len(haystacks.classes)) if c not in self.by_class]] = False
+        allowed = np.isin(a["classes"], [*self.seen, -1]).all(1) & self.targets.any(1)
         self.images = np.flatnonzero(allowed)
         if not len(self.images):
             raise DatasetError(f"{haystacks.folder}: no haystack holds only the seen part types")
-        self.by_class = _needles_by_class(needles, self.seen)
         self.crops = NeedleCrops(needles, self.channels)
 
     def set_epoch(self, epoch: int) -> None:
@@ -154,7 +158,7 @@ class OneShotPairs(torch.utils.data.Dataset):
         rng = np.random.default_rng([self.seed, self.epoch, index])
         image_index = int(self.images[index])
         hay = self.haystacks[image_index]
-        cls = int(rng.choice(np.flatnonzero(self.visible[image_index])))
+        cls = int(rng.choice(np.flatnonzero(self.targets[image_index])))
         first, second = rng.choice(self.by_class[cls], size=2, replace=len(self.by_class[cls]) < 2)
         needle, needle_mask = self.crops.get(int(first), rng if self.noise else None)
         other, _ = self.crops.get(int(second), rng if self.noise else None)

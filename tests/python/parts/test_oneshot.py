@@ -4,6 +4,8 @@ and a tiny segmenter overfitting one batch."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -73,13 +75,13 @@ def test_pairs_and_trials_follow_the_protocol(folders):
     held = [int(c) for c in np.argsort(-(counts >= 12).sum(0))[:2]]  # the two most common types
     assert present[held].all()
     seen = [c for c in range(13) if c not in held]
-    pairs = OneShotPairs(hay_all, PartImages(needles, split=None, noise=False), [c for c in seen if c in _needle_types(needles)], depth=False)
+    pairs = OneShotPairs(hay_all, PartImages(needles, split=None, noise=False), seen, depth=False)
     for k in range(len(pairs)):
         item = pairs[k]
         image = int(pairs.images[k])
         assert not np.isin(a["classes"][image], held).any()  # never a held-out part in training
         cls = int(item["cls"])
-        assert cls not in held and counts[image, cls] >= 12
+        assert cls not in held and counts[image, cls] >= 12 and cls in pairs.by_class
         assert item["haystack"].shape == (3, 48, 64) and item["needle"].shape == (3, 32, 32)
         assert int(item["target"].sum()) == counts[image, cls]  # flips keep the pixels
         assert int(item["all"].sum()) == int((a["instances"][image] > 0).sum())
@@ -182,3 +184,28 @@ def test_a_tiny_segmenter_overfits_one_batch(folders):
     assert last["all"] < 0.35 and last["self"] < 0.35
     assert last["spread"] < first["spread"]
     assert float(soft_iou_error((belief > 0.5).float(), batch["target"])) < 0.4
+
+
+def test_oneshot_train_command(folders, tmp_path, capsys):
+    from earcore.app.parts import main
+
+    hay, needles = folders
+    types = sorted(_needle_types(needles))
+    from earcore.parts.catalogue import part_names
+
+    names = part_names()
+    # hold out two types some haystack shows together (the command needs trials)
+    from earcore.parts.dataset import PartImages
+    from earcore.parts.oneshot_data import visible_pixels
+
+    seen_together = visible_pixels(PartImages(hay, split="test", noise=False)) >= 12
+    pair = next((a, b) for a in types for b in types if a < b and (seen_together[:, a] & seen_together[:, b]).any())
+    out = tmp_path / "run"
+    args = ["oneshot-train", "--haystacks", str(hay), "--needles", str(needles), "--held-out", f"{names[pair[0]]},{names[pair[1]]}"]
+    args += ["--out", str(out), "--steps", "4", "--batch", "2", "--eval-steps", "2", "--rgb", "--option", "widths=[8,8,8,8]", "--no-progress"]
+    assert main(args) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["trials"] >= 2 and 0.0 <= results["accuracy"] <= 1.0
+    assert set(results["classes"]) == {names[pair[0]], names[pair[1]]}
+    assert "Precision" in capsys.readouterr().out
+    assert main([*args[:6], "Nope", "--out", str(tmp_path / "bad"), "--steps", "1"]) == 1
