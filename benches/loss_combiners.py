@@ -29,7 +29,7 @@ from earcore.learning.combiners import COMBINERS
 from earcore.learning.compare_runs import compare_methods, eval_curve, plot_convergence_boxes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sweep import machine, run_jobs  # noqa: E402
+from sweep import claim_run, machine, run_jobs  # noqa: E402
 
 #: The methods compared: fixed is the papers' weights (Paper V: 1, 1.5, 1.5, 0.3).
 METHODS = ("sum", "fixed", "kgc", "kgc-eps", "kgc-mean", "uncertainty", "dwa", "auxnet")
@@ -38,18 +38,13 @@ METHODS = ("sum", "fixed", "kgc", "kgc-eps", "kgc-mean", "uncertainty", "dwa", "
 def one_run(job: dict) -> str:
     import torch
 
-    from earcore.learning.checkpoint import CHECKPOINT_NAME
     from earcore.learning.config import TrainConfig
     from earcore.learning.dataset import ImageDataset
     from earcore.pose.train import run
 
     out = Path(job["out"])
-    if (out / "results.json").is_file():
+    if not claim_run(out):
         return f"{out} (kept)"
-    if (out / CHECKPOINT_NAME).exists():  # an interrupted run starts again: its curve must be whole
-        import shutil
-
-        shutil.rmtree(out)
     torch.set_num_threads(1)
     config = TrainConfig(
         network="multi",

@@ -31,7 +31,7 @@ import numpy as np
 from earcore.learning.compare_runs import compare_methods, eval_curve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sweep import machine_note, run_jobs  # noqa: E402
+from sweep import claim_run, machine_note, run_jobs  # noqa: E402
 
 VARIANTS: dict[str, tuple[str, ...]] = {
     "iou": ("needle",),
@@ -53,17 +53,12 @@ def held_out_pairs(classes: list[str], count: int, seed: int = 0) -> list[tuple[
 def one_run(job: dict) -> str:
     import torch
 
-    from earcore.learning.checkpoint import CHECKPOINT_NAME
     from earcore.learning.config import TrainConfig
     from earcore.parts.oneshot_train import NETWORK, run
 
     out = Path(job["out"])
-    if (out / "results.json").is_file():
+    if not claim_run(out):
         return f"{out} (kept)"
-    if (out / CHECKPOINT_NAME).exists():  # an interrupted run starts again: its curve must be whole
-        import shutil
-
-        shutil.rmtree(out)
     torch.set_num_threads(1)
     tasks = VARIANTS[job["variant"]]
     config = TrainConfig(

@@ -29,7 +29,7 @@ import numpy as np
 from earcore.learning.compare_runs import compare_methods, eval_curve, plot_convergence_boxes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sweep import machine_note, run_jobs  # noqa: E402
+from sweep import claim_run, machine_note, run_jobs  # noqa: E402
 
 #: method → (combiner, fixed weights, pixels per unit of the distance loss)
 METHODS: dict[str, tuple[str, dict[str, float], float]] = {
@@ -46,18 +46,13 @@ METHODS: dict[str, tuple[str, dict[str, float], float]] = {
 def one_run(job: dict) -> str:
     import torch
 
-    from earcore.learning.checkpoint import CHECKPOINT_NAME
     from earcore.learning.config import TrainConfig
     from earcore.parts.detector import PRESETS
     from earcore.parts.train import NETWORK, run
 
     out = Path(job["out"])
-    if (out / "results.json").is_file() or (out / "failed.json").is_file():
+    if not claim_run(out, ("results.json", "failed.json")):
         return f"{out} (kept)"
-    if (out / CHECKPOINT_NAME).exists():  # an interrupted run starts again: its curve must be whole
-        import shutil
-
-        shutil.rmtree(out)
     torch.set_num_threads(1)
     combiner, weights, unit = METHODS[job["method"]]
     config = TrainConfig(

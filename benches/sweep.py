@@ -5,12 +5,15 @@ from __future__ import annotations
 
 import os
 import platform
+import shutil
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
 
 import torch
+
+from earcore.learning.checkpoint import CHECKPOINT_NAME
 
 MACHINE_NOTE = "machine.txt"
 
@@ -44,6 +47,17 @@ def run_jobs(one_run: Callable[[dict], str], jobs: list[dict], workers: int, not
                 line = f"{futures[done].get('out', futures[done])} failed: {type(exc).__name__}: {exc}"
             print(f"[{k}/{len(jobs)}] {line}", flush=True)
     return failed
+
+
+def claim_run(out: Path, done: tuple[str, ...] = ("results.json",)) -> bool:
+    """Whether a sweep's run in `out` is still to do: not when one of the `done` files
+    is there; a run that was interrupted (a checkpoint, no result) is removed so it
+    starts again, as its curve must be whole."""
+    if any((out / name).is_file() for name in done):
+        return False
+    if (out / CHECKPOINT_NAME).exists():
+        shutil.rmtree(out)
+    return True
 
 
 def machine_note(out: Path) -> str:

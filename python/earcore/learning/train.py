@@ -10,6 +10,7 @@ present), and under torchrun as several processes (see `earcore.learning.distrib
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -20,14 +21,14 @@ import torch
 import torch.distributed as dist
 from torch import Tensor
 
-from earcore.errors import ConfigError
+from earcore.errors import ConfigError, EarcoreError
 from earcore.learning import distributed
 from earcore.learning.checkpoint import CHECKPOINT_NAME, Checkpoint, CheckpointError, load_checkpoint, rng_state, save_checkpoint, set_rng_state
 from earcore.learning.combiners import LossCombiner
 from earcore.learning.config import TrainConfig
 from earcore.learning.metrics_log import MetricsLog, plot_metrics
 
-__all__ = ["Objective", "TrainResult", "collate", "evaluate_losses", "resolve_device", "to_device", "train"]
+__all__ = ["Objective", "TrainResult", "collate", "run_command", "evaluate_losses", "resolve_device", "to_device", "train"]
 
 Batch = dict[str, Tensor]
 
@@ -358,3 +359,20 @@ def train(
         say(f"stopped: {config.patience} evaluations without a better {config.patience_metric} (best {best['value']:.4g})")
     say(f"done: {step} steps in {seconds / 60:.1f} training minutes; checkpoint {path}")
     return TrainResult(folder=folder, steps=step, seconds=seconds, evaluations=evaluations)
+
+
+def run_command(prog: str, call: Callable[[], Any]) -> int:
+    """A trainer's command-line ending: `call()` (which returns a results table or None),
+    its table printed; a setting that does not fit the data or the run exits 2, a bad
+    dataset, damaged checkpoint or existing run 1, each with its message."""
+    try:
+        table = call()
+    except ConfigError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except (EarcoreError, ValueError, OSError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 1
+    if table is not None:
+        print(table.markdown())
+    return 0

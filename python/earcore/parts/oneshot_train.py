@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -26,12 +25,12 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from earcore.errors import ConfigError, EarcoreError
+from earcore.errors import ConfigError
 from earcore.learning.checkpoint import CheckpointError, load_checkpoint
 from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import TrainConfig, key_values
 from earcore.learning.losses import soft_iou_error, vector_spread
-from earcore.learning.train import TrainResult, train
+from earcore.learning.train import TrainResult, run_command, train
 from earcore.parts.dataset import PartImages
 from earcore.parts.oneshot import TASKS, OneShotSegmenter, build_oneshot
 from earcore.parts.oneshot_data import HeldOutTrials, OneShotPairs, split_classes
@@ -195,17 +194,7 @@ def main(
     except ConfigError as exc:
         parser.error(str(exc))
     held_out = [h.strip() for h in args.held_out.split(",") if h.strip()]
-    try:
-        _, table = run(config, args.haystacks, args.needles, held_out, args.out, resume=args.resume, progress=not args.no_progress)
-    except ConfigError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except (EarcoreError, ValueError, OSError) as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 1
-    if table is not None:
-        print(table.markdown())
-    return 0
+    return run_command(prog, lambda: run(config, args.haystacks, args.needles, held_out, args.out, resume=args.resume, progress=not args.no_progress)[1])
 
 
 if __name__ == "__main__":

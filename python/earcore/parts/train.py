@@ -16,17 +16,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from earcore.errors import ConfigError, EarcoreError
+from earcore.errors import ConfigError
 from earcore.learning.checkpoint import CheckpointError, load_checkpoint
 from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import SCHEDULES, TrainConfig, key_values
-from earcore.learning.train import TrainResult, train
+from earcore.learning.train import TrainResult, run_command, train
 from earcore.parts.dataset import PartImages
 from earcore.parts.detector import PRESETS, PartDetector, build_detector
 from earcore.parts.evaluate import PartsEvaluation, evaluate, evaluator
@@ -171,17 +170,7 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
         config = config_from_args(args)
     except ConfigError as exc:
         parser.error(str(exc))
-    try:
-        _, table = run(config, args.data, args.out, distance_unit=args.distance_unit, resume=args.resume, progress=not args.no_progress)
-    except ConfigError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except (EarcoreError, ValueError, OSError) as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 1
-    if table is not None:
-        print(table.markdown())
-    return 0
+    return run_command(prog, lambda: run(config, args.data, args.out, distance_unit=args.distance_unit, resume=args.resume, progress=not args.no_progress)[1])
 
 
 if __name__ == "__main__":

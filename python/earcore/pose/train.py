@@ -13,18 +13,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from earcore.errors import ConfigError, EarcoreError
+from earcore.errors import ConfigError
 from earcore.learning.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import SCHEDULES, TrainConfig, key_values, load_config
 from earcore.learning.freeze import freeze
-from earcore.learning.train import TrainResult, train
+from earcore.learning.train import TrainResult, run_command, train
 from earcore.pose.evaluate import Evaluation, evaluate, evaluator, subset
 from earcore.pose.networks import NETWORKS, PRESETS, PoseNetwork, build_network
 from earcore.pose.objectives import default_weights, objective_for
@@ -330,17 +329,9 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
         config = config_from_args(args)
     except ConfigError as exc:
         parser.error(str(exc))
-    try:
-        _, table = run(config, args.data, args.out, robots=args.robots, extra=args.extra, join=args.join, resume=args.resume, progress=not args.no_progress)
-    except ConfigError as exc:  # a setting that does not fit the data or the run (batch size, loss weights)
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except (EarcoreError, ValueError, OSError) as exc:  # a bad dataset, a damaged checkpoint, an existing run
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 1
-    if table is not None:
-        print(table.markdown())
-    return 0
+    return run_command(
+        prog, lambda: run(config, args.data, args.out, robots=args.robots, extra=args.extra, join=args.join, resume=args.resume, progress=not args.no_progress)[1]
+    )
 
 
 if __name__ == "__main__":
