@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from earcore.learning.compare_runs import compare_methods, eval_curve
+from earcore.learning.config import key_values
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sweep import claim_run, machine_note, run_jobs  # noqa: E402
@@ -63,14 +64,15 @@ def one_run(job: dict) -> str:
     tasks = VARIANTS[job["variant"]]
     config = TrainConfig(
         network=NETWORK,
-        network_options={"tasks": list(tasks), "in_channels": 3 if job["rgb"] else 4},
+        network_options={**job["options"], "tasks": list(tasks), "in_channels": 3 if job["rgb"] else 4},
         steps=job["steps"],
-        minutes=None,
+        minutes=job["minutes"],
         batch_size=job["batch"],
         lr_start=job["lr"],
         lr_end=job["lr"],
         schedule="constant",
         threads=1,
+        workers=job["workers"],
         device=job["device"],
         seed=job["seed"],
         eval_every_steps=job["eval_every"],
@@ -97,22 +99,25 @@ def report(out: Path, pairs: list[tuple[str, str]], variants: list[str], args: a
     lines = [
         f"One-shot segmentation of held-out part types, {date.today().isoformat()}, {machine_note(out)}",
         f"haystacks {args.haystacks}, needles {args.needles}, {'RGB' if args.rgb else 'RGB-D'}, {len(pairs)} held-out pairs "
-        f"({', '.join('+'.join(p) for p in pairs)}), {args.steps} steps of batch {args.batch}, Adam lr {args.lr:g}, "
-        f"evaluation every {args.eval_every} steps on every held-out trial",
+        f"({', '.join('+'.join(p) for p in pairs)}), {f'{args.minutes:g} minutes' if args.minutes else f'{args.steps} steps'} of batch {args.batch}, Adam lr {args.lr:g}, "
+        f"evaluation every {args.eval_every} steps on every held-out trial; network options {json.dumps(args.options) if args.options else 'the defaults'}",
         "",
-        "| Variant | Pairs | Accuracy | IoU | Pickup rate (correct) | Iterations to converge (median) | Trials |",
-        "|---|---|---|---|---|---|---|",
+        "| Variant | Pairs | Accuracy | IoU | Pickup rate (correct) | Iterations to converge (median) | Trials | Marking every part | Accuracy on two trained types |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for v in variants:
         rows = finals[v]
         if not rows:
-            lines.append(f"| {v} | 0 | - | - | - | - | - |")
+            lines.append(f"| {v} | 0 | - | - | - | - | - | - | - |")
             continue
         runs = comparison.methods.get(v)
         its = f"{np.median(runs.iterations):.0f}" if runs is not None and len(runs.points) else "-"
+        known = [r["seen"]["accuracy"] for r in rows if "seen" in r]
+        seen = f"{100 * np.mean(known):.1f} %" if known else "-"
+        every = f"{100 * np.mean([r['every_part_accuracy'] for r in rows]):.1f} %" if all("every_part_accuracy" in r for r in rows) else "-"
         lines.append(
             f"| {v} | {len(rows)} | {100 * np.mean([r['accuracy'] for r in rows]):.1f} % | {np.mean([r['iou'] for r in rows]):.3f} | "
-            f"{100 * np.nanmean([r['pickup_rate'] for r in rows]):.1f} % | {its} | {sum(r['trials'] for r in rows)} |"
+            f"{100 * np.nanmean([r['pickup_rate'] for r in rows]):.1f} % | {its} | {sum(r['trials'] for r in rows)} | {every} | {seen} |"
         )
     full = variants[-1]
     if finals[full]:
@@ -134,12 +139,16 @@ def main() -> int:
     parser.add_argument("--pairs", type=int, default=6, help="held-out pairs (of the 78)")
     parser.add_argument("--rgb", action="store_true", help="colour only (the paper's best)")
     parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--minutes", type=float, default=None, help="train each run this long instead of --steps")
     parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--eval-every", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0, help="the network's seed (the same for every run)")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     parser.add_argument("--jobs", type=int, default=2, help="runs at once (one thread each)")
+    parser.add_argument("--workers", type=int, default=0, help="data-loader processes per run")
+    parser.add_argument("--skip-pairs", type=int, default=0, help="start at this pair of the order (e.g. one kept for choosing settings)")
+    parser.add_argument("--option", action="append", default=[], metavar="KEY=JSON", help="a network option for every run, e.g. --option pooling=image")
     parser.add_argument("--report", action="store_true", help="only report the runs in --out")
     args = parser.parse_args()
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
@@ -147,7 +156,8 @@ def main() -> int:
     if unknown:
         parser.error(f"unknown variant(s) {unknown}; known: {', '.join(VARIANTS)}")
     classes = json.loads((args.haystacks / "manifest.json").read_text())["classes"]
-    pairs = held_out_pairs(classes, args.pairs)
+    pairs = held_out_pairs(classes, args.skip_pairs + args.pairs)[args.skip_pairs :]
+    args.options = key_values(args.option, "--option")
     if not args.report:
         jobs = [
             {
@@ -157,12 +167,15 @@ def main() -> int:
                 "haystacks": str(args.haystacks),
                 "needles": str(args.needles),
                 "rgb": args.rgb,
-                "steps": args.steps,
+                "steps": None if args.minutes else args.steps,
+                "minutes": args.minutes,
                 "batch": args.batch,
                 "lr": args.lr,
                 "eval_every": args.eval_every,
                 "seed": args.seed,
                 "device": args.device,
+                "workers": args.workers,
+                "options": args.options,
             }
             for p in pairs
             for v in variants

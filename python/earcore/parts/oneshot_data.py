@@ -7,8 +7,10 @@ part type in the haystack.
     train = OneShotPairs(PartImages("data/haystacks"), PartImages("data/needles"), seen)
     trials = HeldOutTrials(PartImages("data/haystacks", "test"), PartImages("data/needles", None), unseen)
 
-A needle is cut from its image as a square around the part (`needle_crop`), so the part
-fills it whatever the camera's distance. Training pairs use only the seen types: their
+A needle is cut from its image as a square around the part (`needle_crop`) at the
+camera's own scale: the convolutions' filters respond to structure of a given size in
+pixels, so a needle magnified to fill its crop would excite other filters than the same
+part in a haystack. Only a part too big for the crop is shrunk into it. Training pairs use only the seen types: their
 haystacks hold no part of a held-out type and their needles are seen types. Trials are
 the paper's protocol: haystacks holding both held-out types (and known parts as
 distractors), needles of the held-out types only.
@@ -26,9 +28,9 @@ from earcore.learning.dataset import colour_noise
 from earcore.learning.errors import DatasetError
 from earcore.parts.dataset import DEPTH_SCALE, PartImages, depth_channel
 
-__all__ = ["NEEDLE_SIZE", "HeldOutTrials", "OneShotPairs", "needle_crop", "part_mask", "split_classes", "visible_pixels"]
+__all__ = ["NEEDLE_SIZE", "HeldOutTrials", "OneShotPairs", "needle_crop", "needle_size", "needles_by_class", "part_mask", "split_classes", "visible_pixels"]
 
-#: Needles are resampled to this many pixels square.
+#: Needle crops are this many pixels square for images 128 pixels wide (`needle_size`).
 NEEDLE_SIZE = 32
 #: A part counts as visible (as a needle, or as a haystack's target) with this many pixels.
 MIN_PIXELS = 12
@@ -48,6 +50,12 @@ def split_classes(classes: Sequence[str], held_out: Sequence[str]) -> tuple[list
     return [i for i in range(len(names)) if i not in out], out
 
 
+def needle_size(width: int) -> int:
+    """The side of the needle crops for images `width` pixels wide: NEEDLE_SIZE at 128,
+    in proportion otherwise, a multiple of 8 (the segmenter's divisor), at least 16."""
+    return max(16, 8 * round(NEEDLE_SIZE * width / 128 / 8))
+
+
 def part_mask(image: np.ndarray | torch.Tensor) -> np.ndarray:
     """(H, W) bool: the pixels of an earcore image (4, H, W) standing PART_HEIGHT above
     the platform (its depth channel), for a needle image without labels."""
@@ -57,20 +65,22 @@ def part_mask(image: np.ndarray | torch.Tensor) -> np.ndarray:
 
 def needle_crop(image: torch.Tensor, mask: torch.Tensor | np.ndarray, size: int = NEEDLE_SIZE, margin: float = 0.25) -> tuple[torch.Tensor, torch.Tensor]:
     """(image (C, size, size), mask (1, size, size)): the square around `mask`'s
-    pixels (with `margin` of its side on each side, at least 8 px, moved inside the
-    image) resampled to `size`."""
+    pixels, `size` pixels at the image's scale, or bigger to hold the part with `margin`
+    of its side on each side and then shrunk to `size`; moved inside the image."""
     m = torch.as_tensor(np.asarray(mask, dtype=bool))
     rows, cols = torch.nonzero(m.any(1)).flatten(), torch.nonzero(m.any(0)).flatten()
     if not len(rows):
         raise DatasetError("the needle image shows no part (its mask is empty)")
     _, h, w = image.shape
     top, bottom, left, right = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    side = min(max(int(round(max(bottom - top, right - left) * (1 + 2 * margin))), 8), h, w)
+    side = min(max(int(round(max(bottom - top, right - left) * (1 + 2 * margin))), size), h, w)
     cy, cx = (top + bottom) // 2, (left + right) // 2
     y0, x0 = min(max(cy - side // 2, 0), h - side), min(max(cx - side // 2, 0), w - side)
     patch = image[:, y0 : y0 + side, x0 : x0 + side][None].float()
     patch_mask = m[y0 : y0 + side, x0 : x0 + side][None, None].float()
-    crop = F.interpolate(patch, size=(size, size), mode="bilinear", align_corners=False)[0]
+    if side == size:
+        return patch[0], patch_mask[0]
+    crop = F.interpolate(patch, size=(size, size), mode="bilinear", align_corners=False, antialias=side > size)[0]
     crop_mask = F.interpolate(patch_mask, size=(size, size), mode="nearest")[0]
     return crop, crop_mask
 
@@ -93,7 +103,7 @@ def visible_pixels(images: PartImages) -> np.ndarray:
     return out
 
 
-def _needles_by_class(needles: PartImages, classes: Sequence[int], every: bool = True) -> dict[int, np.ndarray]:
+def needles_by_class(needles: PartImages, classes: Sequence[int], every: bool = True) -> dict[int, np.ndarray]:
     """Single-part images per type; a type without one is an error with `every`, else left out."""
     a = needles._load()
     single = (a["count"] == 1) & (visible_pixels(needles).sum(1) >= MIN_PIXELS)
@@ -112,6 +122,7 @@ class NeedleCrops:
 
     def __init__(self, needles: PartImages, channels: int) -> None:
         self.needles, self.channels = needles, channels
+        self.size = needle_size(needles._load()["rgb"].shape[2])
         self._crops: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
 
     def get(self, index: int, rng: np.random.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -119,7 +130,7 @@ class NeedleCrops:
             a = self.needles._load()
             rgb = torch.from_numpy(a["rgb"][index].astype(np.float32).transpose(2, 0, 1) / 255.0)
             image = torch.cat([rgb, torch.from_numpy(depth_channel(a["depth"][index]))[None]])
-            self._crops[index] = needle_crop(image[: self.channels], a["instances"][index] == 1)
+            self._crops[index] = needle_crop(image[: self.channels], a["instances"][index] == 1, self.size)
         crop, mask = self._crops[index]
         if rng is not None:
             noisy = colour_noise(np.ascontiguousarray(crop[:3].numpy().transpose(1, 2, 0)), rng)
@@ -138,7 +149,7 @@ class OneShotPairs(torch.utils.data.Dataset):
         self.haystacks, self.needles, self.seen, self.noise = haystacks, needles, sorted(int(c) for c in seen), noise
         self.channels, self.seed, self.epoch = 4 if depth else 3, int(seed), 0
         a = haystacks._load()
-        self.by_class = _needles_by_class(needles, self.seen, every=False)
+        self.by_class = needles_by_class(needles, self.seen, every=False)
         self.targets = visible_pixels(haystacks) >= MIN_PIXELS
         self.targets[:, [c for c in range(len(haystacks.classes)) if c not in self.by_class]] = False
         allowed = np.isin(a["classes"], [*self.seen, -1]).all(1) & self.targets.any(1)
@@ -161,7 +172,7 @@ class OneShotPairs(torch.utils.data.Dataset):
         cls = int(rng.choice(np.flatnonzero(self.targets[image_index])))
         first, second = rng.choice(self.by_class[cls], size=2, replace=len(self.by_class[cls]) < 2)
         needle, needle_mask = self.crops.get(int(first), rng if self.noise else None)
-        other, _ = self.crops.get(int(second), rng if self.noise else None)
+        other, other_mask = self.crops.get(int(second), rng if self.noise else None)
         image, target = hay["image"][: self.channels], hay["target"]
         flips = [d for d, flip in ((-1, rng.random() < 0.5), (-2, rng.random() < 0.5)) if flip]
         if flips:
@@ -173,6 +184,7 @@ class OneShotPairs(torch.utils.data.Dataset):
             "needle": needle.contiguous(),
             "needle_mask": needle_mask.contiguous(),
             "second": other,
+            "second_mask": other_mask,
             "haystack": image.contiguous(),
             "target": target[cls : cls + 1].contiguous(),
             "all": target.amax(0, keepdim=True).contiguous(),
@@ -195,7 +207,7 @@ class HeldOutTrials(torch.utils.data.Dataset):
         images = np.flatnonzero(holds_all)
         if not len(images):
             raise DatasetError(f"{haystacks.folder}: no haystack holds all of {', '.join(haystacks.classes[c] for c in self.held_out)}")
-        by_class = _needles_by_class(needles, self.held_out)
+        by_class = needles_by_class(needles, self.held_out)
         self.crops = NeedleCrops(needles, self.channels)
         rng = np.random.default_rng(seed)
         self.trials = [(int(i), c, int(rng.choice(by_class[c]))) for i in images for c in self.held_out]

@@ -29,11 +29,12 @@ from earcore.errors import ConfigError
 from earcore.learning.checkpoint import CheckpointError, load_checkpoint
 from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import TrainConfig, key_values
+from earcore.learning.errors import DatasetError
 from earcore.learning.losses import soft_iou_error, vector_spread
 from earcore.learning.train import TrainResult, run_command, train
 from earcore.parts.dataset import PartImages
 from earcore.parts.oneshot import TASKS, OneShotSegmenter, build_oneshot
-from earcore.parts.oneshot_data import HeldOutTrials, OneShotPairs, split_classes
+from earcore.parts.oneshot_data import MIN_PIXELS, HeldOutTrials, OneShotPairs, needles_by_class, split_classes, visible_pixels
 from earcore.parts.oneshot_evaluate import OneShotEvaluation, evaluate, evaluator
 
 __all__ = ["NETWORK", "OneShotObjective", "build_parser", "load_oneshot", "main", "run"]
@@ -46,7 +47,7 @@ class OneShotObjective:
         self.tasks = tuple(tasks)
 
     def inputs(self, batch: Mapping[str, Tensor]) -> tuple[Tensor, ...]:
-        return (batch["needle"], batch["haystack"], batch["second"])
+        return (batch["needle"], batch["haystack"], batch["second"], batch["needle_mask"], batch["second_mask"])
 
     def losses(self, batch: Mapping[str, Tensor], outputs: Mapping[str, Tensor]) -> dict[str, Tensor]:
         out = {"needle": soft_iou_error(outputs["needle"], batch["target"])}
@@ -95,6 +96,7 @@ def build_parser(
     p.add_argument("--eval-steps", type=int, default=100, help="evaluate on the held-out trials every this many steps")
     p.add_argument("--eval-samples", type=int, default=None, help="at most this many trials per evaluation (default all)")
     p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--workers", type=int, default=0, help="data-loader processes (default 0: pairs are made in the training process)")
     p.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
@@ -132,6 +134,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         combiner_options=combiner_options,
         device=args.device,
         threads=args.threads,
+        workers=args.workers,
         seed=args.seed,
         eval_every_steps=args.eval_steps,
         eval_every_minutes=None,
@@ -179,9 +182,35 @@ def run(
     )
     trained, _ = load_oneshot(out)
     table = evaluate(trained, trials)
-    Path(out, "results.md").write_text(f"One-shot segmenter after {result.steps} steps ({result.seconds / 60:.1f} training minutes)\n\n" + table.markdown())
-    Path(out, "results.json").write_text(json.dumps(table.to_dict(), indent=1) + "\n")
+    text = f"One-shot segmenter after {result.steps} steps ({result.seconds / 60:.1f} training minutes)\n\n" + table.markdown()
+    summary = table.to_dict()
+    seen_trials = _seen_trials(haystacks, needles, seen, depth, config.seed)
+    if seen_trials is not None:
+        # the same protocol on two trained types (needles not trained on): separates a model that
+        # has not learnt to follow the needle from one that does not carry it over to new types
+        known = evaluate(trained, seen_trials)
+        summary["seen"] = known.to_dict()
+        text += "\nThe same trials on two trained types (test-split needles and haystacks):\n\n" + known.markdown()
+    Path(out, "results.md").write_text(text)
+    Path(out, "results.json").write_text(json.dumps(summary, indent=1) + "\n")
     return result, table
+
+
+def _seen_trials(haystacks: Path, needles: Path, seen: Sequence[int], depth: bool, seed: int) -> HeldOutTrials | None:
+    """Trials of the two trained types most often seen together in the test split, with
+    test-split needles; None when no test haystack shows two of them."""
+    test = PartImages(haystacks, split="test", noise=False)
+    test_needles = PartImages(needles, split="test", noise=False)
+    visible = visible_pixels(test) >= MIN_PIXELS
+    try:
+        usable = sorted(needles_by_class(test_needles, seen, every=False))
+    except DatasetError:
+        return None
+    together = [(int((visible[:, a] & visible[:, b]).sum()), a, b) for i, a in enumerate(usable) for b in usable[i + 1 :]]
+    best = max(together, default=(0, 0, 0))
+    if best[0] == 0:
+        return None
+    return HeldOutTrials(test, test_needles, best[1:], depth=depth, seed=seed)
 
 
 def main(

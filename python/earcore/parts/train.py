@@ -74,6 +74,7 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     p.add_argument("--patience", type=int, default=None, help="stop after this many evaluations without a lower --patience-metric")
     p.add_argument("--patience-metric", choices=PATIENCE_METRICS, default="val_combined")
     p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--workers", type=int, default=0, help="data-loader processes (default 0: batches are made in the training process)")
     p.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
@@ -116,6 +117,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         patience_metric=args.patience_metric,
         device=args.device,
         threads=args.threads,
+        workers=args.workers,
         seed=args.seed,
         eval_every_steps=args.eval_steps,
         eval_every_minutes=None if args.eval_steps is not None else 2.0,

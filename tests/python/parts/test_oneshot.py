@@ -49,6 +49,22 @@ def test_needle_crop_is_the_square_around_the_part():
         needle_crop(image, np.zeros((48, 64), bool))
 
 
+def test_needle_crops_keep_the_cameras_scale():
+    from earcore.parts.oneshot_data import needle_size
+
+    image = torch.rand(3, 48, 64)
+    small = np.zeros((48, 64), bool)
+    small[20:24, 30:33] = True  # 4 x 3 px: a 16 px window around it, not magnified
+    crop, m = needle_crop(image, small, size=16)
+    assert int(m.sum()) == 12 and torch.equal(crop, image[:, 14:30, 23:39])
+    big = np.zeros((48, 64), bool)
+    big[4:44, 10:14] = True  # 40 rows: 60 px with the margins, clipped to the image's 48, shrunk to 16
+    crop, m = needle_crop(image, big, size=16)
+    assert crop.shape == (3, 16, 16) and 0 < int(m.sum()) < 40 * 4
+    assert torch.allclose(crop.mean((1, 2)), image[:, :, 8:56].mean((1, 2)), atol=0.05)  # an average of the window
+    assert [needle_size(w) for w in (64, 128, 256, 640)] == [16, 32, 64, 160]
+
+
 def test_split_classes():
     names = ["a", "b", "c", "d"]
     assert split_classes(names, ["d", "b"]) == ([0, 2], [1, 3])
@@ -82,7 +98,7 @@ def test_pairs_and_trials_follow_the_protocol(folders):
         assert not np.isin(a["classes"][image], held).any()  # never a held-out part in training
         cls = int(item["cls"])
         assert cls not in held and counts[image, cls] >= 12 and cls in pairs.by_class
-        assert item["haystack"].shape == (3, 48, 64) and item["needle"].shape == (3, 32, 32)
+        assert item["haystack"].shape == (3, 48, 64) and item["needle"].shape == (3, 16, 16)
         assert int(item["target"].sum()) == counts[image, cls]  # flips keep the pixels
         assert int(item["all"].sum()) == int((a["instances"][image] > 0).sum())
         assert item["needle_mask"].sum() > 0
@@ -138,20 +154,58 @@ def test_gates_switch_filters_by_the_needle():
     torch.manual_seed(0)
     net = build_oneshot(in_channels=3, widths=(8, 8, 8), dropout=0.0).eval()
     needle = torch.rand(2, 3, 16, 16)
-    gates, vector = net.needle_gates(needle)
+    mask = torch.zeros(2, 1, 16, 16)
+    mask[0, 0, 4:8, 4:12] = 1
+    mask[1, 0, 10:16, 0:6] = 1
+    gates, vector = net.needle_gates(needle, mask)
     assert [g.shape for g in gates] == [(2, 8)] * 3 and vector.shape == (2, 8)
     for g in gates:
         assert torch.allclose(g.mean(1), torch.ones(2), atol=1e-4)  # a stack keeps its scale
-    # gating by hand: the gated encoder equals the plain one's stacks times the gates, stack by stack
+    # by hand: stack 1's responses are its positive outputs averaged over the part's pixels,
+    # stack 2's (half the resolution) over the mask's share of each cell; at power 1 the gates are their ratios to the mean
+    features = net.encode(needle)
+    r1 = (features[0].clamp(min=0) * mask).sum((2, 3)) / mask.sum((2, 3))
+    assert torch.allclose(gates[0], r1 / r1.mean(1, keepdim=True), atol=1e-4)
+    share = mask.reshape(2, 1, 8, 2, 8, 2).mean((3, 5))
+    r2 = (features[1].clamp(min=0) * share).sum((2, 3)) / share.sum((2, 3))
+    assert torch.allclose(gates[1], r2 / r2.mean(1, keepdim=True), atol=1e-4)
+    # a learned power p sharpens: gates = r^p / mean(r^p)
+    with torch.no_grad():
+        net.log_sharpness[0] = float(np.log(3.0))
+    sharp, _ = net.needle_gates(needle, mask)
+    assert torch.allclose(sharp[0], r1**3 / (r1**3).mean(1, keepdim=True), atol=1e-3)
+    assert float(sharp[0].detach().std()) > float(gates[0].detach().std())
+    with pytest.raises(ValueError, match="part mask"):
+        net.needle_gates(needle)
+    with pytest.raises(ValueError, match="empty"):
+        net.needle_gates(needle, torch.zeros(2, 1, 16, 16))
+    # the paper's pooling averages over the whole needle image
+    image_pooled = build_oneshot(in_channels=3, widths=(8, 8, 8), dropout=0.0, pooling="image").eval()
+    image_pooled.load_state_dict(net.state_dict())
+    g, _ = image_pooled.needle_gates(needle)
+    r = image_pooled.encode(needle)[0].clamp(min=0).mean((2, 3)) ** 3
+    assert torch.allclose(g[0], r / r.mean(1, keepdim=True), atol=1e-3)
+    gates = sharp
+    # the similarity maps: at a haystack cell, the cosine of its gated features and the needle part's mean features, gated
     haystack = torch.rand(2, 3, 24, 32)
+    gated = net.encode(haystack, gates)
+    share = mask.reshape(2, 1, 4, 4, 4, 4).mean((3, 5))
+    prototype = (features[2] * share).sum((2, 3)) / share.sum((2, 3))
+    (_, prototypes), _ = net._needle(needle, mask)
+    assert torch.allclose(prototypes[2], prototype, atol=1e-5)
+    maps = net.similarity(gated, [p * g for p, g in zip(prototypes, gates)])
+    a, b = gated[2][1, :, 3, 5], prototype[1] * gates[2][1]
+    assert maps[2].shape == (2, 1, 6, 8)
+    assert float(maps[2][1, 0, 3, 5]) == pytest.approx(float(a @ b / (a.norm() * b.norm())), abs=1e-5)
+    # gating by hand: the gated encoder equals the plain one's stacks times the gates, stack by stack
     plain = net.stacks[0](haystack)
     gated = net.encode(haystack, gates)
     assert torch.allclose(gated[0], plain * gates[0][:, :, None, None], atol=1e-5)
     # different needles give different beliefs on the same haystack
     other = torch.rand(2, 3, 16, 16) * torch.tensor([1.0, 0.0, 0.0])[:, None, None]
-    assert not torch.allclose(net.segment(needle, haystack), net.segment(other, haystack))
+    assert not torch.allclose(net.segment(needle, haystack, mask), net.segment(other, haystack, mask))
     with pytest.raises(ValueError, match="multiples"):
-        net.segment(needle, torch.rand(1, 3, 25, 32))
+        net.segment(needle, torch.rand(1, 3, 25, 32), mask)
 
 
 def test_a_tiny_segmenter_overfits_one_batch(folders):
@@ -179,7 +233,7 @@ def test_a_tiny_segmenter_overfits_one_batch(folders):
     net.eval()
     with torch.no_grad():
         last = {k: float(v) for k, v in objective.losses(batch, net(*objective.inputs(batch))).items()}
-        belief = net.segment(batch["needle"], batch["haystack"])
+        belief = net.segment(batch["needle"], batch["haystack"], batch["needle_mask"])
     assert first["needle"] > 0.8 and last["needle"] < 0.35
     assert last["all"] < 0.35 and last["self"] < 0.35
     assert last["spread"] < first["spread"]
