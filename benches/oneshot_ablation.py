@@ -96,13 +96,16 @@ def report(out: Path, pairs: list[tuple[str, str]], variants: list[str], args: a
         curves[v] = [eval_curve(f, "val_error") for f in done]
         finals[v] = [json.loads((f / "results.json").read_text()) for f in done]
     comparison = compare_methods({v: c for v, c in curves.items() if c}, metric="1 − accuracy")
+    budget = f"{args.minutes:g} minutes" if args.minutes else f"{args.steps} steps"
+    options = json.dumps(args.options) if args.options else "the defaults"
     lines = [
         f"One-shot segmentation of held-out part types, {date.today().isoformat()}, {machine_note(out)}",
         f"haystacks {args.haystacks}, needles {args.needles}, {'RGB' if args.rgb else 'RGB-D'}, {len(pairs)} held-out pairs "
-        f"({', '.join('+'.join(p) for p in pairs)}), {f'{args.minutes:g} minutes' if args.minutes else f'{args.steps} steps'} of batch {args.batch}, Adam lr {args.lr:g}, "
-        f"evaluation every {args.eval_every} steps on every held-out trial; network options {json.dumps(args.options) if args.options else 'the defaults'}",
+        f"({', '.join('+'.join(p) for p in pairs)}), {budget} of batch {args.batch}, Adam lr {args.lr:g}, "
+        f"evaluation every {args.eval_every} steps on every held-out trial; network options {options}",
         "",
-        "| Variant | Pairs | Accuracy | IoU | Pickup rate (correct) | Iterations to converge (median) | Trials | Marking every part | Accuracy on two trained types |",
+        "| Variant | Pairs | Accuracy | IoU | Pickup rate (correct) | Iterations to converge (median) | Trials "
+        "| Marking every part | Accuracy on two trained types |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for v in variants:

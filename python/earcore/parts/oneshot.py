@@ -146,7 +146,7 @@ class OneShotSegmenter(nn.Module):
             return [f.clamp(min=0).mean((2, 3)) for f in features]
         out = []
         for f in features:
-            m = nn.functional.adaptive_avg_pool2d(mask.float(), f.shape[2:])
+            m = nn.functional.adaptive_avg_pool2d(mask.float(), (f.shape[2], f.shape[3]))
             out.append((f.clamp(min=0) * m).sum((2, 3)) / m.sum((2, 3)).clamp(min=1e-6))
         return out
 
@@ -219,7 +219,7 @@ class OneShotSegmenter(nn.Module):
             return [f.mean((2, 3)) for f in features]
         out = []
         for f in features:
-            m = nn.functional.adaptive_avg_pool2d(mask.float(), f.shape[2:])
+            m = nn.functional.adaptive_avg_pool2d(mask.float(), (f.shape[2], f.shape[3]))
             out.append((f * m).sum((2, 3)) / m.sum((2, 3)).clamp(min=1e-6))
         return out
 

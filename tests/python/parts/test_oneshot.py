@@ -193,8 +193,8 @@ def test_gates_switch_filters_by_the_needle():
     prototype = (features[2] * share).sum((2, 3)) / share.sum((2, 3))
     (_, prototypes), _ = net._needle(needle, mask)
     assert torch.allclose(prototypes[2], prototype, atol=1e-5)
-    maps = net.similarity(gated, [p * g for p, g in zip(prototypes, gates)])
-    a, b = gated[2][1, :, 3, 5], prototype[1] * gates[2][1]
+    maps = [m.detach() for m in net.similarity(gated, [p * g for p, g in zip(prototypes, gates)])]
+    a, b = gated[2][1, :, 3, 5].detach(), (prototype[1] * gates[2][1]).detach()
     assert maps[2].shape == (2, 1, 6, 8)
     assert float(maps[2][1, 0, 3, 5]) == pytest.approx(float(a @ b / (a.norm() * b.norm())), abs=1e-5)
     # gating by hand: the gated encoder equals the plain one's stacks times the gates, stack by stack
