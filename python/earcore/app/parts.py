@@ -4,6 +4,7 @@
     earcore parts train --data data/parts --out runs/parts --steps 3000 [--loss-combiner auxnet]
     earcore parts evaluate --checkpoint runs/parts --data data/parts [--split test]
     earcore parts oneshot-train --haystacks data/parts --needles data/needles --held-out Axis,Motor --out runs/oneshot
+    earcore parts show --model runs/parts --part Motor                      # find it, pick it in the base frame
 
 `earcore dataset parts` is `earcore parts generate`. Rerunning a generation completes
 its missing shards; a folder made with other options is refused.
@@ -124,7 +125,13 @@ def oneshot_train_main(argv: list[str] | None = None) -> int:
         return fail("earcore parts oneshot-train", str(exc), 1)
 
 
-COMMANDS = {"generate": generate_main, "train": train_main, "evaluate": evaluate_main, "oneshot-train": oneshot_train_main}
+def show_main(argv: list[str] | None = None) -> int:
+    from earcore.app.parts_show import main
+
+    return main(argv)
+
+
+COMMANDS = {"generate": generate_main, "train": train_main, "evaluate": evaluate_main, "oneshot-train": oneshot_train_main, "show": show_main}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -3,6 +3,7 @@ base frame (through the camera's calibration, `CameraCalibration.base_from_camer
 
     pick = locate_part(belief, depth_m, (fx, fy, cx, cy), base_from_camera)
     pick.base      # (3,) m: the part's estimated centre of gravity in the base frame
+    for pick, region in locate_parts(belief, depth_m, (fx, fy, cx, cy), base_from_camera): ...
 
 The part's pixels (belief > threshold, with a depth) are back-projected and moved into
 the base frame. The pickup point's x, y is the belief-weighted mean of those points
@@ -22,7 +23,7 @@ import numpy as np
 
 from earcore.errors import EarcoreError
 
-__all__ = ["PartNotFound", "PickupPoint", "locate_part"]
+__all__ = ["PartNotFound", "PickupPoint", "label_regions", "locate_part", "locate_parts"]
 
 
 class PartNotFound(EarcoreError, ValueError):
@@ -89,3 +90,61 @@ def locate_part(
     xy = (points[:, :2] * w[:, None]).sum(0) / w.sum()
     pixel = (float((u * w).sum() / w.sum()), float((v * w).sum() / w.sum()))
     return PickupPoint(np.array([xy[0], xy[1], support + height / 2]), pixel, height, int(mask.sum()))
+
+
+def label_regions(mask: np.ndarray) -> tuple[np.ndarray, int]:
+    """(labels (H, W) int, count): the 4-connected regions of a boolean mask numbered
+    1..count (0 outside), in the order of their first pixel (row-major). Each region
+    takes its smallest pixel index by repeated whole-image neighbour minima."""
+    mask = np.asarray(mask, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"mask must be (H, W), got {mask.shape}")
+    big = np.iinfo(np.int64).max
+    labels = np.where(mask, np.arange(mask.size, dtype=np.int64).reshape(mask.shape), big)
+    while True:
+        low = labels.copy()
+        np.minimum(low[1:], labels[:-1], out=low[1:])
+        np.minimum(low[:-1], labels[1:], out=low[:-1])
+        np.minimum(low[:, 1:], labels[:, :-1], out=low[:, 1:])
+        np.minimum(low[:, :-1], labels[:, 1:], out=low[:, :-1])
+        low = np.where(mask, low, big)
+        # jump along the chain of smaller labels, so a region of diameter d needs ~log d passes, not d
+        flat = low.ravel()
+        inside = flat != big
+        flat[inside] = np.minimum(flat[inside], flat[flat[inside]])
+        if np.array_equal(low, labels):
+            break
+        labels = low
+    roots, numbered = np.unique(labels[mask], return_inverse=True)
+    out = np.zeros(mask.shape, dtype=np.int64)
+    out[mask] = numbered + 1
+    return out, len(roots)
+
+
+def locate_parts(
+    belief: np.ndarray,
+    depth_m: np.ndarray,
+    intrinsics: Sequence[float],
+    base_from_camera: np.ndarray,
+    *,
+    threshold: float = 0.5,
+    min_pixels: int = 12,
+) -> list[tuple[PickupPoint, np.ndarray]]:
+    """Every part `belief` (H, W) segments: its 4-connected regions above `threshold` of
+    at least `min_pixels` pixels, each located as by `locate_part` (the belief kept
+    inside the region), with the region's mask; the biggest first. Parts that touch
+    are one region: the count of parts is not known here (with counts known, the
+    papers split a class's activation by k-means: `earcore.parts.pickup`)."""
+    belief = np.asarray(belief, dtype=np.float64)
+    labels, count = label_regions(belief > threshold)
+    sizes = np.bincount(labels.ravel(), minlength=count + 1)
+    out = []
+    for region in np.argsort(-sizes[1:], kind="stable") + 1:
+        if sizes[region] < min_pixels:
+            break
+        inside = labels == region
+        try:
+            out.append((locate_part(np.where(inside, belief, 0.0), depth_m, intrinsics, base_from_camera, threshold=threshold), inside))
+        except PartNotFound:
+            continue
+    return out

@@ -69,3 +69,54 @@ def test_rendered_parts_are_located_within_a_centimetre():
     # with the true segmentation, the measured (noisy) depth and the camera's pose as its calibration
     assert len(errors) > 20
     assert np.median(errors) < 0.01
+
+
+def test_regions_agree_with_scipy():
+    from scipy import ndimage
+
+    from earcore.parts.locate import label_regions
+
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        mask = rng.random((int(rng.integers(1, 40)), int(rng.integers(1, 40)))) < rng.uniform(0.1, 0.9)
+        labels, count = label_regions(mask)
+        reference, expected = ndimage.label(mask)  # 4-connected by default
+        assert count == expected
+        assert ((labels > 0) == mask).all()
+        # the same partition: each of ours is exactly one of scipy's
+        assert len(set(zip(labels[mask].tolist(), reference[mask].tolist()))) == count
+        # numbered in the order of their first pixel
+        firsts = [int(np.flatnonzero(labels.ravel() == k)[0]) for k in range(1, count + 1)]
+        assert firsts == sorted(firsts)
+    snake = np.zeros((40, 40), bool)
+    snake[::2] = True
+    snake[1::4, -1] = True
+    snake[3::4, 0] = True
+    assert label_regions(snake)[1] == 1
+    with pytest.raises(ValueError, match="H, W"):
+        label_regions(np.zeros(5, bool))
+
+
+def test_every_region_is_located_apart():
+    from earcore.parts.locate import locate_parts
+
+    h, w, f = 96, 128, 100.0
+    k = (f, f, 64.0, 48.0)
+    pose = _looking_down(0.5, -0.4)
+    depth = np.full((h, w), 0.5)
+    belief = np.zeros((h, w))
+    belief[10:20, 10:30] = 0.9  # box A, 200 px
+    belief[60:70, 90:100] = 0.8  # box B, 100 px
+    belief[40:42, 60:62] = 0.9  # 4 px: below min_pixels
+    depth[belief > 0] = 0.47
+    picks = locate_parts(belief, depth, k, pose, min_pixels=12)
+    assert [p.pixels for p, _ in picks] == [200, 100]  # the biggest first
+    for (pick, region), box in zip(picks, [(slice(10, 20), slice(10, 30)), (slice(60, 70), slice(90, 100))]):
+        alone = np.zeros((h, w))
+        alone[box] = belief[box]
+        expected = locate_part(alone, depth, k, pose)
+        assert pick.base == pytest.approx(expected.base, abs=1e-12)
+        assert region.sum() == pick.pixels and region[box].all()
+    belief[20:60, 20:22] = 0.9  # a bridge joins A to the small one: still two regions over 12 px
+    depth[belief > 0] = 0.47
+    assert len(locate_parts(belief, depth, k, pose, min_pixels=12)) == 2
