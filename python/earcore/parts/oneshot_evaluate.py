@@ -117,6 +117,8 @@ class OneShotEvaluation:
     #: a belief marking every part in the haystack: the score of ignoring the needle
     #: (above 1 / types, since the metric favours the larger parts' masks)
     every_part: TrialResults
+    #: what the trials' types are, for the report
+    kind: str = "held-out"
 
     def per_class(self) -> dict[str, dict[str, float]]:
         cls, chosen = np.array(self.results.cls), np.array(self.results.chosen)
@@ -144,10 +146,10 @@ class OneShotEvaluation:
     def markdown(self) -> str:
         r = self.results
         lines = [
-            f"{len(r.cls)} trials on held-out types; accuracy {100 * r.accuracy:.1f} %, IoU {r.mean_iou:.3f}, "
+            f"{len(r.cls)} trials on {self.kind} types; accuracy {100 * r.accuracy:.1f} %, IoU {r.mean_iou:.3f}, "
             f"pickup rate (correct trials) {100 * r.pickup_rate:.1f} %; marking every part instead would score {100 * self.every_part.accuracy:.1f} %",
             "",
-            "| Held-out type | Trials | Precision | Recall |",
+            f"| {self.kind.capitalize()} type | Trials | Precision | Recall |",
             "|---|---|---|---|",
         ]
         for name, row in self.per_class().items():
@@ -155,6 +157,7 @@ class OneShotEvaluation:
         return "\n".join(lines) + "\n"
 
 
-def evaluate(model: Any, trials: Any, device: torch.device | str = "cpu", batch_size: int = 32) -> OneShotEvaluation:
+def evaluate(model: Any, trials: Any, device: torch.device | str = "cpu", batch_size: int = 32, kind: str = "held-out") -> OneShotEvaluation:
+    """The trials' results; `kind` names their types in the report ("held-out", "trained")."""
     results, every_part = _run(model, trials, torch.device(device), None, batch_size)
-    return OneShotEvaluation(list(trials.haystacks.classes), list(trials.held_out), results, every_part)
+    return OneShotEvaluation(list(trials.haystacks.classes), list(trials.held_out), results, every_part, kind)

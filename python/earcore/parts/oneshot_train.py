@@ -188,7 +188,7 @@ def run(
     if seen_trials is not None:
         # the same protocol on two trained types (needles not trained on): separates a model that
         # has not learnt to follow the needle from one that does not carry it over to new types
-        known = evaluate(trained, seen_trials)
+        known = evaluate(trained, seen_trials, kind="trained")
         summary["seen"] = known.to_dict()
         text += "\nThe same trials on two trained types (test-split needles and haystacks):\n\n" + known.markdown()
     Path(out, "results.md").write_text(text)
