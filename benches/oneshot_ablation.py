@@ -51,6 +51,12 @@ def held_out_pairs(classes: list[str], count: int, seed: int = 0) -> list[tuple[
     return pairs
 
 
+def variant_folder(variant: str, options: dict) -> str:
+    """A variant's folder name, its network options included: runs with other options
+    are never taken for these."""
+    return variant + "".join(f"+{k}={json.dumps(v, separators=(',', ':'))}".replace('"', "") for k, v in sorted(options.items()))
+
+
 def one_run(job: dict) -> str:
     import torch
 
@@ -91,7 +97,7 @@ def report(out: Path, pairs: list[tuple[str, str]], variants: list[str], args: a
     curves: dict[str, list] = {}
     finals: dict[str, list[dict]] = {}
     for v in variants:
-        folders = [out / v / "-".join(p) for p in pairs]
+        folders = [out / variant_folder(v, args.options) / "-".join(p) for p in pairs]
         done = [f for f in folders if (f / "results.json").is_file()]
         curves[v] = [eval_curve(f, "val_error") for f in done]
         finals[v] = [json.loads((f / "results.json").read_text()) for f in done]
@@ -166,7 +172,7 @@ def main() -> int:
             {
                 "variant": v,
                 "pair": list(p),
-                "out": str(args.out / v / "-".join(p)),
+                "out": str(args.out / variant_folder(v, args.options) / "-".join(p)),
                 "haystacks": str(args.haystacks),
                 "needles": str(args.needles),
                 "rgb": args.rgb,

@@ -4,11 +4,12 @@ and mark them in a picture (and a rerun recording).
 
     earcore parts show --model runs/parts --part Motor               # a type the detector knows
     earcore parts show --model runs/oneshot --needle-part Axis       # one image of a new part
-    earcore parts show --model runs/oneshot --needle axis.png --needle-mask axis-mask.png
+    earcore parts show --model runs/oneshot --needle axis.png --needle-mask axis-mask.png --needle-depth axis-depth.png
 
 With a one-shot segmenter the part is given by one image of it (the needle): rendered
 alone on the platform (`--needle-part`) or your own colour image and the part's mask
-(`--needle`, `--needle-mask`: PNGs, the mask non-zero on the part). The picture
+(`--needle`, `--needle-mask`: PNGs, the mask non-zero on the part; `--needle-depth`, a
+16-bit PNG in mm, for an RGB-D segmenter), taken at the camera's scale (`--size`). The picture
 (out/show.png, 4x the camera's size) tints what the network segments, circles each
 pickup point (red) and crosses the parts' true centres (green); the needle's crop sits
 in the top left corner. Each pick's error to the nearest true part of the type is reported:
@@ -38,6 +39,7 @@ def _parser(prog: str) -> Parser:
     which.add_argument("--needle-part", help="render one image of this part type as the needle (one-shot)")
     which.add_argument("--needle", type=Path, help="the needle: a colour PNG of the part, at the camera's scale (one-shot; with --needle-mask)")
     parser.add_argument("--needle-mask", type=Path, help="the needle's part pixels: a PNG, non-zero on the part")
+    parser.add_argument("--needle-depth", type=Path, help="the needle's depth: a 16-bit PNG in mm (an RGB-D segmenter needs it)")
     parser.add_argument(
         "--size", type=_size, default=(128, 96), help="the camera image WIDTHxHEIGHT for a one-shot segmenter (default 128x96; a detector's is its own)"
     )
@@ -86,8 +88,23 @@ def _first_view(station, view: int | None, cls: int | None, tries: int = 100):
     return 0, station.view(0)
 
 
-def _needle(args, classes: list[str], size: tuple[int, int], seed: int):
+def _png(path: Path, what: str, channels: int | None) -> np.ndarray:
+    """A PNG as (H, W, channels) uint8 (colour) or (H, W) uint16 / bool sources."""
     from earcore.learning import png
+
+    image = png.read(path)
+    if channels is None:
+        return image if image.ndim == 2 else image[..., 0]
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    if image.dtype != np.uint8:
+        raise ValueError(f"{path}: the {what} must be an 8- or 16-bit PNG, got {image.dtype}")
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    return np.ascontiguousarray(image[..., :channels])
+
+
+def _needle(args, classes: list[str], size: tuple[int, int], seed: int, divisor: int):
     from earcore.parts.find import Needle
     from earcore.sim.part_station import PartStation
 
@@ -96,16 +113,13 @@ def _needle(args, classes: list[str], size: tuple[int, int], seed: int):
             raise ValueError(f"unknown part type {args.needle_part!r}; known: {', '.join(classes)}")
         with PartStation(width=size[0], height=size[1], seed=seed + 1, objects=(1, 1), classes=(args.needle_part,)) as alone:
             view = alone.view(0)
-        return Needle.from_image(view.rgb, view.depth_mm, view.instances == 1)
+        return Needle.from_image(view.rgb, view.depth_mm, view.instances == 1, divisor=divisor)
     if args.needle_mask is None:
         raise ValueError("--needle needs --needle-mask (the part's pixels)")
-    rgb = png.read(args.needle)
-    if rgb.ndim == 2:
-        rgb = np.repeat(rgb[..., None], 3, axis=2)
-    rgb = np.ascontiguousarray(rgb[..., :3]).astype(np.uint8)
-    mask = png.read(args.needle_mask)
-    mask = (mask if mask.ndim == 2 else mask[..., 0]) > 0
-    return Needle.from_image(rgb, None, mask)
+    rgb = _png(args.needle, "needle", 3)
+    mask = _png(args.needle_mask, "needle mask", None) > 0
+    depth = None if args.needle_depth is None else _png(args.needle_depth, "needle depth", None).astype(np.uint16)
+    return Needle.from_image(rgb, depth, mask, camera_width=size[0], divisor=divisor)
 
 
 def _picture(view, belief: np.ndarray, picks, truth_pixels: np.ndarray, needle_rgb: np.ndarray | None) -> np.ndarray:
@@ -159,7 +173,7 @@ def main(argv: list[str] | None = None, prog: str = "earcore parts show") -> int
     needle_rgb: np.ndarray | None = None
     try:
         kind, model, meta = _load_model(args.model)
-        classes = list(meta["classes"])
+        classes = list(meta.get("classes") or [])
         if kind == "detector":
             if args.part is None:
                 return fail(prog, f"{args.model} is a parts detector: name the type with --part (one of {', '.join(classes)})")
@@ -171,7 +185,7 @@ def main(argv: list[str] | None = None, prog: str = "earcore parts show") -> int
             if args.part is not None:
                 return fail(prog, f"{args.model} is a one-shot segmenter: give the part by one image (--needle-part or --needle)")
             size = args.size
-            needle = _needle(args, classes, size, args.seed)
+            needle = _needle(args, classes, size, args.seed, model.divisor)
             crop = np.clip(np.rint(needle.image[:3].numpy().transpose(1, 2, 0) * 255), 0, 255).astype(np.uint8)
             needle_rgb = np.repeat(np.repeat(crop, SCALE - 1, axis=0), SCALE - 1, axis=1)
             wanted = args.needle_part
@@ -192,14 +206,14 @@ def main(argv: list[str] | None = None, prog: str = "earcore parts show") -> int
     truth_pixels = project(view.centres[same] @ camera_from_base[:3, :3].T + camera_from_base[:3, 3], k) if len(same) else np.zeros((0, 2))
     rows: list[dict[str, Any]] = []
     for pick, _ in picks:
-        error = float(np.min(np.linalg.norm(view.centres[same] - pick.base, axis=1))) if len(same) else float("nan")
+        error = float(np.min(np.linalg.norm(view.centres[same] - pick.base, axis=1))) if len(same) else None
         rows.append(
             {
                 "base_m": [round(float(x), 4) for x in pick.base],
                 "pixel": [round(x, 1) for x in pick.pixel],
                 "height_m": round(pick.height, 4),
                 "pixels": pick.pixels,
-                "error_m": round(error, 4),
+                "error_m": None if error is None else round(error, 4),
             }
         )
     args.out.mkdir(parents=True, exist_ok=True)
@@ -216,6 +230,7 @@ def main(argv: list[str] | None = None, prog: str = "earcore parts show") -> int
     print(f"{label}: {len(picks)} found, {len(same)} on the platform (seed {args.seed}, view {index})")
     for (pick, _), r in zip(picks, rows):
         x, y, z = pick.base
-        print(f"  pick at ({x:+.3f}, {y:+.3f}, {z:+.3f}) m in the base frame, {pick.pixels} px, {1000 * r['error_m']:.1f} mm from the nearest true part")
+        truth = "" if r["error_m"] is None else f", {1000 * r['error_m']:.1f} mm from the nearest true part"
+        print(f"  pick at ({x:+.3f}, {y:+.3f}, {z:+.3f}) m in the base frame, {pick.pixels} px{truth}")
     print(f"picture: {args.out / 'show.png'}" + (f"; recording: {args.recording}" if args.recording else ""))
     return 0

@@ -20,7 +20,7 @@ import torch
 from earcore.parts.dataset import depth_channel
 from earcore.parts.detector import PartDetector
 from earcore.parts.oneshot import OneShotSegmenter
-from earcore.parts.oneshot_data import needle_crop, needle_size, part_mask
+from earcore.parts.oneshot_data import MIN_PIXELS, needle_crop, needle_size, part_mask
 
 __all__ = ["Needle", "detector_belief", "detector_beliefs", "network_input", "oneshot_belief"]
 
@@ -67,10 +67,17 @@ class Needle:
     image: torch.Tensor  # (4, s, s): colour and depth channel
     mask: torch.Tensor  # (1, s, s)
 
+    #: whether `image` has a real depth channel (an RGB-D segmenter needs one)
+    has_depth: bool = True
+
     @classmethod
-    def from_image(cls, rgb: np.ndarray, depth_mm: np.ndarray | None = None, mask: np.ndarray | None = None) -> Needle:
-        """The part's crop at the camera's scale; its pixels are `mask` or, without one,
-        what stands above the platform in the depth image (`part_mask`)."""
+    def from_image(
+        cls, rgb: np.ndarray, depth_mm: np.ndarray | None = None, mask: np.ndarray | None = None, *, camera_width: int | None = None, divisor: int = 8
+    ) -> Needle:
+        """The part's crop at the scale of a camera `camera_width` pixels wide (default:
+        the needle image's own width); its pixels are `mask` or, without one, what
+        stands above the platform in the depth image (`part_mask`)."""
+        has_depth = depth_mm is not None
         if depth_mm is None:
             depth_mm = np.zeros(np.shape(rgb)[:2], dtype=np.uint16)
             if mask is None:
@@ -79,15 +86,19 @@ class Needle:
         pixels = part_mask(image) if mask is None else np.asarray(mask, dtype=bool)
         if pixels.shape != image.shape[1:]:
             raise ValueError(f"the needle's mask must be {tuple(image.shape[1:])}, got {pixels.shape}")
-        if not pixels.any():
-            raise ValueError("the needle image shows no part (nothing stands above the platform in its depth)")
-        crop, crop_mask = needle_crop(image, pixels, needle_size(image.shape[2]))
-        return cls(crop, crop_mask)
+        if int(pixels.sum()) < MIN_PIXELS:
+            where = "in its mask" if mask is not None else "above the platform in its depth"
+            raise ValueError(f"the needle image shows {int(pixels.sum())} part pixel(s) {where}; a needle needs at least {MIN_PIXELS}")
+        size = needle_size(camera_width or image.shape[2], divisor)
+        crop, crop_mask = needle_crop(image, pixels, size)
+        return cls(crop, crop_mask, has_depth)
 
 
 def oneshot_belief(segmenter: OneShotSegmenter, needle: Needle, rgb: np.ndarray, depth_mm: np.ndarray | None) -> np.ndarray:
     """The one-shot segmenter's belief (H, W) that a pixel shows the needle's type."""
     channels = segmenter.options.in_channels
+    if channels == 4 and not needle.has_depth:
+        raise ValueError("this segmenter takes RGB-D: the needle needs its depth image too")
     haystack = network_input(rgb, depth_mm, channels)
     divisor = segmenter.divisor
     if haystack.shape[2] % divisor or haystack.shape[3] % divisor:

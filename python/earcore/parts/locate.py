@@ -54,10 +54,12 @@ def locate_part(
     *,
     threshold: float = 0.5,
     ring: int = 3,
+    others: np.ndarray | None = None,
 ) -> PickupPoint:
     """The pickup point of the part that `belief` (H, W) in [0, 1] segments in the
     depth image `depth_m` (H, W, metres, 0 = no return) of a camera with `intrinsics`
-    (fx, fy, cx, cy) at `base_from_camera` (4x4)."""
+    (fx, fy, cx, cy) at `base_from_camera` (4x4). `others` (H, W) bool: pixels of other
+    segmented parts, not counted as the support around this one."""
     belief, depth = np.asarray(belief, dtype=np.float64), np.asarray(depth_m, dtype=np.float64)
     if belief.shape != depth.shape or belief.ndim != 2:
         raise ValueError(f"belief {belief.shape} and depth {depth.shape} must be the same (H, W)")
@@ -81,6 +83,8 @@ def locate_part(
         g[:, :-1] |= grown[:, 1:]
         grown = g
     around = grown & ~(belief > threshold) & valid
+    if others is not None:
+        around &= ~np.asarray(others, dtype=bool)
     if int(around.sum()) < 3:
         raise PartNotFound("no support visible around the part (it fills the image or has no depth around it)")
     sv, su = np.nonzero(around)
@@ -95,7 +99,8 @@ def locate_part(
 def label_regions(mask: np.ndarray) -> tuple[np.ndarray, int]:
     """(labels (H, W) int, count): the 4-connected regions of a boolean mask numbered
     1..count (0 outside), in the order of their first pixel (row-major). Each region
-    takes its smallest pixel index by repeated whole-image neighbour minima."""
+    takes its smallest pixel index by repeated whole-image neighbour minima (passes grow
+    with a region's winding length, not its area)."""
     mask = np.asarray(mask, dtype=bool)
     if mask.ndim != 2:
         raise ValueError(f"mask must be (H, W), got {mask.shape}")
@@ -108,7 +113,7 @@ def label_regions(mask: np.ndarray) -> tuple[np.ndarray, int]:
         np.minimum(low[:, 1:], labels[:, :-1], out=low[:, 1:])
         np.minimum(low[:, :-1], labels[:, 1:], out=low[:, :-1])
         low = np.where(mask, low, big)
-        # jump along the chain of smaller labels, so a region of diameter d needs ~log d passes, not d
+        # jump along the chain of smaller labels: fewer passes than one per pixel of the path
         flat = low.ravel()
         inside = flat != big
         flat[inside] = np.minimum(flat[inside], flat[flat[inside]])
@@ -136,7 +141,8 @@ def locate_parts(
     are one region: the count of parts is not known here (with counts known, the
     papers split a class's activation by k-means: `earcore.parts.pickup`)."""
     belief = np.asarray(belief, dtype=np.float64)
-    labels, count = label_regions(belief > threshold)
+    segmented = belief > threshold
+    labels, count = label_regions(segmented)
     sizes = np.bincount(labels.ravel(), minlength=count + 1)
     out = []
     for region in np.argsort(-sizes[1:], kind="stable") + 1:
@@ -144,7 +150,8 @@ def locate_parts(
             break
         inside = labels == region
         try:
-            out.append((locate_part(np.where(inside, belief, 0.0), depth_m, intrinsics, base_from_camera, threshold=threshold), inside))
+            pick = locate_part(np.where(inside, belief, 0.0), depth_m, intrinsics, base_from_camera, threshold=threshold, others=segmented)
+            out.append((pick, inside))
         except PartNotFound:
             continue
     return out

@@ -10,9 +10,9 @@ network decides how selective the gates are) and divided by the mean over its st
 a stack's scale is kept). The haystack's pass multiplies every filter's output by its
 weight, so filters the needle does not excite are switched off; no difference metric is
 learned. With `match` (the default), the decoder also sees, at every scale, the cosine
-similarity of each haystack cell's gated features to the needle's (its part's mean
-feature vector, gated the same way): a fixed comparison, not a learned metric, that
-tells the decoder directly where the needle's type is.
+similarity of each haystack cell's gated features to the needle's prototype (the mean
+of its part's features in the needle's own pass, times the gates): a fixed comparison,
+not a learned metric, that tells the decoder directly where the needle's type is.
 
 Transposed convolutions (FCN-style, with skips from the gated stacks) bring the
 haystack back to its size as one belief map. Without a needle (`gates=None`) every
@@ -38,10 +38,12 @@ from torch import Tensor, nn
 
 from earcore.errors import ConfigError
 
-__all__ = ["POOLINGS", "TASKS", "OneShotOptions", "OneShotSegmenter", "build_oneshot"]
+__all__ = ["LEGACY_OPTIONS", "POOLINGS", "TASKS", "OneShotOptions", "OneShotSegmenter", "build_oneshot"]
 
 TASKS = ("needle", "all", "self", "spread")
 POOLINGS = ("part", "image")
+#: What checkpoints written before these options existed were trained with.
+LEGACY_OPTIONS = {"pooling": "image", "sharpen": False, "match": False}
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,9 @@ class OneShotOptions:
         unknown = [t for t in self.tasks if t not in TASKS]
         if unknown or "needle" not in self.tasks:
             raise ConfigError(f"one-shot: tasks must include 'needle' and come from {', '.join(TASKS)}, got {self.tasks}")
+        for name in ("sharpen", "match"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"one-shot: {name} is true or false, got {getattr(self, name)!r}")
         if self.pooling not in POOLINGS:
             raise ConfigError(f"one-shot: pooling is one of {', '.join(POOLINGS)}, got {self.pooling!r}")
         if not 0 <= self.dropout < 1:

@@ -50,10 +50,11 @@ def split_classes(classes: Sequence[str], held_out: Sequence[str]) -> tuple[list
     return [i for i in range(len(names)) if i not in out], out
 
 
-def needle_size(width: int) -> int:
+def needle_size(width: int, divisor: int = 8) -> int:
     """The side of the needle crops for images `width` pixels wide: NEEDLE_SIZE at 128,
-    in proportion otherwise, a multiple of 8 (the segmenter's divisor), at least 16."""
-    return max(16, 8 * round(NEEDLE_SIZE * width / 128 / 8))
+    in proportion otherwise, a multiple of `divisor` (the segmenter's) and at least 16."""
+    step = max(int(divisor), 1)
+    return max(-(-16 // step) * step, step * round(NEEDLE_SIZE * width / 128 / step))
 
 
 def part_mask(image: np.ndarray | torch.Tensor) -> np.ndarray:
@@ -79,7 +80,7 @@ def needle_crop(image: torch.Tensor, mask: torch.Tensor | np.ndarray, size: int 
     patch = image[:, y0 : y0 + side, x0 : x0 + side][None].float()
     patch_mask = m[y0 : y0 + side, x0 : x0 + side][None, None].float()
     if side == size:
-        return patch[0], patch_mask[0]
+        return patch[0].clone(), patch_mask[0].clone()  # not views: a cached crop must not hold its whole image
     crop = F.interpolate(patch, size=(size, size), mode="bilinear", align_corners=False, antialias=side > size)[0]
     crop_mask = F.interpolate(patch_mask, size=(size, size), mode="nearest")[0]
     return crop, crop_mask
@@ -120,9 +121,9 @@ class NeedleCrops:
     """The needle crops of a needles dataset (noise-free, cut once, kept); `get` adds
     the camera's colour noise to the crop when given a generator."""
 
-    def __init__(self, needles: PartImages, channels: int) -> None:
+    def __init__(self, needles: PartImages, channels: int, divisor: int = 8) -> None:
         self.needles, self.channels = needles, channels
-        self.size = needle_size(needles._load()["rgb"].shape[2])
+        self.size = needle_size(needles._load()["rgb"].shape[2], divisor)
         self._crops: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
 
     def get(self, index: int, rng: np.random.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -144,7 +145,9 @@ class OneShotPairs(torch.utils.data.Dataset):
     for the vector spread), redrawn each epoch (`set_epoch`). Random flips; colour
     noise on the needles with `noise` (on the haystacks: their dataset's `noise`)."""
 
-    def __init__(self, haystacks: PartImages, needles: PartImages, seen: Sequence[int], *, depth: bool = True, seed: int = 0, noise: bool = True) -> None:
+    def __init__(
+        self, haystacks: PartImages, needles: PartImages, seen: Sequence[int], *, depth: bool = True, seed: int = 0, noise: bool = True, divisor: int = 8
+    ) -> None:
         _check_same_classes(haystacks, needles)
         self.haystacks, self.needles, self.seen, self.noise = haystacks, needles, sorted(int(c) for c in seen), noise
         self.channels, self.seed, self.epoch = 4 if depth else 3, int(seed), 0
@@ -156,7 +159,7 @@ class OneShotPairs(torch.utils.data.Dataset):
         self.images = np.flatnonzero(allowed)
         if not len(self.images):
             raise DatasetError(f"{haystacks.folder}: no haystack holds only the seen part types")
-        self.crops = NeedleCrops(needles, self.channels)
+        self.crops = NeedleCrops(needles, self.channels, divisor)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -198,7 +201,7 @@ class HeldOutTrials(torch.utils.data.Dataset):
     carry every type's mask (`masks`, for the classification metric) and the target's
     pickup points (`points`, `valid`), depth and intrinsics for the pickup rate."""
 
-    def __init__(self, haystacks: PartImages, needles: PartImages, held_out: Sequence[int], *, depth: bool = True, seed: int = 0) -> None:
+    def __init__(self, haystacks: PartImages, needles: PartImages, held_out: Sequence[int], *, depth: bool = True, seed: int = 0, divisor: int = 8) -> None:
         _check_same_classes(haystacks, needles)
         self.haystacks, self.needles, self.held_out = haystacks, needles, sorted(int(c) for c in held_out)
         self.channels = 4 if depth else 3
@@ -208,7 +211,7 @@ class HeldOutTrials(torch.utils.data.Dataset):
         if not len(images):
             raise DatasetError(f"{haystacks.folder}: no haystack holds all of {', '.join(haystacks.classes[c] for c in self.held_out)}")
         by_class = needles_by_class(needles, self.held_out)
-        self.crops = NeedleCrops(needles, self.channels)
+        self.crops = NeedleCrops(needles, self.channels, divisor)
         rng = np.random.default_rng(seed)
         self.trials = [(int(i), c, int(rng.choice(by_class[c]))) for i in images for c in self.held_out]
 

@@ -33,7 +33,7 @@ from earcore.learning.errors import DatasetError
 from earcore.learning.losses import soft_iou_error, vector_spread
 from earcore.learning.train import TrainResult, run_command, train
 from earcore.parts.dataset import PartImages
-from earcore.parts.oneshot import TASKS, OneShotSegmenter, build_oneshot
+from earcore.parts.oneshot import LEGACY_OPTIONS, TASKS, OneShotSegmenter, build_oneshot
 from earcore.parts.oneshot_data import MIN_PIXELS, HeldOutTrials, OneShotPairs, needles_by_class, split_classes, visible_pixels
 from earcore.parts.oneshot_evaluate import OneShotEvaluation, evaluate, evaluator
 
@@ -67,9 +67,11 @@ def load_oneshot(path: str | Path, device: str | torch.device = "cpu") -> tuple[
     meta = state.meta
     if meta.get("network") != NETWORK or "options" not in meta:
         raise ConfigError(f"{path}: not a one-shot segmenter checkpoint (it holds {meta.get('network')!r})")
-    model = build_oneshot(**meta["options"])
+    model = build_oneshot(**{**LEGACY_OPTIONS, **meta["options"]})
+    weights = dict(state.model)
+    weights.setdefault("log_sharpness", model.log_sharpness.detach().clone())  # older checkpoints: power 1
     try:
-        model.load_state_dict(state.model)
+        model.load_state_dict(weights)
     except RuntimeError as exc:
         first = str(exc).strip().splitlines()[-1].strip() if str(exc).strip() else type(exc).__name__
         raise CheckpointError(f"{path}: the weights do not fit the segmenter the checkpoint describes ({first})") from None
@@ -156,12 +158,14 @@ def run(
 ) -> tuple[TrainResult, OneShotEvaluation | None]:
     """Train on the seen types' pairs, evaluate on the held-out trials."""
     depth = int(config.network_options.get("in_channels", 4)) == 4
-    train_hay = PartImages(haystacks, split="train", noise=True, seed=config.seed)
-    seen, unseen = split_classes(train_hay.classes, held_out)
-    pairs = OneShotPairs(train_hay, PartImages(needles, split="train", noise=False), seen, depth=depth, seed=config.seed)
-    trials = HeldOutTrials(PartImages(haystacks, split="test", noise=False), PartImages(needles, split=None, noise=False), unseen, depth=depth, seed=config.seed)
     torch.manual_seed(config.seed)
     model = build_oneshot(**config.network_options)
+    divisor = model.divisor
+    train_hay = PartImages(haystacks, split="train", noise=True, seed=config.seed)
+    seen, unseen = split_classes(train_hay.classes, held_out)
+    pairs = OneShotPairs(train_hay, PartImages(needles, split="train", noise=False), seen, depth=depth, seed=config.seed, divisor=divisor)
+    test_hay, all_needles = PartImages(haystacks, split="test", noise=False), PartImages(needles, split=None, noise=False)
+    trials = HeldOutTrials(test_hay, all_needles, unseen, depth=depth, seed=config.seed, divisor=divisor)
     config = config.replace(network_options=model.options.to_dict())
     tasks = model.options.tasks
     combiner = combiner_for(config.loss_combiner, list(tasks), fixed=dict(config.loss_weights), seed=config.seed, **config.combiner_options)
@@ -184,7 +188,7 @@ def run(
     table = evaluate(trained, trials)
     text = f"One-shot segmenter after {result.steps} steps ({result.seconds / 60:.1f} training minutes)\n\n" + table.markdown()
     summary = table.to_dict()
-    seen_trials = _seen_trials(haystacks, needles, seen, depth, config.seed)
+    seen_trials = _seen_trials(haystacks, needles, seen, depth, config.seed, divisor)
     if seen_trials is not None:
         # the same protocol on two trained types (needles not trained on): separates a model that
         # has not learnt to follow the needle from one that does not carry it over to new types
@@ -196,7 +200,7 @@ def run(
     return result, table
 
 
-def _seen_trials(haystacks: Path, needles: Path, seen: Sequence[int], depth: bool, seed: int) -> HeldOutTrials | None:
+def _seen_trials(haystacks: Path, needles: Path, seen: Sequence[int], depth: bool, seed: int, divisor: int) -> HeldOutTrials | None:
     """Trials of the two trained types most often seen together in the test split, with
     test-split needles; None when no test haystack shows two of them."""
     test = PartImages(haystacks, split="test", noise=False)
@@ -210,7 +214,7 @@ def _seen_trials(haystacks: Path, needles: Path, seen: Sequence[int], depth: boo
     best = max(together, default=(0, 0, 0))
     if best[0] == 0:
         return None
-    return HeldOutTrials(test, test_needles, best[1:], depth=depth, seed=seed)
+    return HeldOutTrials(test, test_needles, best[1:], depth=depth, seed=seed, divisor=divisor)
 
 
 def main(

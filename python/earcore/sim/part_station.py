@@ -25,6 +25,9 @@ from earcore.sim.part_images import PartImageOptions, PartImageRenderer, PartSpe
 
 __all__ = ["BASE_FROM_PLATFORM", "PartStation", "StationView", "calibrated_pose"]
 
+#: The station's views are the generator's images from this number on (datasets hold at most 10^7).
+STATION_IMAGES = 2**40
+
 #: The platform's centre 45 cm in front of the robot's base, on the table (z = 0).
 BASE_FROM_PLATFORM = np.array([[1.0, 0, 0, 0.45], [0, 1.0, 0, 0.0], [0, 0, 1.0, 0.0], [0, 0, 0, 1.0]])
 
@@ -79,7 +82,8 @@ class PartStation:
         self.renderer = PartImageRenderer(self.options)
 
     def view(self, index: int) -> StationView:
-        r = self.renderer.render(PartSpec(f"station-{index}", int(index), "test"))
+        # an image number no dataset of this seed uses: the station's views are not its images
+        r = self.renderer.render(PartSpec(f"station-{index}", STATION_IMAGES + int(index), "test"))
         row = r.sample.row
         n = int(row["count"])
         base_from_camera = self.base_from_platform @ r.world_from_camera

@@ -117,6 +117,24 @@ def test_every_region_is_located_apart():
         expected = locate_part(alone, depth, k, pose)
         assert pick.base == pytest.approx(expected.base, abs=1e-12)
         assert region.sum() == pick.pixels and region[box].all()
-    belief[20:60, 20:22] = 0.9  # a bridge joins A to the small one: still two regions over 12 px
+    belief[20:60, 20:22] = 0.9  # a bridge from A down to row 60: still two regions of 12 px or more
     depth[belief > 0] = 0.47
     assert len(locate_parts(belief, depth, k, pose, min_pixels=12)) == 2
+
+
+def test_neighbouring_parts_are_not_the_support():
+    from earcore.parts.locate import locate_parts
+
+    h, w, f = 48, 64, 100.0
+    k = (f, f, 32.0, 24.0)
+    pose = _looking_down(0.5, 0.0)
+    depth = np.full((h, w), 0.5)  # the table, base z = 0
+    belief = np.zeros((h, w))
+    belief[20:26, 20:26] = 1.0  # a 1 cm part ...
+    depth[20:26, 20:26] = 0.49
+    for rows, cols in ((slice(14, 19), slice(14, 32)), (slice(27, 32), slice(14, 32)), (slice(19, 27), slice(14, 19)), (slice(19, 27), slice(27, 32))):
+        belief[rows, cols] = 1.0  # ... ringed 1 px away by a 3 cm part of the same type
+        depth[rows, cols] = 0.47
+    small = next(p for p, region in locate_parts(belief, depth, k, pose, min_pixels=12) if region[22, 22])
+    assert small.height == pytest.approx(0.01, abs=1e-9)  # the table shows in the 1 px gap, the neighbour does not count
+    assert small.base[2] == pytest.approx(0.005, abs=1e-9)

@@ -63,6 +63,28 @@ def test_needle_crops_keep_the_cameras_scale():
     assert crop.shape == (3, 16, 16) and 0 < int(m.sum()) < 40 * 4
     assert torch.allclose(crop.mean((1, 2)), image[:, :, 8:56].mean((1, 2)), atol=0.05)  # an average of the window
     assert [needle_size(w) for w in (64, 128, 256, 640)] == [16, 32, 64, 160]
+    assert [needle_size(w, divisor=16) for w in (64, 160, 192)] == [16, 32, 48]  # multiples of the segmenter's divisor
+
+
+def test_options_and_older_checkpoints(tmp_path):
+    from earcore.errors import ConfigError
+    from earcore.learning.checkpoint import Checkpoint, save_checkpoint
+    from earcore.parts.oneshot_train import NETWORK, load_oneshot
+
+    with pytest.raises(ConfigError, match="true or false"):
+        build_oneshot(match="False")
+    with pytest.raises(ConfigError, match="pooling"):
+        build_oneshot(pooling="max")
+    # a checkpoint written before pooling / sharpen / match: the paper's gating, power 1
+    torch.manual_seed(1)
+    old = build_oneshot(in_channels=3, widths=(8, 8, 8), dropout=0.0, pooling="image", sharpen=False, match=False).eval()
+    weights = {k: v for k, v in old.state_dict().items() if k != "log_sharpness"}
+    options = {k: v for k, v in old.options.to_dict().items() if k not in ("pooling", "sharpen", "match")}
+    save_checkpoint(tmp_path / "checkpoint.pt", Checkpoint(step=1, seconds=0.0, model=weights, meta={"network": NETWORK, "options": options}))
+    loaded, _ = load_oneshot(tmp_path)
+    needle, haystack = torch.rand(1, 3, 16, 16), torch.rand(1, 3, 24, 32)
+    with torch.no_grad():
+        assert torch.allclose(loaded.segment(needle, haystack), old.segment(needle, haystack))
 
 
 def test_split_classes():
@@ -262,4 +284,23 @@ def test_oneshot_train_command(folders, tmp_path, capsys):
     assert results["trials"] >= 2 and 0.0 <= results["accuracy"] <= 1.0
     assert set(results["classes"]) == {names[pair[0]], names[pair[1]]}
     assert "Precision" in capsys.readouterr().out
+    # "show me this part" with the one-shot segmenter: a rendered needle, then one given as PNGs
+    from earcore.learning import png
+
+    show = tmp_path / "show"
+    assert main(["show", "--model", str(out), "--needle-part", names[pair[0]], "--size", "64x48", "--out", str(show)]) == 0
+    summary = json.loads((show / "show.json").read_text())
+    assert summary["network"] == "oneshot" and summary["part"] == names[pair[0]]
+    rgb = np.zeros((48, 64, 3), np.uint8)
+    rgb[20:30, 25:40] = (200, 60, 30)
+    mask = np.zeros((48, 64), np.uint8)
+    mask[20:30, 25:40] = 255
+    png.write(tmp_path / "n.png", rgb)
+    png.write(tmp_path / "m.png", mask)
+    given = ["show", "--model", str(out), "--needle", str(tmp_path / "n.png"), "--needle-mask", str(tmp_path / "m.png"), "--size", "64x48"]
+    assert main([*given, "--out", str(show)]) == 0
+    assert json.loads((show / "show.json").read_text())["part"] is None  # no truth for a part given by image
+    png.write(tmp_path / "m.png", np.zeros((48, 64), np.uint8))
+    assert main([*given, "--out", str(show)]) == 1  # an empty mask: a clear refusal
+    assert main(["show", "--model", str(out), "--part", names[pair[0]]]) == 2
     assert main([*args[:6], "Nope", "--out", str(tmp_path / "bad"), "--steps", "1"]) == 1
