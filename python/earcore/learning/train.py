@@ -28,7 +28,7 @@ from earcore.learning.combiners import LossCombiner
 from earcore.learning.config import TrainConfig
 from earcore.learning.metrics_log import MetricsLog, plot_metrics
 
-__all__ = ["Objective", "TrainResult", "collate", "run_command", "evaluate_losses", "resolve_device", "to_device", "train"]
+__all__ = ["Objective", "TrainResult", "add_run_arguments", "collate", "run_command", "evaluate_losses", "resolve_device", "to_device", "train"]
 
 Batch = dict[str, Tensor]
 
@@ -359,6 +359,17 @@ def train(
         say(f"stopped: {config.patience} evaluations without a better {config.patience_metric} (best {best['value']:.4g})")
     say(f"done: {step} steps in {seconds / 60:.1f} training minutes; checkpoint {path}")
     return TrainResult(folder=folder, steps=step, seconds=seconds, evaluations=evaluations)
+
+
+def add_run_arguments(parser: Any, batches: str = "batches") -> None:
+    """The options every trainer's command line shares: threads, data-loader workers,
+    device, seed, resuming and the progress bar (`batches`: what the workers make)."""
+    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--workers", type=int, default=0, help=f"data-loader processes (default 0: {batches} are made in the training process)")
+    parser.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out")
+    parser.add_argument("--no-progress", action="store_true")
 
 
 def run_command(prog: str, call: Callable[[], Any]) -> int:

@@ -31,7 +31,7 @@ from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import TrainConfig, key_values
 from earcore.learning.errors import DatasetError
 from earcore.learning.losses import soft_iou_error, vector_spread
-from earcore.learning.train import TrainResult, run_command, train
+from earcore.learning.train import TrainResult, add_run_arguments, run_command, train
 from earcore.parts.dataset import PartImages
 from earcore.parts.oneshot import LEGACY_OPTIONS, TASKS, OneShotSegmenter, build_oneshot
 from earcore.parts.oneshot_data import MIN_PIXELS, HeldOutTrials, OneShotPairs, needles_by_class, split_classes, visible_pixels
@@ -97,12 +97,7 @@ def build_parser(
     p.add_argument("--combiner-option", action="append", default=[], metavar="KEY=JSON")
     p.add_argument("--eval-steps", type=int, default=100, help="evaluate on the held-out trials every this many steps")
     p.add_argument("--eval-samples", type=int, default=None, help="at most this many trials per evaluation (default all)")
-    p.add_argument("--threads", type=int, default=None)
-    p.add_argument("--workers", type=int, default=0, help="data-loader processes (default 0: pairs are made in the training process)")
-    p.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--resume", action="store_true", help="continue the run in --out")
-    p.add_argument("--no-progress", action="store_true")
+    add_run_arguments(p, "pairs")
     return p
 
 

@@ -25,7 +25,7 @@ from earcore.errors import ConfigError
 from earcore.learning.checkpoint import CheckpointError, load_checkpoint
 from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import SCHEDULES, TrainConfig, key_values
-from earcore.learning.train import TrainResult, run_command, train
+from earcore.learning.train import TrainResult, add_run_arguments, run_command, train
 from earcore.parts.dataset import PartImages
 from earcore.parts.detector import PRESETS, PartDetector, build_detector
 from earcore.parts.evaluate import PartsEvaluation, evaluate, evaluator
@@ -73,12 +73,7 @@ def build_parser(parser_class: type[argparse.ArgumentParser] = argparse.Argument
     p.add_argument("--eval-samples", type=int, default=256, help="test images per periodic evaluation (default 256)")
     p.add_argument("--patience", type=int, default=None, help="stop after this many evaluations without a lower --patience-metric")
     p.add_argument("--patience-metric", choices=PATIENCE_METRICS, default="val_combined")
-    p.add_argument("--threads", type=int, default=None)
-    p.add_argument("--workers", type=int, default=0, help="data-loader processes (default 0: batches are made in the training process)")
-    p.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--resume", action="store_true", help="continue the run in --out")
-    p.add_argument("--no-progress", action="store_true")
+    add_run_arguments(p)
     return p
 
 
