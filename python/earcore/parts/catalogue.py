@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from earcore.mesh import Mesh
+
 __all__ = ["PARTS", "Mesh", "Part", "Piece", "part", "part_names"]
 
 #: Points around a prism's cross-section (every 5°: the corners of hexagons and squares
@@ -44,23 +46,6 @@ class Piece:
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     axis: str = "z"
     turn: float = 0.0
-
-
-@dataclass(frozen=True)
-class Mesh:
-    """A closed triangle mesh: vertices (n, 3) m, triangles (m, 3) indices, outward."""
-
-    vertices: np.ndarray
-    triangles: np.ndarray
-
-    def volume_and_centroid(self) -> tuple[float, np.ndarray]:
-        """Volume (m³) and centre of gravity (uniform density) of the enclosed solid:
-        sums over the signed tetrahedra from the origin to each triangle."""
-        a, b, c = (self.vertices[self.triangles[:, i]] for i in range(3))
-        signed = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
-        volume = float(signed.sum())
-        centroid = (signed[:, None] * (a + b + c) / 4.0).sum(0) / volume
-        return volume, centroid
 
 
 @dataclass(frozen=True)

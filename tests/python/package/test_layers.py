@@ -12,7 +12,7 @@ import earcore
 
 #: Rank of each area; a module may import its own area and lower ranks only. Areas of
 #: the same rank may not import each other.
-RANKS = {"": 0, "perception": 1, "planning": 1, "learning": 1, "calibration": 2, "pose": 2, "parts": 2, "sim": 3, "app": 4}
+RANKS = {"": 0, "perception": 1, "planning": 1, "learning": 1, "calibration": 2, "pose": 2, "parts": 2, "charging": 2, "sim": 3, "app": 4}
 PACKAGE = Path(earcore.__file__).resolve().parent
 
 

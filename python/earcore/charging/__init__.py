@@ -1,0 +1,3 @@
+"""The robotic charging station of Paper III: connector geometry, port and plug
+detection, stereo triangulation and the port's pose (`earcore charge` runs it in the
+simulated charging cell)."""

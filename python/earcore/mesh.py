@@ -1,0 +1,180 @@
+"""Closed triangle meshes built from outlines: the solid's volume and centre of gravity,
+planar faces with holes, and prisms (an outline extruded, with blind holes).
+
+    face = triangulate(outline, holes)          # (m, 3) indices into outline + holes
+    plate = extrude(outline, depth, holes=[(polygon, hole_depth), ...])
+
+Outlines and holes are simple polygons (N, 2), counter-clockwise. The face's
+triangulation is OpenCV's Delaunay over the polygons' corners and a fill of interior
+points kept away from every edge, with the triangles outside the outline or inside a
+hole dropped; the polygons' edges are then edges of the triangulation as long as a
+polygon's corners are closer together than `spacing` (the fill's pitch).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Mesh", "densify", "extrude", "polygon_area", "triangulate"]
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A closed triangle mesh: vertices (n, 3) m, triangles (m, 3) indices, outward."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+    def volume_and_centroid(self) -> tuple[float, np.ndarray]:
+        """Volume (m³) and centre of gravity (uniform density) of the enclosed solid:
+        sums over the signed tetrahedra from the origin to each triangle."""
+        a, b, c = (self.vertices[self.triangles[:, i]] for i in range(3))
+        signed = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
+        volume = float(signed.sum())
+        centroid = (signed[:, None] * (a + b + c) / 4.0).sum(0) / volume
+        return volume, centroid
+
+    def moved(self, pose: np.ndarray) -> Mesh:
+        """The mesh with its vertices through the 4x4 `pose`."""
+        return Mesh(self.vertices @ pose[:3, :3].T + pose[:3, 3], self.triangles)
+
+    @staticmethod
+    def union(meshes: Sequence[Mesh]) -> Mesh:
+        """The meshes as one (their solids must not overlap for the volume to add)."""
+        offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+        return Mesh(np.concatenate([m.vertices for m in meshes]), np.concatenate([m.triangles + o for m, o in zip(meshes, offsets)]))
+
+
+def polygon_area(polygon: np.ndarray) -> float:
+    """Signed area of a polygon (N, 2): positive counter-clockwise (the shoelace)."""
+    x, y = polygon[:, 0], polygon[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def densify(polygon: np.ndarray, max_edge: float) -> np.ndarray:
+    """The polygon with points added along its edges so none is longer than `max_edge`."""
+    p = np.asarray(polygon, dtype=np.float64)
+    out = []
+    for a, b in zip(p, np.roll(p, -1, axis=0)):
+        k = max(int(np.ceil(np.linalg.norm(b - a) / max_edge)), 1)
+        out.append(a + (b - a) * (np.arange(k) / k)[:, None])
+    return np.concatenate(out)
+
+
+def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Even-odd rule, vectorised over points (P, 2)."""
+    x, y = points[:, 0:1], points[:, 1:2]
+    ax, ay = polygon[:, 0], polygon[:, 1]
+    bx, by = np.roll(ax, -1), np.roll(ay, -1)
+    crosses = (ay > y) != (by > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        at = ax + (y - ay) * (bx - ax) / (by - ay)
+    return (crosses & (x < at)).sum(1) % 2 == 1
+
+
+def _edge_distance(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    d = b - a
+    t = np.clip(((points[:, None] - a) * d).sum(2) / (d * d).sum(1), 0.0, 1.0)
+    closest = a + t[..., None] * d
+    return np.linalg.norm(points[:, None] - closest, axis=2).min(1)
+
+
+def _check_polygon(polygon: np.ndarray, name: str) -> np.ndarray:
+    p = np.asarray(polygon, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 2 or len(p) < 3:
+        raise ValueError(f"{name}: expected a polygon (N >= 3, 2), got shape {p.shape}")
+    if polygon_area(p) <= 0:
+        raise ValueError(f"{name}: the polygon must be counter-clockwise with a positive area")
+    return p
+
+
+def triangulate(outline: np.ndarray, holes: Sequence[np.ndarray] = (), spacing: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(points (n, 2), triangles (m, 3) counter-clockwise) covering the outline minus
+    the holes. The points start with the outline's corners, then each hole's in order;
+    interior fill points (pitch `spacing`, by default the longest polygon edge) follow."""
+    import cv2
+
+    outline = _check_polygon(outline, "outline")
+    polygons = [outline] + [_check_polygon(h, f"hole {k}") for k, h in enumerate(holes)]
+    corners = np.concatenate(polygons)
+    longest = max(float(np.linalg.norm(p - np.roll(p, -1, 0), axis=1).max()) for p in polygons)
+    pitch = float(spacing) if spacing is not None else longest
+    if pitch < longest:
+        raise ValueError(f"triangulate: spacing {pitch} is below the longest polygon edge {longest}; the edges would not survive")
+    lo, hi = outline.min(0), outline.max(0)
+    gx, gy = np.meshgrid(np.arange(lo[0] + pitch / 2, hi[0], pitch), np.arange(lo[1] + pitch / 2, hi[1], pitch))
+    fill = np.stack([gx.ravel(), gy.ravel()], 1)
+    if len(fill):
+        keep = _inside(fill, outline) & (_edge_distance(fill, outline) > pitch)
+        for h in polygons[1:]:
+            keep &= ~_inside(fill, h) & (_edge_distance(fill, h) > pitch)
+        fill = fill[keep]
+    points = np.concatenate([corners, fill])
+    # Delaunay in a frame scaled to about 1000 units across: float32 inside OpenCV
+    scale = 1000.0 / max(float(np.ptp(points, 0).max()), 1e-12)
+    local = (points - lo) * scale
+    subdiv = cv2.Subdiv2D((-10, -10, int(np.ceil(local.max())) + 20, int(np.ceil(local.max())) + 20))
+    index: dict[tuple[float, float], int] = {}
+    for k, (x, y) in enumerate(local.astype(np.float32)):
+        subdiv.insert((float(x), float(y)))
+        index[(float(x), float(y))] = k
+    tris = []
+    for t in subdiv.getTriangleList():
+        ids = [index.get((float(t[2 * i]), float(t[2 * i + 1]))) for i in range(3)]
+        if None not in ids:
+            tris.append(ids)
+    triangles = np.array(tris, dtype=np.int64).reshape(-1, 3)
+    centres = points[triangles].mean(1)
+    keep = _inside(centres, outline)
+    for h in polygons[1:]:
+        keep &= ~_inside(centres, h)
+    triangles = triangles[keep]
+    a, b, c = (points[triangles[:, i]] for i in range(3))
+    turn = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    triangles[turn < 0] = triangles[turn < 0][:, ::-1]
+    return points, triangles
+
+
+def _wall(ring_top: np.ndarray, ring_bottom: np.ndarray, outward: bool) -> np.ndarray:
+    """Quads between two rings of vertex indices (top at higher z); counter-clockwise
+    rings give outward-facing walls with `outward`, walls facing the axis without."""
+    nxt = np.roll(np.arange(len(ring_top)), -1)
+    t, b = ring_top, ring_bottom
+    if outward:
+        return np.concatenate([np.c_[b, b[nxt], t[nxt]], np.c_[b, t[nxt], t]])
+    return np.concatenate([np.c_[b, t[nxt], b[nxt]], np.c_[b, t, t[nxt]]])
+
+
+def extrude(outline: np.ndarray, depth: float, holes: Sequence[tuple[np.ndarray, float]] = (), spacing: float | None = None) -> Mesh:
+    """The closed solid of `outline` from z = −depth to z = 0, with blind holes (polygon,
+    hole depth < depth) going into it from the face at z = 0."""
+    if depth <= 0:
+        raise ValueError(f"extrude: depth must be positive, got {depth}")
+    for k, (_, d) in enumerate(holes):
+        if not 0 < d < depth:
+            raise ValueError(f"extrude: hole {k}'s depth {d} must be in (0, {depth})")
+    polygons = [np.asarray(h, dtype=np.float64) for h, _ in holes]
+    face, face_tris = triangulate(outline, polygons, spacing)
+    back, back_tris = triangulate(outline, (), spacing)
+    n_face = len(face)
+    vertices = [np.c_[face, np.zeros(n_face)], np.c_[back, np.full(len(back), -depth)]]
+    triangles = [face_tris, back_tris[:, ::-1] + n_face]
+    n = n_face + len(back)
+    outline_ring = np.arange(len(outline))
+    triangles.append(_wall(outline_ring, outline_ring + n_face, outward=True))  # the back's first points are the outline's
+    start = len(outline)
+    for polygon, d in zip(polygons, (d for _, d in holes)):
+        m = len(polygon)
+        ring = np.arange(start, start + m)
+        bottom = np.arange(n, n + m)
+        centre = n + m
+        vertices += [np.c_[polygon, np.full(m, -d)], [[*polygon.mean(0), -d]]]
+        triangles.append(_wall(ring, bottom, outward=False))
+        triangles.append(np.c_[np.full(m, centre), bottom, np.roll(bottom, -1)])  # the hole's floor faces up
+        n += m + 1
+        start += m
+    return Mesh(np.concatenate(vertices).astype(np.float64), np.concatenate(triangles).astype(np.int64))
