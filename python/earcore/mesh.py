@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Mesh", "densify", "extrude", "polygon_area", "triangulate"]
+__all__ = ["Mesh", "densify", "extrude", "inside_polygon", "polygon_area", "triangulate"]
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,17 @@ class Mesh:
     def moved(self, pose: np.ndarray) -> Mesh:
         """The mesh with its vertices through the 4x4 `pose`."""
         return Mesh(self.vertices @ pose[:3, :3].T + pose[:3, 3], self.triangles)
+
+    def unshared(self) -> Mesh:
+        """The same surface with three vertices of its own per triangle: a renderer
+        that averages normals over shared vertices then shades every face flat."""
+        return Mesh(self.vertices[self.triangles.ravel()], np.arange(self.triangles.size, dtype=np.int64).reshape(-1, 3))
+
+    def face_normals(self) -> np.ndarray:
+        """(m, 3) each triangle's outward unit normal."""
+        a, b, c = (self.vertices[self.triangles[:, i]] for i in range(3))
+        n = np.cross(b - a, c - a)
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
     @staticmethod
     def union(meshes: Sequence[Mesh]) -> Mesh:
@@ -64,8 +75,8 @@ def densify(polygon: np.ndarray, max_edge: float) -> np.ndarray:
     return np.concatenate(out)
 
 
-def _inside(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Even-odd rule, vectorised over points (P, 2)."""
+def inside_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Whether points (P, 2) lie inside a simple polygon (N, 2): the even-odd rule."""
     x, y = points[:, 0:1], points[:, 1:2]
     ax, ay = polygon[:, 0], polygon[:, 1]
     bx, by = np.roll(ax, -1), np.roll(ay, -1)
@@ -109,9 +120,9 @@ def triangulate(outline: np.ndarray, holes: Sequence[np.ndarray] = (), spacing: 
     gx, gy = np.meshgrid(np.arange(lo[0] + pitch / 2, hi[0], pitch), np.arange(lo[1] + pitch / 2, hi[1], pitch))
     fill = np.stack([gx.ravel(), gy.ravel()], 1)
     if len(fill):
-        keep = _inside(fill, outline) & (_edge_distance(fill, outline) > pitch)
+        keep = inside_polygon(fill, outline) & (_edge_distance(fill, outline) > pitch)
         for h in polygons[1:]:
-            keep &= ~_inside(fill, h) & (_edge_distance(fill, h) > pitch)
+            keep &= ~inside_polygon(fill, h) & (_edge_distance(fill, h) > pitch)
         fill = fill[keep]
     points = np.concatenate([corners, fill])
     # Delaunay in a frame scaled to about 1000 units across: float32 inside OpenCV
@@ -129,9 +140,9 @@ def triangulate(outline: np.ndarray, holes: Sequence[np.ndarray] = (), spacing: 
             tris.append(ids)
     triangles = np.array(tris, dtype=np.int64).reshape(-1, 3)
     centres = points[triangles].mean(1)
-    keep = _inside(centres, outline)
+    keep = inside_polygon(centres, outline)
     for h in polygons[1:]:
-        keep &= ~_inside(centres, h)
+        keep &= ~inside_polygon(centres, h)
     triangles = triangles[keep]
     a, b, c = (points[triangles[:, i]] for i in range(3))
     turn = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
@@ -150,31 +161,37 @@ def _wall(ring_top: np.ndarray, ring_bottom: np.ndarray, outward: bool) -> np.nd
 
 
 def extrude(outline: np.ndarray, depth: float, holes: Sequence[tuple[np.ndarray, float]] = (), spacing: float | None = None) -> Mesh:
-    """The closed solid of `outline` from z = −depth to z = 0, with blind holes (polygon,
-    hole depth < depth) going into it from the face at z = 0."""
+    """The closed solid of `outline` from z = −depth to z = 0, with holes (polygon, hole
+    depth) going into it from the face at z = 0: blind below `depth`, through at it."""
     if depth <= 0:
         raise ValueError(f"extrude: depth must be positive, got {depth}")
     for k, (_, d) in enumerate(holes):
-        if not 0 < d < depth:
-            raise ValueError(f"extrude: hole {k}'s depth {d} must be in (0, {depth})")
+        if not 0 < d <= depth:
+            raise ValueError(f"extrude: hole {k}'s depth {d} must be in (0, {depth}]")
     polygons = [np.asarray(h, dtype=np.float64) for h, _ in holes]
+    depths = [float(d) for _, d in holes]
+    through = [p for p, d in zip(polygons, depths) if d == depth]
     face, face_tris = triangulate(outline, polygons, spacing)
-    back, back_tris = triangulate(outline, (), spacing)
+    back, back_tris = triangulate(outline, through, spacing)
     n_face = len(face)
     vertices = [np.c_[face, np.zeros(n_face)], np.c_[back, np.full(len(back), -depth)]]
     triangles = [face_tris, back_tris[:, ::-1] + n_face]
     n = n_face + len(back)
     outline_ring = np.arange(len(outline))
     triangles.append(_wall(outline_ring, outline_ring + n_face, outward=True))  # the back's first points are the outline's
-    start = len(outline)
-    for polygon, d in zip(polygons, (d for _, d in holes)):
+    start, back_start = len(outline), n_face + len(outline)
+    for polygon, d in zip(polygons, depths):
         m = len(polygon)
         ring = np.arange(start, start + m)
+        start += m
+        if d == depth:  # through: the wall meets the back's copy of the hole
+            triangles.append(_wall(ring, np.arange(back_start, back_start + m), outward=False))
+            back_start += m
+            continue
         bottom = np.arange(n, n + m)
         centre = n + m
         vertices += [np.c_[polygon, np.full(m, -d)], [[*polygon.mean(0), -d]]]
         triangles.append(_wall(ring, bottom, outward=False))
         triangles.append(np.c_[np.full(m, centre), bottom, np.roll(bottom, -1)])  # the hole's floor faces up
         n += m + 1
-        start += m
     return Mesh(np.concatenate(vertices).astype(np.float64), np.concatenate(triangles).astype(np.int64))

@@ -32,10 +32,16 @@ import numpy as np
 from earcore.errors import ConfigError
 from earcore.mesh import Mesh, densify, extrude
 
-__all__ = ["CONNECTORS", "Connector", "Contact", "connector", "hole_polygon"]
+__all__ = ["COLLAR", "CONNECTORS", "GAP", "RECESS", "Connector", "Contact", "connector", "hole_polygon"]
 
 #: Points around a contact's hole or pin (a polygon inscribed in its circle).
 SEGMENTS = 32
+#: How a port is installed in a car's side: a round collar COLLAR wider than the face,
+#: the face RECESS deep inside it, and a dark gap GAP wide between the collar and the
+#: car's body (m). The simulated cell builds it so and the matcher looks for its edges.
+COLLAR = 0.010
+RECESS = 0.006
+GAP = 0.002
 
 
 @dataclass(frozen=True)

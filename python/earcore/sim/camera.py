@@ -149,6 +149,7 @@ class SimulatedCamera:
         mount: tuple[int, int, np.ndarray] | None = None,
         world_from_base: np.ndarray | None = None,
         supersample: int = 1,
+        lighting: dict | None = None,
     ) -> None:
         if supersample < 1:
             raise ValueError(f"supersample must be >= 1, got {supersample}")
@@ -156,6 +157,9 @@ class SimulatedCamera:
         #: Render s×s samples per pixel and average them: anti-aliased edges, for the
         #: checkerboard's corners (the tiny renderer itself does not anti-alias).
         self.supersample = supersample
+        #: pybullet's light settings for the tiny renderer (lightDirection,
+        #: lightAmbientCoeff, ...); None: its defaults.
+        self.lighting = dict(lighting or {})
         self.name = name
         self.sensor = sensor
         self._pose = np.asarray(base_from_camera, dtype=np.float64)
@@ -198,7 +202,7 @@ class SimulatedCamera:
         s = self.supersample
         world_from_camera = self.world_from_base @ base_from_camera
         _, _, rgba, depth_buffer, seg = p.getCameraImage(
-            s * width, s * height, opengl_view(world_from_camera), projection, renderer=p.ER_TINY_RENDERER
+            s * width, s * height, opengl_view(world_from_camera), projection, renderer=p.ER_TINY_RENDERER, **self.lighting
         )
         rgba = np.reshape(np.asarray(rgba, dtype=np.uint8), (s * height, s * width, 4))
         buf = np.reshape(np.asarray(depth_buffer, dtype=np.float64), (s * height, s * width))

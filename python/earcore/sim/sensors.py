@@ -19,6 +19,8 @@ quantisation); the numbers are documented on each preset and checked by the test
 * A colour-only camera ("webcam", 640×480, 60°×46.8°, a USB camera's typical barrel lens
   k1 = −0.12, k2 = 0.08): no depth at all (`has_depth` is False; its frames carry an
   empty depth image). Calibration finds its pose from the board's image alone (AX = ZB).
+* A machine-vision colour camera ("machine_vision", 2448×2048, 30°×25.3°, a mild barrel
+  lens k1 = −0.05, k2 = 0.02): the charging station's stereo pair (Paper III).
 
 Lenses (the ground truth calibration has to recover; OpenCV's Brown-Conrady model k1,
 k2, p1, p2, k3): the Kinect V2's IR lens (0.09, −0.27, 0, 0, 0.09) is the typical
@@ -258,4 +260,6 @@ SENSORS: dict[str, SensorModel] = {
     "f200": SensorModel("f200", 640, 480, 73.0, 59.0, 0.2, 1.2, 30.0, "coded"),
     "sr300": SensorModel("sr300", 640, 480, 71.5, 55.0, 0.2, 1.5, 30.0, "coded"),
     "webcam": SensorModel("webcam", 640, 480, 60.0, 46.8, 0.1, 5.0, 30.0, "none", distortion=(-0.12, 0.08, 0.0, 0.0, 0.0)),
+    # a 5-megapixel machine-vision camera (2/3" sensor, 3.45 µm pixels) with a 16 mm lens
+    "machine_vision": SensorModel("machine_vision", 2448, 2048, 30.0, 25.3, 0.3, 6.0, 10.0, "none", distortion=(-0.05, 0.02, 0.0, 0.0, 0.0)),
 }

@@ -6,7 +6,7 @@ import pytest
 
 from earcore.charging.connectors import CONNECTORS, connector, hole_polygon
 from earcore.errors import ConfigError
-from earcore.mesh import densify, extrude, polygon_area, triangulate
+from earcore.mesh import densify, extrude, inside_polygon, polygon_area, triangulate
 
 
 def square(cx, cy, half):
@@ -111,3 +111,13 @@ def test_connector_names_and_settings_are_checked():
         replace(CONNECTORS["type2"], clearance=0.002)
     with pytest.raises(ConfigError, match="shorter"):
         replace(CONNECTORS["type2"], pin_length=0.03)
+
+
+def test_through_holes_and_the_inside_test():
+    plate = extrude(densify(square(0, 0, 0.05), 0.01), 0.02, [(densify(square(0.01, 0.0, 0.01), 0.005), 0.02), (square(-0.03, 0.03, 0.005), 0.01)])
+    assert edges_are_closed(plate)
+    assert plate.volume_and_centroid()[0] == pytest.approx(0.1 * 0.1 * 0.02 - 0.02 * 0.02 * 0.02 - 0.01 * 0.01 * 0.01, rel=1e-9)
+    # an L-shaped (concave) polygon: points in its notch are outside
+    ell = np.array([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], dtype=float)
+    points = np.array([[0.5, 0.5], [1.5, 0.5], [0.5, 1.5], [1.5, 1.5], [2.5, 0.5], [-0.1, 1.0]])
+    assert inside_polygon(points, ell).tolist() == [True, True, True, False, False, False]

@@ -1,0 +1,488 @@
+"""Shape-based matching of a connector (the car's port or the robot's plug) on image
+edges, in the manner of Halcon's shape-based matching that Paper III used.
+
+    model = ShapeModel.port(connector("type2"))
+    found = find(image, model, K, distortion)          # best match, or None
+    found.score, found.reference_pixels, found.camera_from_object
+
+The model is the connector's outline edges as 3D points on its planar faces, each
+with its edge direction (the collar's outer circle, the rim of the recessed face and
+the contacts' holes for the port; the body's outline and the pins' tips for the plug).
+Matching is a search in the object's pose, which fixes the 2D transformation
+(`homography`, the paper's "2D affine transformation", exact for the plane):
+
+1. Narrowing (`narrow=True`): the connector is black plastic, so the search starts in
+   regions darker than their surroundings of the right size; each region's outline is
+   the collar's circle seen as an ellipse, which gives the distance (its major axis)
+   and the axis' tilt (its minor/major ratio, up to the sign of the tilt).
+   Without narrowing every contour of a Canny edge map of the size is a candidate.
+2. The turn about the axis: every 3° for both signs of the tilt, scored on the image's
+   edge field.
+3. Refinement (`refine`): moving edges. Each model point looks along its projected
+   normal for the strongest gradient of the right orientation; the pose minimises the
+   points' distances to those edges along the normals (Gauss-Newton, a few rounds).
+
+The score is the mean over model points of the edge strength (saturated) times the
+agreement of the image gradient's orientation with the model's edge normal (|cos|, so
+either contrast polarity counts): 1 for a perfect, strong match, about 0.5·strength
+for clutter. `min_score` flags doubtful matches (the paper's reflections case).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from earcore.charging.connectors import COLLAR, GAP, RECESS, Connector
+from earcore.mesh import inside_polygon
+from earcore.transforms import axis_angle_matrix, rotation_from_vector
+
+__all__ = ["EdgeField", "Match", "ShapeModel", "edge_field", "find", "project_points", "refine_pose", "score"]
+
+
+@dataclass(frozen=True)
+class ShapeModel:
+    """Edge points (M, 3) with their tangents (M, 3), the reference points (K, 3), the
+    radius of the outermost circle (for the distance) and whether a point belongs to the
+    outermost outline (`outer`, M bool), all in the model's frame, whose z points at the
+    viewer; `object_from_model` takes them to the object's own frame."""
+
+    name: str
+    points: np.ndarray
+    tangents: np.ndarray
+    reference: np.ndarray
+    outer_radius: float
+    outer: np.ndarray
+    object_from_model: np.ndarray
+    #: Points whose edges are sharp outlines (refinement uses them; the holes' edges are
+    #: blurred by their walls seen at an angle: they help find the turn, not refine it).
+    precise: np.ndarray
+    #: An opening (polygon in the model's x, y at height z) the points below it are seen
+    #: through: a point whose line of sight crosses z outside the polygon is hidden.
+    rim: tuple[np.ndarray, float] | None = None
+
+    @staticmethod
+    def _ring(polygon: np.ndarray, z: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+        from earcore.mesh import densify
+
+        dense = densify(polygon, spacing)
+        nxt = np.roll(dense, -1, axis=0)
+        prev = np.roll(dense, 1, axis=0)
+        tangent = nxt - prev
+        tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+        return np.c_[dense, np.full(len(dense), z)], np.c_[tangent, np.zeros(len(dense))]
+
+    @classmethod
+    def _build(
+        cls,
+        name: str,
+        rings: list[tuple[np.ndarray, float, bool, bool]],
+        reference: np.ndarray,
+        outer_radius: float,
+        spacing: float,
+        object_from_model: np.ndarray,
+        rim: tuple[np.ndarray, float] | None = None,
+    ) -> ShapeModel:
+        points, tangents, outer, precise = [], [], [], []
+        for polygon, z, is_outer, is_precise in rings:
+            p, t = cls._ring(polygon, z, spacing)
+            points.append(p)
+            tangents.append(t)
+            outer.append(np.full(len(p), is_outer))
+            precise.append(np.full(len(p), is_precise))
+        model_from_object = np.linalg.inv(object_from_model)[:3, :3]
+        return cls(
+            name, np.concatenate(points) @ model_from_object.T, np.concatenate(tangents) @ model_from_object.T,
+            np.asarray(reference) @ model_from_object.T, outer_radius, np.concatenate(outer), object_from_model,
+            np.concatenate(precise), rim,
+        )  # fmt: skip
+
+    @classmethod
+    def port(cls, k: Connector, spacing: float = 0.0015) -> ShapeModel:
+        """The car's port as installed: the outer edge of the gap around the collar (the
+        outermost outline; the collar's own edge, a gap's width inside it, would blur into
+        it), the recess' rim (the face's outline at the collar's front) and each
+        contact's hole on the face (`rim`: what hides the holes at an angle)."""
+        radius = k.radius + COLLAR + GAP
+        angles = np.linspace(0, 2 * np.pi, 97)[:-1]
+        circle = np.stack([np.cos(angles), np.sin(angles)], 1)
+        rings = [(circle * radius, RECESS, True, True), (k.outline, RECESS, False, True)]
+        for c in k.contacts:
+            a = np.linspace(0, 2 * np.pi, 17)[:-1]
+            r = k.hole_radius(c)
+            rings.append((np.stack([c.x + r * np.cos(a), c.y + r * np.sin(a)], 1), 0.0, False, False))
+        return cls._build(f"{k.name} port", rings, k.reference_points, radius, spacing, np.eye(4), (k.outline, RECESS))
+
+    @classmethod
+    def plug(cls, k: Connector, spacing: float = 0.0015) -> ShapeModel:
+        """The robot's plug seen from the front: its body's outline (front face, z = 0)
+        and the pins' tips (z = −pin_length) in the tip frame, whose z points away from a
+        viewer the pins point at (the model's frame is the tip's turned about x)."""
+        rings = [(k.outline, 0.0, True, True)]
+        for c in k.contacts:
+            a = np.linspace(0, 2 * np.pi, 13)[:-1]
+            rings.append((np.stack([c.x + c.radius * np.cos(a), c.y + c.radius * np.sin(a)], 1), -k.pin_length, False, True))
+        reference = k.reference_points - [0.0, 0.0, k.pin_length]
+        turned = np.eye(4)
+        turned[:3, :3] = axis_angle_matrix([1.0, 0.0, 0.0], np.pi)
+        return cls._build(f"{k.name} plug", rings, reference, k.radius, spacing, turned)
+
+
+@dataclass(frozen=True)
+class EdgeField:
+    """An image's edges: gradient (gx, gy) after a light blur and the saturated
+    strength in [0, 1]; for the coarse search the same spread over a few pixels (the
+    structure tensor's txx, txy, tyy normalised by its trace, and the strength, blurred);
+    `offset` (x, y) of the window in the full image."""
+
+    gx: np.ndarray
+    gy: np.ndarray
+    strength: np.ndarray
+    txx: np.ndarray
+    txy: np.ndarray
+    tyy: np.ndarray
+    spread: np.ndarray
+    offset: tuple[int, int] = (0, 0)
+
+
+def edge_field(gray: np.ndarray, saturation: float = 40.0, offset: tuple[int, int] = (0, 0), spread_px: float = 2.0, blur: float = 1.0) -> EdgeField:
+    import cv2
+
+    raw = np.asarray(gray, dtype=np.float32)
+    g = cv2.GaussianBlur(raw, (0, 0), blur) if blur > 0 else raw
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+    strength = np.minimum(np.sqrt(gx * gx + gy * gy) / saturation, 1.0)
+    wide = lambda a: cv2.GaussianBlur(a, (0, 0), spread_px)  # noqa: E731
+    txx, txy, tyy = wide(gx * gx), wide(gx * gy), wide(gy * gy)
+    trace = np.maximum(txx + tyy, 1e-6)
+    spread = np.minimum(wide(strength) * 2.0, 1.0)  # an edge blurred over ~2σ keeps about half its peak
+    return EdgeField(gx, gy, strength, txx / trace, txy / trace, tyy / trace, spread, offset)
+
+
+@dataclass(frozen=True)
+class Match:
+    """A found connector: its pose in the camera (the object's frame: the port's, or the
+    plug's tip frame), the plane's homography (object x, y in m on z = 0 → pixels,
+    undistorted), the score, the reference points' pixels
+    (distorted, as in the image), the searched window and the time taken."""
+
+    camera_from_object: np.ndarray
+    homography: np.ndarray
+    score: float
+    reference_pixels: np.ndarray
+    window: tuple[int, int, int, int]
+    seconds: float
+    #: The score of the points inside the outermost outline (`score(inner=True)`).
+    inner_score: float = float("nan")
+
+
+def project_points(cam: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) of camera-frame points (..., 3) through the pinhole K and OpenCV's
+    lens model (k1, k2, p1, p2, k3): cv2.projectPoints without its Jacobians."""
+    x = cam[..., 0] / cam[..., 2]
+    y = cam[..., 1] / cam[..., 2]
+    k1, k2, p1, p2, k3 = (list(np.asarray(dist, dtype=np.float64).ravel()) + [0.0] * 5)[:5]
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], -1)
+
+
+def _project(points: np.ndarray, pose: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    return project_points(points @ pose[:3, :3].T + pose[:3, 3], K, dist)
+
+
+def _sample(field: EdgeField, pixels: np.ndarray, layers: tuple[str, ...] = ("gx", "gy", "strength")) -> list[np.ndarray]:
+    """The named layers at pixels (full-image coordinates), nearest pixel; zero outside."""
+    x = np.rint(pixels[:, 0] - field.offset[0]).astype(np.int64)
+    y = np.rint(pixels[:, 1] - field.offset[1]).astype(np.int64)
+    h, w = field.gx.shape
+    ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    x, y = np.where(ok, x, 0), np.where(ok, y, 0)
+    return [getattr(field, name)[y, x] * ok for name in layers]
+
+
+def _image_tangents(model: ShapeModel, pose: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projected model points (M, 2), their unit image normals (M, 2) and a visibility
+    mask (M; points on faces turned towards the camera) for one pose (4, 4), or for a
+    stack of poses (P, 4, 4) with a leading P on every output."""
+    poses = np.asarray(pose, dtype=np.float64)
+    single = poses.ndim == 2
+    poses = poses[None] if single else poses
+    eps = 0.0005
+    both = np.concatenate([model.points - eps * model.tangents, model.points + eps * model.tangents])  # (2M, 3)
+    cam = np.einsum("pij,nj->pni", poses[:, :3, :3], both) + poses[:, None, :3, 3]
+    ends = project_points(cam, K, dist).reshape(len(poses), 2, -1, 2)
+    a, b = ends[:, 0], ends[:, 1]
+    centre = (a + b) / 2
+    t = b - a
+    t /= np.maximum(np.linalg.norm(t, axis=2, keepdims=True), 1e-12)
+    normal = np.stack([-t[..., 1], t[..., 0]], 2)
+    points = cam[:, : len(model.points)]  # the first ends are near enough for the test
+    facing = np.einsum("pi,pni->pn", poses[:, :3, 2], -points) > 0
+    if model.rim is not None:
+        polygon, height = model.rim
+        below = model.points[:, 2] < height - 1e-9
+        if below.any():
+            # each point's line of sight in the model's frame, crossing the rim's plane
+            eye = np.einsum("pji,pj->pi", poses[:, :3, :3], -poses[:, :3, 3])  # the camera in the model's frame
+            p = model.points[below][None]
+            t = (height - p[..., 2]) / np.where(np.abs(eye[:, None, 2] - p[..., 2]) > 1e-12, eye[:, None, 2] - p[..., 2], 1e-12)
+            cross = p[..., :2] + t[..., None] * (eye[:, None, :2] - p[..., :2])
+            seen = inside_polygon(cross.reshape(-1, 2), polygon).reshape(len(poses), -1)
+            facing[:, below] &= seen
+    if single:
+        return centre[0], normal[0], facing[0]
+    return centre, normal, facing
+
+
+def score(
+    field: EdgeField, model: ShapeModel, pose: np.ndarray, K: np.ndarray, dist: np.ndarray, *, coarse: bool = False, inner: bool = False
+) -> float | np.ndarray:
+    """The match's score at `pose` (object in the camera; or (P,) scores for (P, 4, 4)
+    poses): edge strength times the orientation's agreement, averaged over the model's
+    points that can be seen; `coarse` on the spread field (tolerates a few pixels, for
+    the search); `inner` over the points inside the outermost outline only (what tells
+    connector types apart: their outer circles are alike)."""
+    pixels, normal, visible = _image_tangents(model, pose, K, dist)
+    if inner:
+        visible = visible & ~model.outer
+    shape = pixels.shape[:-1]
+    pixels, normal = pixels.reshape(-1, 2), normal.reshape(-1, 2)
+    nx, ny = normal[:, 0], normal[:, 1]
+    if coarse:
+        txx, txy, tyy, spread = _sample(field, pixels, ("txx", "txy", "tyy", "spread"))
+        each = spread * (nx * nx * txx + 2 * nx * ny * txy + ny * ny * tyy)
+    else:
+        gx, gy, strength = _sample(field, pixels)
+        each = strength * np.abs(gx * nx + gy * ny) / np.maximum(np.hypot(gx, gy), 1e-9)
+    visible = visible.reshape(shape)
+    means = (each.reshape(shape) * visible).sum(-1) / np.maximum(visible.sum(-1), 1)
+    return float(means) if np.ndim(means) == 0 else means
+
+
+def _pose(normal_cam: np.ndarray, roll: float, centre_cam: np.ndarray) -> np.ndarray:
+    """A pose with z along `normal_cam` (towards the camera), turned by `roll` about it,
+    at `centre_cam`."""
+    z = normal_cam / np.linalg.norm(normal_cam)
+    helper = np.array([0.0, -1.0, 0.0]) if abs(z[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    y = helper - z * (helper @ z)
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, y, z], 1) @ axis_angle_matrix([0.0, 0.0, 1.0], roll)
+    pose[:3, 3] = centre_cam
+    return pose
+
+
+def _ellipses(gray: np.ndarray, lo_px: float, hi_px: float, offset: tuple[int, int] = (0, 0)) -> list[tuple[np.ndarray, float, float, np.ndarray]]:
+    """(centre, major and minor semi-axes, the minor axis' direction) of the edge
+    contours of `gray` that are ellipses with a major semi-axis in [lo_px, hi_px]."""
+    import cv2
+
+    edges = cv2.Canny(cv2.GaussianBlur(gray, (5, 5), 1.0), 10, 30)
+    contours, _ = cv2.findContours(edges, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    out = []
+    for c in contours:
+        if len(c) < max(12, lo_px):  # at least a good part of the outline
+            continue
+        (cx, cy), (w, h), angle = cv2.fitEllipse(c)
+        major, minor = max(w, h) / 2, min(w, h) / 2
+        if not lo_px <= major <= hi_px or minor < 0.5 * major:
+            continue
+        # the contour must lie on its ellipse (a circle seen at an angle), not just fill it
+        a = np.radians(angle)
+        u = c.reshape(-1, 2) - [cx, cy]
+        x = u[:, 0] * np.cos(a) + u[:, 1] * np.sin(a)
+        y = -u[:, 0] * np.sin(a) + u[:, 1] * np.cos(a)
+        radial = np.sqrt((x / max(w / 2, 1e-9)) ** 2 + (y / max(h / 2, 1e-9)) ** 2)
+        if np.median(np.abs(radial - 1.0)) > 0.06:
+            continue
+        minor_dir = np.array([np.cos(a), np.sin(a)]) if w < h else np.array([-np.sin(a), np.cos(a)])
+        out.append((np.array([cx + offset[0], cy + offset[1]]), major, minor, minor_dir))
+    return out
+
+
+def _candidates(
+    gray: np.ndarray, model: ShapeModel, K: np.ndarray, narrow: bool, distances: tuple[float, float]
+) -> list[tuple[np.ndarray, float, float, np.ndarray]]:
+    """Ellipses that could be the connector's outermost outline: in the windows of dark
+    regions of the right size (`narrow`), or anywhere in the image."""
+    import cv2
+
+    f = float(K[0, 0])
+    lo_px, hi_px = 0.8 * f * model.outer_radius / distances[1], 1.2 * f * model.outer_radius / distances[0]
+    if not narrow:
+        return _ellipses(gray, lo_px, hi_px)
+    # dark regions no bigger than the connector: a black-hat (closing minus image) with
+    # a disc a little wider than the connector at its nearest keeps those and drops
+    # larger dark areas (a dark car's whole side)
+    small = cv2.resize(gray, (gray.shape[1] // 4, gray.shape[0] // 4), interpolation=cv2.INTER_AREA)
+    size = int(1.3 * 2 * hi_px / 4) | 1
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    mask = (cv2.morphologyEx(cv2.GaussianBlur(small, (0, 0), 1.0), cv2.MORPH_BLACKHAT, disc) > 8).astype(np.uint8)
+    count, _, stats, _ = cv2.connectedComponentsWithStats(mask)
+    out = []
+    for x, y, w, h, area in stats[1:count]:
+        side = 4 * max(w, h) / 2
+        if not 0.5 * lo_px <= side <= 1.3 * hi_px or area < 0.2 * w * h:
+            continue
+        half = int(4 * max(w, h) * 0.75) + 8
+        cx, cy = 4 * (x + w / 2), 4 * (y + h / 2)
+        x0, y0 = max(int(cx) - half, 0), max(int(cy) - half, 0)
+        x1, y1 = min(int(cx) + half, gray.shape[1]), min(int(cy) + half, gray.shape[0])
+        found = _ellipses(gray[y0:y1, x0:x1], lo_px, hi_px, (x0, y0))
+        out += sorted(found, key=lambda e: -e[1])[:2]  # the outermost outline first
+    return out
+
+
+def find(
+    image: np.ndarray,
+    model: ShapeModel,
+    K: np.ndarray,
+    distortion=None,
+    *,
+    narrow: bool = True,
+    refine: bool = True,
+    distances: tuple[float, float] = (1.0, 3.0),
+    roll_step_deg: float = 3.0,
+    refine_best: int = 3,
+) -> Match | None:
+    """The best match of `model` in a colour or grey image, or None when no candidate
+    region is found. Distances (m) bound the search's scale; the `refine_best` best
+    hypotheses of the search are refined and the best of them kept."""
+    import cv2
+
+    start = time.perf_counter()
+    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else np.asarray(image, dtype=np.uint8)
+    K = np.asarray(K, dtype=np.float64)
+    dist = np.zeros(5) if distortion is None else np.asarray(distortion, dtype=np.float64)
+    found: list[tuple[float, np.ndarray, EdgeField, tuple[int, int, int, int]]] = []
+    rolls = np.radians(np.arange(0.0, 360.0, roll_step_deg))
+    outer_z = float(model.points[model.outer, 2].mean())  # the outer outline's plane in the model
+    for centre, major, minor, minor_dir in _candidates(gray, model, K, narrow, distances):
+        # a window around the region, edges only there
+        half = int(major * 1.6) + 8
+        x0, y0 = max(int(centre[0]) - half, 0), max(int(centre[1]) - half, 0)
+        x1, y1 = min(int(centre[0]) + half, gray.shape[1]), min(int(centre[1]) + half, gray.shape[0])
+        field = edge_field(gray[y0:y1, x0:x1], offset=(x0, y0))
+        ray = cv2.undistortPoints(centre.reshape(1, 1, 2), K, dist).reshape(2)
+        direction = np.array([ray[0], ray[1], 1.0])
+        direction /= np.linalg.norm(direction)
+        depth = float(K[0, 0]) * model.outer_radius / major
+        tilt = np.arccos(np.clip(minor / major, 0.0, 1.0))
+        # the tilt turns the axis away from the line of sight across the minor axis
+        across = np.array([minor_dir[0], minor_dir[1], 0.0])
+        hinge = np.cross(direction, across)
+        hinge /= np.linalg.norm(hinge)
+        for sign in (1.0, -1.0):
+            normal = axis_angle_matrix(hinge, sign * tilt) @ (-direction)
+            centre_cam = direction * depth - normal * outer_z  # the outline's centre on the ray
+            poses = np.stack([_pose(normal, roll, centre_cam) for roll in rolls])
+            scores = np.asarray(score(field, model, poses, K, dist, coarse=True))
+            k = int(np.argmax(scores))
+            found.append((float(scores[k]), poses[k], field, (x0, y0, x1, y1)))
+    if not found:
+        return None
+    # the few best hypotheses refined, the best after refinement kept
+    best: tuple[float, np.ndarray, EdgeField, tuple[int, int, int, int]] | None = None
+    for _, pose, field, window in sorted(found, key=lambda f: -f[0])[: refine_best if refine else 1]:
+        if refine:
+            pose = refine_pose([field], model, pose, [(K, dist, np.eye(4))])
+        s = float(score(field, model, pose, K, dist))
+        if best is None or s > best[0]:
+            best = (s, pose, field, window)
+    assert best is not None
+    s, pose, _, window = best
+    camera_from_object = pose @ np.linalg.inv(model.object_from_model)
+    H = K @ np.c_[camera_from_object[:3, :2], camera_from_object[:3, 3]]
+    reference = _project(model.reference, pose, K, dist)
+    inner = float(score(best[2], model, pose, K, dist, inner=True))
+    return Match(camera_from_object, H / H[2, 2], s, reference, window, time.perf_counter() - start, inner)
+
+
+def _bilinear(field: EdgeField, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(gx, gy) at sub-pixel positions (full-image coordinates); zero outside."""
+    x = pixels[:, 0] - field.offset[0]
+    y = pixels[:, 1] - field.offset[1]
+    h, w = field.gx.shape
+    ok = (x >= 0) & (x < w - 1) & (y >= 0) & (y < h - 1)
+    x0 = np.clip(np.floor(x).astype(np.int64), 0, w - 2)
+    y0 = np.clip(np.floor(y).astype(np.int64), 0, h - 2)
+    fx, fy = x - x0, y - y0
+    out = []
+    for layer in (field.gx, field.gy):
+        top = layer[y0, x0] * (1 - fx) + layer[y0, x0 + 1] * fx
+        bottom = layer[y0 + 1, x0] * (1 - fx) + layer[y0 + 1, x0 + 1] * fx
+        out.append((top * (1 - fy) + bottom * fy) * ok)
+    return out[0], out[1]
+
+
+def _edge_targets(field: EdgeField, pixels: np.ndarray, normals: np.ndarray, reach: float, min_gradient: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
+    """Per point, the signed distance (px) along its normal to the nearest local maximum
+    of the gradient along the normal within ±reach (sub-pixel, a parabola through three
+    samples half a pixel apart), and whether there is one of at least `min_gradient`
+    (Sobel units: about a quarter of it in grey levels per pixel, above the noise)."""
+    step = 0.5
+    steps = np.arange(-reach, reach + step / 2, step)
+    probes = pixels[:, None, :] + steps[None, :, None] * normals[:, None, :]
+    gx, gy = _bilinear(field, probes.reshape(-1, 2))
+    n = len(pixels)
+    along = np.abs(gx * np.repeat(normals[:, 0], len(steps)) + gy * np.repeat(normals[:, 1], len(steps))).reshape(n, len(steps))
+    inner = along[:, 1:-1]
+    peaks = (inner >= along[:, :-2]) & (inner > along[:, 2:]) & (inner > 0.3 * along.max(1, keepdims=True)) & (inner > min_gradient)
+    distance = np.where(peaks, np.abs(steps[1:-1])[None, :], np.inf)
+    k = distance.argmin(1) + 1
+    found = np.isfinite(distance.min(1))
+    rows = np.arange(n)
+    left, peak, right = along[rows, k - 1], along[rows, k], along[rows, np.minimum(k + 1, len(steps) - 1)]
+    denom = left - 2 * peak + right
+    sub = np.where(denom < 0, 0.5 * (left - right) / np.where(denom < 0, denom, -1.0), 0.0) * step
+    strong = peak > min_gradient
+    return steps[k] + sub, found & strong
+
+
+def refine_pose(
+    fields: list[EdgeField], model: ShapeModel, pose: np.ndarray, cameras: list[tuple[np.ndarray, np.ndarray, np.ndarray]], *, rounds: int = 6, reach: float = 4.0
+) -> np.ndarray:
+    """Moving edges: the object pose (in the first camera's frame) that puts the model's
+    edges on the image edges of every camera. `cameras` holds (K, distortion,
+    camera_from_first) per field."""
+    pose = np.asarray(pose, dtype=np.float64).copy()
+    for r in range(rounds):
+        rows, targets = [], []
+        for field, (K, dist, cam_from_first) in zip(fields, cameras):
+            here = cam_from_first @ pose
+            pixels, normals, visible = _image_tangents(model, here, K, dist)
+            offset, found = _edge_targets(field, pixels, normals, reach if r < rounds - 2 else 2.0)
+            use = visible & found & model.precise
+            if use.sum() < 6:
+                continue
+            # Jacobian of each point's position along its normal, by finite differences
+            jac = np.empty((int(use.sum()), 6))
+            for k in range(6):
+                delta = np.zeros(6)
+                delta[k] = 1e-6
+                moved = pose.copy()
+                moved[:3, :3] = rotation_from_vector(delta[:3]) @ pose[:3, :3]
+                moved[:3, 3] = pose[:3, 3] + delta[3:]
+                p2, _, _ = _image_tangents(model, cam_from_first @ moved, K, dist)
+                jac[:, k] = ((p2[use] - pixels[use]) * normals[use]).sum(1) / 1e-6
+            rows.append(jac)
+            targets.append(offset[use])
+        if not rows:
+            break
+        jac, residual = np.concatenate(rows), np.concatenate(targets)
+        # robust: Huber weights at 1.5 px
+        weight = np.minimum(1.0, 1.5 / np.maximum(np.abs(residual), 1e-9))
+        normal_matrix = jac.T @ (jac * weight[:, None])
+        step = np.linalg.solve(normal_matrix + 1e-9 * np.eye(6) * np.trace(normal_matrix), jac.T @ (weight * residual))
+        pose[:3, :3] = rotation_from_vector(step[:3]) @ pose[:3, :3]
+        pose[:3, 3] = pose[:3, 3] + step[3:]
+        if np.abs(step[3:]).max() < 1e-6 and np.abs(step[:3]).max() < 1e-6:
+            break
+    return pose

@@ -1,0 +1,292 @@
+"""The charging cell of Paper III in pybullet: a UR10 on a post, a verging stereo pair of
+colour cameras behind it, and the side of a parked car with a charging port.
+
+    cell = ChargingCell(ChargingCellConfig(seed=3))
+    left, right = cell.capture()                 # colour images with sensor noise
+    cell.base_from_port                          # the truth, for evaluation only
+    cell.rig                                     # the pair as a StereoRig (true poses)
+
+Layout (the robot's base frame, z up): the robot stands on a post with its base at the
+origin; the car's side faces it about a metre away along +y; the stereo pair stands
+behind the robot, its midpoint at `rig_position`, both cameras aimed at the nominal
+port ("looking slightly inwards"), so the port is 1.5-2.5 m from them. Parking is
+imperfect (`park`): the port lands anywhere in a square of `parking_area` on the car's
+side, its axis 0 to `max_angle_deg` off the direction to the cameras, turned about its
+axis by up to `max_roll_deg` (a car on a slope).
+
+The port is black plastic installed as `charging.connectors` describes: a round collar
+around a face recessed into it, a dark gap to the car's body, one hole per contact (the
+hole floors darker). The plug (Type 2 by default) rides on the
+flange in a holder, pointing along the flange's z (`flange_from_tip`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from earcore import robots
+from earcore.charging.connectors import COLLAR, GAP, RECESS, Connector, connector, hole_polygon
+from earcore.charging.stereo import StereoRig
+from earcore.errors import ConfigError
+from earcore.mesh import Mesh, densify, extrude
+from earcore.sim.camera import SimulatedCamera
+from earcore.sim.sensors import SENSORS
+from earcore.transforms import axis_angle_matrix, look_at, quaternion
+
+__all__ = ["ChargingCell", "ChargingCellConfig", "Parking", "STANDBY"]
+
+#: The UR10's stand-by joints: arm folded up and turned aside, clear of the cameras' view.
+STANDBY = np.array([-np.pi / 2, -2.4, 2.3, -1.5, -np.pi / 2, 0.0])
+
+
+@dataclass(frozen=True)
+class ChargingCellConfig:
+    seed: int = 0
+    #: The car's port and the robot's plug (`charging.connectors` names).
+    port: str = "type2"
+    plug: str = "type2"
+    robot: str = "ur10"
+    #: The port's nominal centre in the base frame (m) and the car side's normal there.
+    port_nominal: tuple[float, float, float] = (0.0, 1.0, 0.15)
+    parking_area: float = 0.20
+    max_angle_deg: float = 45.0
+    max_roll_deg: float = 5.0
+    #: The stereo pair: its midpoint, baseline (m) and camera model (`SENSORS`).
+    rig_position: tuple[float, float, float] = (-0.6, -0.8, 0.7)
+    baseline: float = 0.6
+    sensor: str = "machine_vision"
+    #: The cameras' resolution as a fraction of the sensor's (quick runs and tests).
+    camera_scale: float = 1.0
+    #: The images' noise: Gaussian, in grey levels.
+    image_noise: float = 2.0
+    #: The plug's tip from the flange: along the flange's z (m).
+    tip_offset: float = 0.14
+    car_colours: tuple[tuple[float, float, float], ...] = field(
+        default=((0.55, 0.05, 0.05), (0.1, 0.2, 0.45), (0.75, 0.75, 0.75), (0.95, 0.95, 0.93), (0.25, 0.28, 0.35), (0.15, 0.35, 0.2))
+    )
+
+    def validate(self) -> ChargingCellConfig:
+        connector(self.port), connector(self.plug)
+        if self.sensor not in SENSORS or SENSORS[self.sensor].has_depth:
+            colour = ", ".join(k for k, s in SENSORS.items() if not s.has_depth)
+            raise ConfigError(f"charging cell: sensor must be a colour camera ({colour}), got {self.sensor!r}")
+        if not 0 <= self.max_angle_deg <= 80:
+            raise ConfigError(f"charging cell: max_angle_deg must be in [0, 80], got {self.max_angle_deg}")
+        if not 0 < self.camera_scale <= 1:
+            raise ConfigError(f"charging cell: camera_scale must be in (0, 1], got {self.camera_scale}")
+        if self.baseline <= 0 or self.parking_area < 0:
+            raise ConfigError("charging cell: baseline must be positive and parking_area not negative")
+        return self
+
+
+@dataclass(frozen=True)
+class Parking:
+    """Where the car stopped: the port's pose in the base frame, its axis' angle to the
+    direction of the cameras (degrees) and its turn about its own axis (degrees)."""
+
+    base_from_port: np.ndarray
+    angle_deg: float
+    roll_deg: float
+
+
+def _upright_port(normal: np.ndarray) -> np.ndarray:
+    """A rotation with z = `normal` and y as close to the world's up as it can be."""
+    z = normal / np.linalg.norm(normal)
+    up = np.array([0.0, 0.0, 1.0])
+    x = np.cross(up, z)
+    if np.linalg.norm(x) < 1e-6:
+        x = np.array([1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], 1)
+
+
+class ChargingCell:
+    def __init__(self, config: ChargingCellConfig | None = None) -> None:
+        import pybullet
+        from pybullet_utils.bullet_client import BulletClient
+
+        self.config = c = (config or ChargingCellConfig()).validate()
+        self.rng = np.random.default_rng(c.seed)
+        self.port_connector: Connector = connector(c.port)
+        self.plug_connector: Connector = connector(c.plug)
+        self.p = p = BulletClient(pybullet.DIRECT)
+        p.setGravity(0, 0, -9.81)
+        self._static = self._build_static()
+        self.robot_id = p.loadURDF(str(robots.urdf_path(c.robot)), useFixedBase=True)
+        self.joint_ids = [j for j in range(p.getNumJoints(self.robot_id)) if p.getJointInfo(self.robot_id, j)[2] != p.JOINT_FIXED]
+        names = [p.getJointInfo(self.robot_id, j)[12].decode() for j in range(p.getNumJoints(self.robot_id))]
+        self._flange = names.index(robots.FLANGES[c.robot][0])
+        self.flange_from_tip = np.eye(4)
+        self.flange_from_tip[:3, :3] = axis_angle_matrix([1.0, 0.0, 0.0], np.pi)  # the pins point along the flange's z
+        self.flange_from_tip[2, 3] = c.tip_offset
+        self._plug = self._build_plug()
+        #: A light above and behind the cameras, ambient enough for black plastic to show.
+        self.lighting = {"lightDirection": [-0.3, -1.0, 1.5], "lightAmbientCoeff": 0.45, "lightDiffuseCoeff": 0.6, "lightSpecularCoeff": 0.0, "shadow": 0}
+        self._port_bodies: list[int] = []
+        self.parking = self.park()
+        self.set_joints(STANDBY)
+        self.cameras = self._build_cameras()
+
+    # -- the scene ---------------------------------------------------------------------------
+
+    def _mesh_body(self, mesh: Mesh, pose: np.ndarray, colour, collision: bool = False) -> int:
+        p = self.p
+        vertices, indices = mesh.vertices.tolist(), mesh.triangles.ravel().tolist()
+        # flat shading with the faces' own normals (pybullet's guessed normals band across
+        # large faces): edges stay edges, planes stay even
+        flat = mesh.unshared()
+        normals = np.repeat(mesh.face_normals(), 3, axis=0).tolist()
+        visual = p.createVisualShape(
+            p.GEOM_MESH, vertices=flat.vertices.tolist(), indices=flat.triangles.ravel().tolist(), normals=normals, rgbaColor=[*colour, 1.0]
+        )
+        shape = p.createCollisionShape(p.GEOM_MESH, vertices=vertices, indices=indices, flags=p.GEOM_FORCE_CONCAVE_TRIMESH) if collision else -1
+        return p.createMultiBody(0, shape, visual, pose[:3, 3].tolist(), list(quaternion(pose[:3, :3])))
+
+    def _box(self, centre, half, rotation: np.ndarray, colour) -> int:
+        p = self.p
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(half))
+        visual = p.createVisualShape(p.GEOM_BOX, halfExtents=list(half), rgbaColor=[*colour, 1.0])
+        return p.createMultiBody(0, shape, visual, list(centre), list(quaternion(rotation)))
+
+    def _build_static(self) -> list[int]:
+        floor = self._box((0.0, 0.0, -1.02), (4.0, 4.0, 0.02), np.eye(3), (0.55, 0.55, 0.52))
+        post = self._box((0.0, 0.0, -0.52), (0.08, 0.08, 0.5), np.eye(3), (0.35, 0.35, 0.38))
+        return [floor, post]
+
+    def park(self, rng: np.random.Generator | None = None) -> Parking:
+        """Put the car's side and its port at a new random place (imperfect parking)."""
+        c, p = self.config, self.p
+        rng = self.rng if rng is None else rng
+        for body in self._port_bodies:
+            p.removeBody(body)
+        nominal = np.asarray(c.port_nominal, dtype=np.float64)
+        facing = _upright_port(np.asarray(c.rig_position) - nominal)
+        centre = nominal + facing[:, 0] * rng.uniform(-0.5, 0.5) * c.parking_area + facing[:, 1] * rng.uniform(-0.5, 0.5) * c.parking_area
+        to_cameras = np.asarray(c.rig_position) - centre
+        to_cameras /= np.linalg.norm(to_cameras)
+        # the axis: the direction to the cameras tipped by the angle about a random line across it
+        angle = float(rng.uniform(0.0, c.max_angle_deg))
+        across = np.cross(to_cameras, rng.normal(size=3))
+        axis = axis_angle_matrix(across / np.linalg.norm(across), np.radians(angle)) @ to_cameras
+        roll = float(rng.uniform(-c.max_roll_deg, c.max_roll_deg))
+        pose = np.eye(4)
+        pose[:3, :3] = _upright_port(axis) @ axis_angle_matrix([0.0, 0.0, 1.0], np.radians(roll))
+        pose[:3, 3] = centre
+        self._port_bodies = self._build_port(pose, rng)
+        return Parking(pose, angle, roll)
+
+    def _build_port(self, base_from_port: np.ndarray, rng: np.random.Generator) -> list[int]:
+        k = self.port_connector
+        depth = k.hole_depth + 0.011
+        port = self._mesh_body(k.port_mesh(depth), base_from_port, (0.10, 0.10, 0.105), collision=True)
+        # the collar: a ring around the face, its front RECESS ahead of it
+        ring = np.linspace(0, 2 * np.pi, 97)[:-1]
+        outer = (k.radius + COLLAR) * np.stack([np.cos(ring), np.sin(ring)], 1)
+        collar_depth = depth + RECESS
+        collar_pose = base_from_port.copy()
+        collar_pose[:3, 3] = base_from_port[:3, :3] @ [0.0, 0.0, RECESS] + base_from_port[:3, 3]
+        collar = self._mesh_body(extrude(outer, collar_depth, [(k.outline, collar_depth - 0.0005)]), collar_pose, (0.17, 0.17, 0.18), collision=True)
+        # the recess' wall in the face's plastic (a thin sleeve inside the collar's opening,
+        # for the eye only): the face's outline is then sharp at the collar's front
+        inset = k.outline * (1.0 - 0.0003 / k.radius)
+        sleeve_pose = base_from_port.copy()
+        sleeve_pose[:3, 3] = base_from_port[:3, :3] @ [0.0, 0.0, RECESS - 0.0001] + base_from_port[:3, 3]
+        sleeve_depth = RECESS - 0.0002
+        sleeve = self._mesh_body(extrude(k.outline, sleeve_depth, [(inset, sleeve_depth)]), sleeve_pose, (0.10, 0.10, 0.105))
+        # the holes' floors, darker than the plastic (no ambient occlusion in the renderer)
+        floors = Mesh.union([extrude(hole_polygon(ct.x, ct.y, k.hole_radius(ct)), 0.0005) for ct in k.contacts])
+        floor_pose = base_from_port.copy()
+        floor_pose[:3, 3] = base_from_port[:3, :3] @ [0.0, 0.0, -k.hole_depth + 0.0006] + base_from_port[:3, 3]
+        dark = self._mesh_body(floors, floor_pose, (0.01, 0.01, 0.01))
+        # the car's side, flush with the collar's front, the car's colour
+        colour = self.config.car_colours[int(rng.integers(len(self.config.car_colours)))]
+        # (evenly meshed: the renderer shades per vertex, so long thin triangles would band)
+        side = densify(np.array([[-0.7, -0.45], [0.7, -0.45], [0.7, 0.45], [-0.7, 0.45]]), 0.03)
+        # with the gap every inlet has between its housing and the body (dark, GAP wide)
+        thickness = collar_depth + 0.01
+        opening = (k.radius + COLLAR + GAP) * np.stack([np.cos(ring), np.sin(ring)], 1)
+        panel = self._mesh_body(extrude(side, thickness, [(opening, thickness - 0.0005)], spacing=0.03), collar_pose, colour, collision=True)
+        gap_pose = collar_pose.copy()
+        gap_pose[:3, 3] = collar_pose[:3, :3] @ [0.0, 0.0, -0.001] + collar_pose[:3, 3]  # shallow: its walls hide little at an angle
+        gap = self._mesh_body(extrude(opening, 0.0005, [(outer, 0.0005)]), gap_pose, (0.02, 0.02, 0.02))
+        return [port, collar, sleeve, dark, panel, gap]
+
+    def _build_plug(self) -> list[int]:
+        k = self.plug_connector
+        body = self._mesh_body(k.plug_body_mesh(0.07), np.eye(4), (0.12, 0.12, 0.13))
+        pins = self._mesh_body(Mesh.union(k.pin_meshes()), np.eye(4), (0.75, 0.68, 0.45))
+        return [body, pins]
+
+    def _build_cameras(self) -> list[SimulatedCamera]:
+        c = self.config
+        sensor = SENSORS[c.sensor] if c.camera_scale == 1.0 else SENSORS[c.sensor].scaled(c.camera_scale)
+        middle = np.asarray(c.rig_position, dtype=np.float64)
+        target = np.asarray(c.port_nominal, dtype=np.float64)
+        forward = (target - middle) / np.linalg.norm(target - middle)
+        side = np.cross(forward, [0.0, 0.0, 1.0])
+        side /= np.linalg.norm(side)
+        out: list[SimulatedCamera] = []
+        for name, sign in (("left", -1.0), ("right", 1.0)):
+            pose = look_at(middle + sign * side * c.baseline / 2, target)
+            out.append(SimulatedCamera(self.p, name, sensor, pose, rng=np.random.default_rng([c.seed, len(out)]), lighting=self.lighting))
+        return out
+
+    # -- the robot -----------------------------------------------------------------------------
+
+    def set_joints(self, q) -> None:
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (len(self.joint_ids),):
+            raise ValueError(f"expected {len(self.joint_ids)} joints, got shape {q.shape}")
+        for j, v in zip(self.joint_ids, q):
+            self.p.resetJointState(self.robot_id, j, float(v))
+        self._place_plug()
+
+    @property
+    def joints(self) -> np.ndarray:
+        return np.array([self.p.getJointState(self.robot_id, j)[0] for j in self.joint_ids])
+
+    def base_from_flange(self) -> np.ndarray:
+        state = self.p.getLinkState(self.robot_id, self._flange, computeForwardKinematics=True)
+        m = np.eye(4)
+        m[:3, :3] = np.reshape(self.p.getMatrixFromQuaternion(state[5]), (3, 3))
+        m[:3, 3] = state[4]
+        return m
+
+    def base_from_tip(self) -> np.ndarray:
+        return self.base_from_flange() @ self.flange_from_tip
+
+    def _place_plug(self) -> None:
+        pose = self.base_from_tip()
+        x, y, z, w = quaternion(pose[:3, :3])
+        for body in self._plug:
+            self.p.resetBasePositionAndOrientation(body, pose[:3, 3].tolist(), [x, y, z, w])
+
+    # -- seeing ----------------------------------------------------------------------------------
+
+    @property
+    def base_from_port(self) -> np.ndarray:
+        return self.parking.base_from_port.copy()
+
+    @property
+    def rig(self) -> StereoRig:
+        """The stereo pair with its true intrinsics and relative pose."""
+        left, right = self.cameras
+        sensor = left.sensor
+        dist = np.asarray(sensor.distortion, dtype=np.float64)
+        right_from_left = np.linalg.inv(right.base_from_camera) @ left.base_from_camera
+        return StereoRig(sensor.intrinsics, sensor.intrinsics, right_from_left, dist, dist.copy(), (sensor.width, sensor.height))
+
+    def capture(self) -> tuple[np.ndarray, np.ndarray]:
+        """Both cameras' colour images (H, W, 3 uint8) with the sensor's noise."""
+        out = []
+        for camera in self.cameras:
+            image = camera.render_colour().astype(np.float64)
+            if self.config.image_noise > 0:
+                image += camera.rng.normal(0.0, self.config.image_noise, image.shape)
+            out.append(np.clip(np.rint(image), 0, 255).astype(np.uint8))
+        return out[0], out[1]
+
+    def close(self) -> None:
+        self.p.disconnect()
