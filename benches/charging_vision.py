@@ -1,0 +1,119 @@
+"""The charging station's vision on the simulated cell: the port found in both images
+(narrowed to dark regions and over the full image), the time per image pair, the
+reference points' pixel error, and the port's pose against the simulation's truth by
+the paper's path (pins triangulated, plane fit and layout) and by the model fitted to
+both images at once.
+
+    PYTHONPATH=python python benches/charging_vision.py --parkings 20 --out benches/out/charging-vision
+
+Each parking is rendered once (both cameras, seeded) and matched with each mode; the
+report (report.md, results.json) gives medians, 90th percentiles and the worst case.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--parkings", type=int, default=20)
+    parser.add_argument("--port", default="type2", help="the car's connector: type2 or type1")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--camera-scale", type=float, default=1.0)
+    parser.add_argument("--repeats", type=int, default=3, help="timings: the best of this many runs per image pair")
+    parser.add_argument("--out", type=Path, default=Path("benches/out/charging-vision"))
+    args = parser.parse_args(argv)
+
+    import cv2
+
+    from earcore.charging.connectors import connector
+    from earcore.charging.matching import ShapeModel, edge_field, find, project_points, refine_pose
+    from earcore.charging.port_pose import pose_from_points
+    from earcore.charging.stereo import triangulate
+    from earcore.sim.charging_cell import ChargingCell, ChargingCellConfig
+    from earcore.transforms import rotation_angle
+
+    sys_info = f"{args.parkings} parkings, port {args.port}, seed {args.seed}, camera scale {args.camera_scale}"
+    cell = ChargingCell(ChargingCellConfig(seed=args.seed, port=args.port, camera_scale=args.camera_scale))
+    k = connector(args.port)
+    model = ShapeModel.port(k)
+    rig = cell.rig
+    cameras = [(rig.K_left, rig.dist_left, np.eye(4)), (rig.K_right, rig.dist_right, rig.right_from_left)]
+    rng = np.random.default_rng(args.seed)
+    rows = []
+    for i in range(args.parkings):
+        parking = cell.park(rng) if i else cell.parking
+        images = cell.capture()
+        truth = np.linalg.inv(cell.cameras[0].base_from_camera) @ parking.base_from_port
+        row: dict = {"angle_deg": parking.angle_deg, "distance_m": float(np.linalg.norm(truth[:3, 3]))}
+        for narrow in (True, False):
+            mode = "narrowed" if narrow else "full"
+            best = np.inf
+            matches = []
+            for _ in range(args.repeats):
+                start = time.perf_counter()
+                matches = [find(image, model, rig.K_left, rig.dist_left, narrow=narrow) for image in images]
+                best = min(best, time.perf_counter() - start)
+            row[f"{mode}_ms"] = 1000 * best
+            row[f"{mode}_found"] = all(m is not None for m in matches)
+            if not row[f"{mode}_found"] or not narrow:
+                continue
+            errors = []
+            for m, (K, dist, from_left) in zip(matches, cameras):
+                pose = from_left @ truth
+                expected = project_points(k.reference_points @ pose[:3, :3].T + pose[:3, 3], K, dist)
+                errors.append(float(np.abs(m.reference_pixels - expected).max()))
+            row["reference_px"] = max(errors)
+            row["scores"] = [m.score for m in matches]
+            points = triangulate(rig, matches[0].reference_pixels, matches[1].reference_pixels)
+            plane = pose_from_points(k.reference_points, points).camera_from_port
+            fields = [edge_field(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)) for image in images]
+            both = refine_pose(fields, model, plane, cameras)
+            for name, estimate in (("plane", plane), ("both", both)):
+                relative = estimate[:3, :3].T @ truth[:3, :3]
+                row[f"{name}_mm"] = 1000 * float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
+                row[f"{name}_deg"] = float(np.degrees(rotation_angle(estimate[:3, :3], truth[:3, :3])))
+                row[f"{name}_turn_deg"] = float(abs(np.degrees(np.arctan2(relative[1, 0], relative[0, 0]))))
+        rows.append(row)
+        print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
+    cell.close()
+
+    def stat(key: str) -> str:
+        values = np.array([r[key] for r in rows if key in r], dtype=float)
+        if not len(values):
+            return "–"
+        return f"{np.median(values):.2f} / {np.percentile(values, 90):.2f} / {values.max():.2f}"
+
+    found = {mode: sum(r[f"{mode}_found"] for r in rows) for mode in ("narrowed", "full")}
+    lines = [
+        f"# Charging station vision ({sys_info})",
+        "",
+        "| Quantity | median / p90 / worst |",
+        "|---|---|",
+        f"| matching, narrowed, per image pair (ms) | {stat('narrowed_ms')} |",
+        f"| matching, full image, per image pair (ms) | {stat('full_ms')} |",
+        f"| reference points, pixel error (worst of the pair) | {stat('reference_px')} |",
+        f"| pose, paper (pins, plane, layout): position (mm) | {stat('plane_mm')} |",
+        f"| pose, paper: rotation (°) | {stat('plane_deg')} |",
+        f"| pose, paper: turn about the axis (°) | {stat('plane_turn_deg')} |",
+        f"| pose, both images: position (mm) | {stat('both_mm')} |",
+        f"| pose, both images: rotation (°) | {stat('both_deg')} |",
+        f"| pose, both images: turn about the axis (°) | {stat('both_turn_deg')} |",
+        "",
+        f"Found in both images: narrowed {found['narrowed']}/{len(rows)}, full image {found['full']}/{len(rows)}.",
+    ]
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "report.md").write_text("\n".join(lines) + "\n")
+    (args.out / "results.json").write_text(json.dumps(rows, indent=1))
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
