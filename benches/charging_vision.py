@@ -1,8 +1,8 @@
-"""The charging station's vision on the simulated cell: the port found in both images
-(narrowed to dark regions and over the full image), the time per image pair, the
-reference points' pixel error, and the port's pose against the simulation's truth by
-the paper's path (pins triangulated, plane fit and layout) and by the model fitted to
-both images at once.
+"""The charging station's vision on the simulated cell (`charging.locate`): the port
+found in both images (narrowed to dark regions and over the full image), the time per
+image pair, the reference points' pixel error, and the port's pose against the
+simulation's truth by the paper's route (pins triangulated, plane fit and layout) and
+by the model fitted to both images at once.
 
     PYTHONPATH=python python benches/charging_vision.py --parkings 20 --out benches/out/charging-vision
 
@@ -30,12 +30,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("benches/out/charging-vision"))
     args = parser.parse_args(argv)
 
-    import cv2
-
     from earcore.charging.connectors import connector
-    from earcore.charging.matching import ShapeModel, edge_field, find, project_points, refine_pose
-    from earcore.charging.port_pose import pose_from_points
-    from earcore.charging.stereo import triangulate
+    from earcore.charging.locate import locate
+    from earcore.charging.matching import ShapeModel, project_points
     from earcore.sim.charging_cell import ChargingCell, ChargingCellConfig
     from earcore.transforms import rotation_angle
 
@@ -44,44 +41,40 @@ def main(argv: list[str] | None = None) -> int:
     k = connector(args.port)
     model = ShapeModel.port(k)
     rig = cell.rig
-    cameras = [(rig.K_left, rig.dist_left, np.eye(4)), (rig.K_right, rig.dist_right, rig.right_from_left)]
     rng = np.random.default_rng(args.seed)
     rows = []
     for i in range(args.parkings):
         parking = cell.park(rng) if i else cell.parking
-        images = cell.capture()
+        left, right = cell.capture()
         truth = np.linalg.inv(cell.cameras[0].base_from_camera) @ parking.base_from_port
         row: dict = {"angle_deg": parking.angle_deg, "distance_m": float(np.linalg.norm(truth[:3, 3]))}
+        estimate = None
         for narrow in (True, False):
             mode = "narrowed" if narrow else "full"
             best = np.inf
-            matches = []
             for _ in range(args.repeats):
                 start = time.perf_counter()
-                matches = [find(image, model, rig.K_left, rig.dist_left, narrow=narrow) for image in images]
+                found = locate(left, right, model, rig, narrow=narrow)
                 best = min(best, time.perf_counter() - start)
+                estimate = found if narrow else estimate
             row[f"{mode}_ms"] = 1000 * best
-            row[f"{mode}_found"] = all(m is not None for m in matches)
-            if not row[f"{mode}_found"] or not narrow:
-                continue
-            errors = []
-            for m, (K, dist, from_left) in zip(matches, cameras):
-                pose = from_left @ truth
-                expected = project_points(k.reference_points @ pose[:3, :3].T + pose[:3, 3], K, dist)
-                errors.append(float(np.abs(m.reference_pixels - expected).max()))
-            row["reference_px"] = max(errors)
-            row["scores"] = [m.score for m in matches]
-            points = triangulate(rig, matches[0].reference_pixels, matches[1].reference_pixels)
-            plane = pose_from_points(k.reference_points, points).camera_from_port
-            fields = [edge_field(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)) for image in images]
-            both = refine_pose(fields, model, plane, cameras)
-            for name, estimate in (("plane", plane), ("both", both)):
-                relative = estimate[:3, :3].T @ truth[:3, :3]
-                row[f"{name}_mm"] = 1000 * float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
-                row[f"{name}_deg"] = float(np.degrees(rotation_angle(estimate[:3, :3], truth[:3, :3])))
-                row[f"{name}_turn_deg"] = float(abs(np.degrees(np.arctan2(relative[1, 0], relative[0, 0]))))
+            row[f"{mode}_found"] = found is not None
+        if estimate is None:
+            rows.append(row)
+            continue
+        errors = []
+        for match, (K, dist, from_left) in zip(estimate.matches, ((rig.K_left, rig.dist_left, np.eye(4)), (rig.K_right, rig.dist_right, rig.right_from_left))):
+            pose = from_left @ truth
+            expected = project_points(k.reference_points @ pose[:3, :3].T + pose[:3, 3], K, dist)
+            errors.append(float(np.abs(match.reference_pixels - expected).max()))
+        row.update(reference_px=max(errors), scores=[m.score for m in estimate.matches], fit_mm=estimate.fit_mm, flagged=estimate.flagged)
+        for name, pose in (("plane", estimate.paper), ("both", estimate.camera_from_port)):
+            relative = pose[:3, :3].T @ truth[:3, :3]
+            row[f"{name}_mm"] = 1000 * float(np.linalg.norm(pose[:3, 3] - truth[:3, 3]))
+            row[f"{name}_deg"] = float(np.degrees(rotation_angle(pose[:3, :3], truth[:3, :3])))
+            row[f"{name}_turn_deg"] = float(abs(np.degrees(np.arctan2(relative[1, 0], relative[0, 0]))))
         rows.append(row)
-        print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
+        print(json.dumps({key: (round(v, 3) if isinstance(v, float) else v) for key, v in row.items()}), flush=True)
     cell.close()
 
     def stat(key: str) -> str:
@@ -106,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
         f"| pose, both images: rotation (°) | {stat('both_deg')} |",
         f"| pose, both images: turn about the axis (°) | {stat('both_turn_deg')} |",
         "",
-        f"Found in both images: narrowed {found['narrowed']}/{len(rows)}, full image {found['full']}/{len(rows)}.",
+        f"Found in both images: narrowed {found['narrowed']}/{len(rows)}, full image {found['full']}/{len(rows)}; "
+        f"flagged: {sum(bool(r.get('flagged')) for r in rows)}.",
     ]
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "report.md").write_text("\n".join(lines) + "\n")

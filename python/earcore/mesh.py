@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Mesh", "densify", "extrude", "inside_polygon", "polygon_area", "triangulate"]
+__all__ = ["Mesh", "densify", "extrude", "inside_polygon", "offset_polygon", "polygon_area", "triangulate"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +75,19 @@ def densify(polygon: np.ndarray, max_edge: float) -> np.ndarray:
     return np.concatenate(out)
 
 
+def offset_polygon(polygon: np.ndarray, distance: float) -> np.ndarray:
+    """A counter-clockwise polygon moved outwards by `distance` (inwards when negative):
+    each corner along its bisector, so every edge moves by `distance` (mitred corners;
+    for distances small against the edges)."""
+    p = np.asarray(polygon, dtype=np.float64)
+    before, after = p - np.roll(p, 1, axis=0), np.roll(p, -1, axis=0) - p
+    n1 = np.stack([before[:, 1], -before[:, 0]], 1) / np.linalg.norm(before, axis=1, keepdims=True)
+    n2 = np.stack([after[:, 1], -after[:, 0]], 1) / np.linalg.norm(after, axis=1, keepdims=True)
+    bisector = n1 + n2
+    scale = 2.0 / np.maximum((bisector * bisector).sum(1), 1e-12)  # |b|² = 2(1 + cos): length d/cos(half angle)
+    return p + distance * bisector * scale[:, None]
+
+
 def inside_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     """Whether points (P, 2) lie inside a simple polygon (N, 2): the even-odd rule."""
     x, y = points[:, 0:1], points[:, 1:2]
@@ -98,6 +111,10 @@ def _check_polygon(polygon: np.ndarray, name: str) -> np.ndarray:
     p = np.asarray(polygon, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 2 or len(p) < 3:
         raise ValueError(f"{name}: expected a polygon (N >= 3, 2), got shape {p.shape}")
+    if not np.isfinite(p).all():
+        raise ValueError(f"{name}: the polygon has non-finite coordinates")
+    if (np.linalg.norm(p - np.roll(p, -1, axis=0), axis=1) <= 0).any():
+        raise ValueError(f"{name}: the polygon repeats a vertex (give each corner once; the ring closes by itself)")
     if polygon_area(p) <= 0:
         raise ValueError(f"{name}: the polygon must be counter-clockwise with a positive area")
     return p
@@ -144,6 +161,14 @@ def triangulate(outline: np.ndarray, holes: Sequence[np.ndarray] = (), spacing: 
     for h in polygons[1:]:
         keep &= ~inside_polygon(centres, h)
     triangles = triangles[keep]
+    edges = {frozenset(e) for t in triangles.tolist() for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
+    start = 0
+    for k, poly in enumerate(polygons):
+        ring = range(start, start + len(poly))
+        if any(frozenset((i, j)) not in edges for i, j in zip(ring, [*ring[1:], ring[0]])):
+            what = "the outline" if k == 0 else f"hole {k - 1}"
+            raise ValueError(f"triangulate: an edge of {what} was lost; a hole is too close to another or to the outline for its edges' length (densify them)")
+        start += len(poly)
     a, b, c = (points[triangles[:, i]] for i in range(3))
     turn = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
     triangles[turn < 0] = triangles[turn < 0][:, ::-1]
@@ -168,7 +193,14 @@ def extrude(outline: np.ndarray, depth: float, holes: Sequence[tuple[np.ndarray,
     for k, (_, d) in enumerate(holes):
         if not 0 < d <= depth:
             raise ValueError(f"extrude: hole {k}'s depth {d} must be in (0, {depth}]")
-    polygons = [np.asarray(h, dtype=np.float64) for h, _ in holes]
+    polygons = [_check_polygon(h, f"hole {k}") for k, (h, _) in enumerate(holes)]
+    outline = _check_polygon(outline, "outline")
+    for k, h in enumerate(polygons):
+        if not inside_polygon(h, outline).all() or inside_polygon(outline, h).any():
+            raise ValueError(f"extrude: hole {k} is not inside the outline")
+        for j, other in enumerate(polygons[:k]):
+            if inside_polygon(h, other).any() or inside_polygon(other, h).any():
+                raise ValueError(f"extrude: holes {j} and {k} overlap")
     depths = [float(d) for _, d in holes]
     through = [p for p, d in zip(polygons, depths) if d == depth]
     face, face_tris = triangulate(outline, polygons, spacing)
@@ -188,10 +220,9 @@ def extrude(outline: np.ndarray, depth: float, holes: Sequence[tuple[np.ndarray,
             triangles.append(_wall(ring, np.arange(back_start, back_start + m), outward=False))
             back_start += m
             continue
-        bottom = np.arange(n, n + m)
-        centre = n + m
-        vertices += [np.c_[polygon, np.full(m, -d)], [[*polygon.mean(0), -d]]]
-        triangles.append(_wall(ring, bottom, outward=False))
-        triangles.append(np.c_[np.full(m, centre), bottom, np.roll(bottom, -1)])  # the hole's floor faces up
-        n += m + 1
+        floor, floor_tris = triangulate(polygon, (), spacing)  # its first points are the polygon's
+        vertices.append(np.c_[floor, np.full(len(floor), -d)])
+        triangles.append(_wall(ring, np.arange(n, n + m), outward=False))
+        triangles.append(floor_tris + n)  # the hole's floor faces up
+        n += len(floor)
     return Mesh(np.concatenate(vertices).astype(np.float64), np.concatenate(triangles).astype(np.int64))

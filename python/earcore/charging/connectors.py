@@ -30,9 +30,9 @@ from functools import cached_property
 import numpy as np
 
 from earcore.errors import ConfigError
-from earcore.mesh import Mesh, densify, extrude
+from earcore.mesh import Mesh, densify, extrude, offset_polygon
 
-__all__ = ["COLLAR", "CONNECTORS", "GAP", "RECESS", "Connector", "Contact", "connector", "hole_polygon"]
+__all__ = ["COLLAR", "CONNECTORS", "GAP", "PLUG_CLEARANCE", "RECESS", "Connector", "Contact", "connector", "hole_polygon"]
 
 #: Points around a contact's hole or pin (a polygon inscribed in its circle).
 SEGMENTS = 32
@@ -42,6 +42,8 @@ SEGMENTS = 32
 COLLAR = 0.010
 RECESS = 0.006
 GAP = 0.002
+#: How much smaller than the port's face outline the plug's nose is (m).
+PLUG_CLEARANCE = 0.0005
 
 
 @dataclass(frozen=True)
@@ -98,12 +100,17 @@ class Connector:
         return extrude(self.outline, depth, holes)
 
     def plug_body_mesh(self, length: float = 0.06) -> Mesh:
-        """The plug's body in its tip frame: the face's outline from its front face
-        (z = 0) back to z = `length`."""
-        body = extrude(self.outline, length)
+        """The plug's body in its tip frame: a nose of the face's outline (PLUG_CLEARANCE
+        inside it) from the front face (z = 0) back to RECESS, the depth it enters an
+        installed port's recess, then a round shell as wide as the port's collar back to
+        z = `length`."""
         shift = np.eye(4)
+        shift[2, 3] = RECESS
+        nose = extrude(offset_polygon(self.outline, -PLUG_CLEARANCE), RECESS).moved(shift)
+        angles = np.linspace(0, 2 * np.pi, 97)[:-1]
+        shell = extrude((self.radius + COLLAR) * np.stack([np.cos(angles), np.sin(angles)], 1), length - RECESS)
         shift[2, 3] = length
-        return body.moved(shift)
+        return Mesh.union([nose, shell.moved(shift)])
 
     def pin_meshes(self) -> list[Mesh]:
         """One solid pin per contact in the tip frame, standing out of the front face

@@ -26,6 +26,8 @@ The score is the mean over model points of the edge strength (saturated) times t
 agreement of the image gradient's orientation with the model's edge normal (|cos|, so
 either contrast polarity counts): 1 for a perfect, strong match, about 0.5·strength
 for clutter. `min_score` flags doubtful matches (the paper's reflections case).
+`score` and `refine_pose` work in the model's frame (`camera_from_model`, the port's
+own frame; for the plug its tip frame turned about x); `Match` gives the object's.
 """
 
 from __future__ import annotations
@@ -35,11 +37,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from earcore.charging.connectors import COLLAR, GAP, RECESS, Connector
-from earcore.mesh import inside_polygon
+from earcore.charging.connectors import COLLAR, GAP, PLUG_CLEARANCE, RECESS, Connector
+from earcore.mesh import inside_polygon, offset_polygon
 from earcore.transforms import axis_angle_matrix, rotation_from_vector
 
-__all__ = ["EdgeField", "Match", "ShapeModel", "edge_field", "find", "project_points", "refine_pose", "score"]
+__all__ = ["EdgeField", "Match", "ShapeModel", "edge_field", "find", "find_all", "project_points", "refine_pose", "score"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,10 @@ class ShapeModel:
     outer_radius: float
     outer: np.ndarray
     object_from_model: np.ndarray
+    #: Each point's outward normal in its face (M, 3) and the side expected brighter:
+    #: +1 outside, −1 inside, 0 either (a point's edge may take any contrast).
+    normals: np.ndarray
+    polarity: np.ndarray
     #: Points whose edges are sharp outlines (refinement uses them; the holes' edges are
     #: blurred by their walls seen at an angle: they help find the turn, not refine it).
     precise: np.ndarray
@@ -78,25 +84,28 @@ class ShapeModel:
     def _build(
         cls,
         name: str,
-        rings: list[tuple[np.ndarray, float, bool, bool]],
+        rings: list[tuple[np.ndarray, float, bool, bool, int]],
         reference: np.ndarray,
         outer_radius: float,
         spacing: float,
         object_from_model: np.ndarray,
         rim: tuple[np.ndarray, float] | None = None,
     ) -> ShapeModel:
-        points, tangents, outer, precise = [], [], [], []
-        for polygon, z, is_outer, is_precise in rings:
+        points, tangents, outer, precise, polarity = [], [], [], [], []
+        for polygon, z, is_outer, is_precise, brighter in rings:
             p, t = cls._ring(polygon, z, spacing)
             points.append(p)
             tangents.append(t)
             outer.append(np.full(len(p), is_outer))
             precise.append(np.full(len(p), is_precise))
+            polarity.append(np.full(len(p), brighter))
+        t = np.concatenate(tangents)
+        normals = np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], 1)  # outward of counter-clockwise rings
         model_from_object = np.linalg.inv(object_from_model)[:3, :3]
         return cls(
-            name, np.concatenate(points) @ model_from_object.T, np.concatenate(tangents) @ model_from_object.T,
+            name, np.concatenate(points) @ model_from_object.T, t @ model_from_object.T,
             np.asarray(reference) @ model_from_object.T, outer_radius, np.concatenate(outer), object_from_model,
-            np.concatenate(precise), rim,
+            normals @ model_from_object.T, np.concatenate(polarity).astype(np.int8), np.concatenate(precise), rim,
         )  # fmt: skip
 
     @classmethod
@@ -108,26 +117,32 @@ class ShapeModel:
         radius = k.radius + COLLAR + GAP
         angles = np.linspace(0, 2 * np.pi, 97)[:-1]
         circle = np.stack([np.cos(angles), np.sin(angles)], 1)
-        rings = [(circle * radius, RECESS, True, True), (k.outline, RECESS, False, True)]
+        # the car's paint outside the dark gap, the collar outside the recess, the face around the holes
+        rings = [(circle * radius, RECESS, True, True, 1), (k.outline, RECESS, False, True, 1)]
         for c in k.contacts:
             a = np.linspace(0, 2 * np.pi, 17)[:-1]
             r = k.hole_radius(c)
-            rings.append((np.stack([c.x + r * np.cos(a), c.y + r * np.sin(a)], 1), 0.0, False, False))
+            rings.append((np.stack([c.x + r * np.cos(a), c.y + r * np.sin(a)], 1), 0.0, False, False, 1))
         return cls._build(f"{k.name} port", rings, k.reference_points, radius, spacing, np.eye(4), (k.outline, RECESS))
 
     @classmethod
     def plug(cls, k: Connector, spacing: float = 0.0015) -> ShapeModel:
-        """The robot's plug seen from the front: its body's outline (front face, z = 0)
-        and the pins' tips (z = −pin_length) in the tip frame, whose z points away from a
-        viewer the pins point at (the model's frame is the tip's turned about x)."""
-        rings = [(k.outline, 0.0, True, True)]
+        """The robot's plug seen from the front (`Connector.plug_body_mesh`): the round
+        shell's front (the outermost outline, at z = RECESS), the nose's outline at the
+        front face (z = 0) and the pins' tips (z = −pin_length), in the tip frame, whose z
+        points away from a viewer the pins point at (the model's frame is the tip's
+        turned about x)."""
+        angles = np.linspace(0, 2 * np.pi, 97)[:-1]
+        shell = (k.radius + COLLAR) * np.stack([np.cos(angles), np.sin(angles)], 1)
+        # anything behind the shell, the same plastic around the nose, the metal pins brighter than it
+        rings = [(shell, RECESS, True, True, 0), (offset_polygon(k.outline, -PLUG_CLEARANCE), 0.0, False, True, 0)]
         for c in k.contacts:
             a = np.linspace(0, 2 * np.pi, 13)[:-1]
-            rings.append((np.stack([c.x + c.radius * np.cos(a), c.y + c.radius * np.sin(a)], 1), -k.pin_length, False, True))
+            rings.append((np.stack([c.x + c.radius * np.cos(a), c.y + c.radius * np.sin(a)], 1), -k.pin_length, False, True, -1))
         reference = k.reference_points - [0.0, 0.0, k.pin_length]
         turned = np.eye(4)
         turned[:3, :3] = axis_angle_matrix([1.0, 0.0, 0.0], np.pi)
-        return cls._build(f"{k.name} plug", rings, reference, k.radius, spacing, turned)
+        return cls._build(f"{k.name} plug", rings, reference, k.radius + COLLAR, spacing, turned)
 
 
 @dataclass(frozen=True)
@@ -177,6 +192,9 @@ class Match:
     seconds: float
     #: The score of the points inside the outermost outline (`score(inner=True)`).
     inner_score: float = float("nan")
+    #: Whether the score is below the `min_score` the match was found with: a doubtful
+    #: match (a reflection, a partial view) that must not be acted on.
+    flagged: bool = False
 
 
 def project_points(cam: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
@@ -207,21 +225,23 @@ def _sample(field: EdgeField, pixels: np.ndarray, layers: tuple[str, ...] = ("gx
 
 
 def _image_tangents(model: ShapeModel, pose: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Projected model points (M, 2), their unit image normals (M, 2) and a visibility
+    """Projected model points (M, 2), their unit image normals (M, 2, pointing out of
+    their rings) and a visibility
     mask (M; points on faces turned towards the camera) for one pose (4, 4), or for a
     stack of poses (P, 4, 4) with a leading P on every output."""
     poses = np.asarray(pose, dtype=np.float64)
     single = poses.ndim == 2
     poses = poses[None] if single else poses
     eps = 0.0005
-    both = np.concatenate([model.points - eps * model.tangents, model.points + eps * model.tangents])  # (2M, 3)
+    both = np.concatenate([model.points - eps * model.tangents, model.points + eps * model.tangents, model.points + eps * model.normals])  # (3M, 3)
     cam = np.einsum("pij,nj->pni", poses[:, :3, :3], both) + poses[:, None, :3, 3]
-    ends = project_points(cam, K, dist).reshape(len(poses), 2, -1, 2)
-    a, b = ends[:, 0], ends[:, 1]
+    ends = project_points(cam, K, dist).reshape(len(poses), 3, -1, 2)
+    a, b, out = ends[:, 0], ends[:, 1], ends[:, 2]
     centre = (a + b) / 2
     t = b - a
     t /= np.maximum(np.linalg.norm(t, axis=2, keepdims=True), 1e-12)
     normal = np.stack([-t[..., 1], t[..., 0]], 2)
+    normal *= np.where(((out - centre) * normal).sum(2, keepdims=True) < 0, -1.0, 1.0)  # pointing out of the ring
     points = cam[:, : len(model.points)]  # the first ends are near enough for the test
     facing = np.einsum("pi,pni->pn", poses[:, :3, 2], -points) > 0
     if model.rim is not None:
@@ -240,10 +260,16 @@ def _image_tangents(model: ShapeModel, pose: np.ndarray, K: np.ndarray, dist: np
     return centre, normal, facing
 
 
+def _agreement(along: np.ndarray, polarity: np.ndarray) -> np.ndarray:
+    """The gradient along the outward normal, counted with the expected polarity: |.|
+    where either contrast will do, only the expected sign otherwise."""
+    return np.where(polarity == 0, np.abs(along), np.maximum(polarity * along, 0.0))
+
+
 def score(
     field: EdgeField, model: ShapeModel, pose: np.ndarray, K: np.ndarray, dist: np.ndarray, *, coarse: bool = False, inner: bool = False
 ) -> float | np.ndarray:
-    """The match's score at `pose` (object in the camera; or (P,) scores for (P, 4, 4)
+    """The match's score at `pose` (`camera_from_model`; or (P,) scores for (P, 4, 4)
     poses): edge strength times the orientation's agreement, averaged over the model's
     points that can be seen; `coarse` on the spread field (tolerates a few pixels, for
     the search); `inner` over the points inside the outermost outline only (what tells
@@ -259,7 +285,8 @@ def score(
         each = spread * (nx * nx * txx + 2 * nx * ny * txy + ny * ny * tyy)
     else:
         gx, gy, strength = _sample(field, pixels)
-        each = strength * np.abs(gx * nx + gy * ny) / np.maximum(np.hypot(gx, gy), 1e-9)
+        polarity = np.broadcast_to(model.polarity, shape).reshape(-1)
+        each = strength * _agreement(gx * nx + gy * ny, polarity) / np.maximum(np.hypot(gx, gy), 1e-9)
     visible = visible.reshape(shape)
     means = (each.reshape(shape) * visible).sum(-1) / np.maximum(visible.sum(-1), 1)
     return float(means) if np.ndim(means) == 0 else means
@@ -340,7 +367,13 @@ def _candidates(
     return out
 
 
-def find(
+def find(image: np.ndarray, model: ShapeModel, K: np.ndarray, distortion=None, **options) -> Match | None:
+    """The best match of `model` in the image, or None (`find_all`'s options)."""
+    found = find_all(image, model, K, distortion, **options)
+    return found[0] if found else None
+
+
+def find_all(
     image: np.ndarray,
     model: ShapeModel,
     K: np.ndarray,
@@ -350,15 +383,26 @@ def find(
     refine: bool = True,
     distances: tuple[float, float] = (1.0, 3.0),
     roll_step_deg: float = 3.0,
-    refine_best: int = 3,
-) -> Match | None:
-    """The best match of `model` in a colour or grey image, or None when no candidate
-    region is found. Distances (m) bound the search's scale; the `refine_best` best
-    hypotheses of the search are refined and the best of them kept."""
+    refine_best: int = 4,
+    min_score: float = 0.55,
+) -> list[Match]:
+    """The refined hypotheses of `model` in a colour or grey image, best first (empty
+    when no candidate region is found). A single image cannot tell a planar pattern
+    tilted one way from the same tilted the other way (they look alike up to
+    perspective); `charging.locate` settles that with the second camera. Distances (m) bound the search's scale; the `refine_best` best
+    hypotheses of the search are refined and the best of them kept; a match scoring
+    under `min_score` comes back `flagged`. The image is 8-bit: (H, W) grey, (H, W, 3)
+    RGB or (H, W, 4) RGBA."""
     import cv2
 
     start = time.perf_counter()
-    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else np.asarray(image, dtype=np.uint8)
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] in (3, 4))):
+        raise ValueError(f"find: expected an 8-bit grey, RGB or RGBA image, got {image.dtype} of shape {image.shape}")
+    if image.ndim == 2:
+        gray = image
+    else:
+        gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY if image.shape[2] == 3 else cv2.COLOR_RGBA2GRAY)
     K = np.asarray(K, dtype=np.float64)
     dist = np.zeros(5) if distortion is None else np.asarray(distortion, dtype=np.float64)
     found: list[tuple[float, np.ndarray, EdgeField, tuple[int, int, int, int]]] = []
@@ -387,22 +431,19 @@ def find(
             k = int(np.argmax(scores))
             found.append((float(scores[k]), poses[k], field, (x0, y0, x1, y1)))
     if not found:
-        return None
-    # the few best hypotheses refined, the best after refinement kept
-    best: tuple[float, np.ndarray, EdgeField, tuple[int, int, int, int]] | None = None
+        return []
+    # the few best hypotheses refined
+    out = []
     for _, pose, field, window in sorted(found, key=lambda f: -f[0])[: refine_best if refine else 1]:
         if refine:
             pose = refine_pose([field], model, pose, [(K, dist, np.eye(4))])
         s = float(score(field, model, pose, K, dist))
-        if best is None or s > best[0]:
-            best = (s, pose, field, window)
-    assert best is not None
-    s, pose, _, window = best
-    camera_from_object = pose @ np.linalg.inv(model.object_from_model)
-    H = K @ np.c_[camera_from_object[:3, :2], camera_from_object[:3, 3]]
-    reference = _project(model.reference, pose, K, dist)
-    inner = float(score(best[2], model, pose, K, dist, inner=True))
-    return Match(camera_from_object, H / H[2, 2], s, reference, window, time.perf_counter() - start, inner)
+        camera_from_object = pose @ np.linalg.inv(model.object_from_model)
+        H = K @ np.c_[camera_from_object[:3, :2], camera_from_object[:3, 3]]
+        reference = _project(model.reference, pose, K, dist)
+        inner = float(score(field, model, pose, K, dist, inner=True))
+        out.append(Match(camera_from_object, H / H[2, 2], s, reference, window, time.perf_counter() - start, inner, s < min_score))
+    return sorted(out, key=lambda m: -m.score)
 
 
 def _bilinear(field: EdgeField, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -422,7 +463,9 @@ def _bilinear(field: EdgeField, pixels: np.ndarray) -> tuple[np.ndarray, np.ndar
     return out[0], out[1]
 
 
-def _edge_targets(field: EdgeField, pixels: np.ndarray, normals: np.ndarray, reach: float, min_gradient: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
+def _edge_targets(
+    field: EdgeField, pixels: np.ndarray, normals: np.ndarray, reach: float, polarity: np.ndarray, min_gradient: float = 12.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Per point, the signed distance (px) along its normal to the nearest local maximum
     of the gradient along the normal within ±reach (sub-pixel, a parabola through three
     samples half a pixel apart), and whether there is one of at least `min_gradient`
@@ -432,7 +475,7 @@ def _edge_targets(field: EdgeField, pixels: np.ndarray, normals: np.ndarray, rea
     probes = pixels[:, None, :] + steps[None, :, None] * normals[:, None, :]
     gx, gy = _bilinear(field, probes.reshape(-1, 2))
     n = len(pixels)
-    along = np.abs(gx * np.repeat(normals[:, 0], len(steps)) + gy * np.repeat(normals[:, 1], len(steps))).reshape(n, len(steps))
+    along = _agreement(gx * np.repeat(normals[:, 0], len(steps)) + gy * np.repeat(normals[:, 1], len(steps)), np.repeat(polarity, len(steps))).reshape(n, len(steps))
     inner = along[:, 1:-1]
     peaks = (inner >= along[:, :-2]) & (inner > along[:, 2:]) & (inner > 0.3 * along.max(1, keepdims=True)) & (inner > min_gradient)
     distance = np.where(peaks, np.abs(steps[1:-1])[None, :], np.inf)
@@ -449,8 +492,8 @@ def _edge_targets(field: EdgeField, pixels: np.ndarray, normals: np.ndarray, rea
 def refine_pose(
     fields: list[EdgeField], model: ShapeModel, pose: np.ndarray, cameras: list[tuple[np.ndarray, np.ndarray, np.ndarray]], *, rounds: int = 6, reach: float = 4.0
 ) -> np.ndarray:
-    """Moving edges: the object pose (in the first camera's frame) that puts the model's
-    edges on the image edges of every camera. `cameras` holds (K, distortion,
+    """Moving edges: the model's pose in the first camera (`camera_from_model`) that
+    puts the model's edges on the image edges of every camera. `cameras` holds (K, distortion,
     camera_from_first) per field."""
     pose = np.asarray(pose, dtype=np.float64).copy()
     for r in range(rounds):
@@ -458,7 +501,7 @@ def refine_pose(
         for field, (K, dist, cam_from_first) in zip(fields, cameras):
             here = cam_from_first @ pose
             pixels, normals, visible = _image_tangents(model, here, K, dist)
-            offset, found = _edge_targets(field, pixels, normals, reach if r < rounds - 2 else 2.0)
+            offset, found = _edge_targets(field, pixels, normals, reach if r < rounds - 2 else 2.0, model.polarity)
             use = visible & found & model.precise
             if use.sum() < 6:
                 continue

@@ -8,8 +8,9 @@ colour cameras behind it, and the side of a parked car with a charging port.
 
 Layout (the robot's base frame, z up): the robot stands on a post with its base at the
 origin; the car's side faces it about a metre away along +y; the stereo pair stands
-behind the robot, its midpoint at `rig_position`, both cameras aimed at the nominal
-port ("looking slightly inwards"), so the port is 1.5-2.5 m from them. Parking is
+behind the robot, its midpoint at `rig_position`: the left camera aimed at the nominal
+port, the right one beside it turned about its vertical axis to look there too (the
+paper's "looking slightly inwards", Eq. 1's geometry), so the port is about 2 m away. Parking is
 imperfect (`park`): the port lands anywhere in a square of `parking_area` on the car's
 side, its axis 0 to `max_angle_deg` off the direction to the cameras, turned about its
 axis by up to `max_roll_deg` (a car on a slope).
@@ -28,9 +29,9 @@ import numpy as np
 
 from earcore import robots
 from earcore.charging.connectors import COLLAR, GAP, RECESS, Connector, connector, hole_polygon
-from earcore.charging.stereo import StereoRig
+from earcore.charging.stereo import StereoRig, verging_pose
 from earcore.errors import ConfigError
-from earcore.mesh import Mesh, densify, extrude
+from earcore.mesh import Mesh, densify, extrude, offset_polygon
 from earcore.sim.camera import SimulatedCamera
 from earcore.sim.sensors import SENSORS
 from earcore.transforms import axis_angle_matrix, look_at, quaternion
@@ -72,8 +73,8 @@ class ChargingCellConfig:
         if self.sensor not in SENSORS or SENSORS[self.sensor].has_depth:
             colour = ", ".join(k for k, s in SENSORS.items() if not s.has_depth)
             raise ConfigError(f"charging cell: sensor must be a colour camera ({colour}), got {self.sensor!r}")
-        if not 0 <= self.max_angle_deg <= 80:
-            raise ConfigError(f"charging cell: max_angle_deg must be in [0, 80], got {self.max_angle_deg}")
+        if not 0 <= self.max_angle_deg <= 55:
+            raise ConfigError(f"charging cell: max_angle_deg must be in [0, 55] (beyond, the port is seen too edge-on to match), got {self.max_angle_deg}")
         if not 0 < self.camera_scale <= 1:
             raise ConfigError(f"charging cell: camera_scale must be in (0, 1], got {self.camera_scale}")
         if self.baseline <= 0 or self.parking_area < 0:
@@ -175,7 +176,8 @@ class ChargingCell:
         pose[:3, :3] = _upright_port(axis) @ axis_angle_matrix([0.0, 0.0, 1.0], np.radians(roll))
         pose[:3, 3] = centre
         self._port_bodies = self._build_port(pose, rng)
-        return Parking(pose, angle, roll)
+        self.parking = Parking(pose, angle, roll)
+        return self.parking
 
     def _build_port(self, base_from_port: np.ndarray, rng: np.random.Generator) -> list[int]:
         k = self.port_connector
@@ -190,7 +192,7 @@ class ChargingCell:
         collar = self._mesh_body(extrude(outer, collar_depth, [(k.outline, collar_depth - 0.0005)]), collar_pose, (0.17, 0.17, 0.18), collision=True)
         # the recess' wall in the face's plastic (a thin sleeve inside the collar's opening,
         # for the eye only): the face's outline is then sharp at the collar's front
-        inset = k.outline * (1.0 - 0.0003 / k.radius)
+        inset = offset_polygon(k.outline, -0.0003)
         sleeve_pose = base_from_port.copy()
         sleeve_pose[:3, 3] = base_from_port[:3, :3] @ [0.0, 0.0, RECESS - 0.0001] + base_from_port[:3, 3]
         sleeve_depth = RECESS - 0.0002
@@ -227,11 +229,16 @@ class ChargingCell:
         forward = (target - middle) / np.linalg.norm(target - middle)
         side = np.cross(forward, [0.0, 0.0, 1.0])
         side /= np.linalg.norm(side)
-        out: list[SimulatedCamera] = []
-        for name, sign in (("left", -1.0), ("right", 1.0)):
-            pose = look_at(middle + sign * side * c.baseline / 2, target)
-            out.append(SimulatedCamera(self.p, name, sensor, pose, rng=np.random.default_rng([c.seed, len(out)]), lighting=self.lighting))
-        return out
+        # the paper's pair (Eq. 1's geometry): the left camera aimed at the nominal port,
+        # the right one beside it along its x, turned about its y until their axes cross there
+        left = look_at(middle - side * c.baseline / 2, target)
+        vergence = np.degrees(np.arctan2(c.baseline, np.linalg.norm(target - left[:3, 3])))
+        right = left @ verging_pose(c.baseline, vergence)
+        rng = np.random.default_rng
+        return [
+            SimulatedCamera(self.p, name, sensor, pose, rng=rng([c.seed, k]), lighting=self.lighting)
+            for k, (name, pose) in enumerate((("left", left), ("right", right)))
+        ]
 
     # -- the robot -----------------------------------------------------------------------------
 

@@ -46,8 +46,11 @@ def test_parking_stays_within_the_area_and_the_angle(cell):
 def test_the_stereo_pair_verges_on_the_port(cell):
     rig = cell.rig
     assert rig.baseline == pytest.approx(cell.config.baseline)
-    distance = np.linalg.norm(np.asarray(cell.config.port_nominal) - np.asarray(cell.config.rig_position))
-    assert rig.vergence_deg == pytest.approx(np.degrees(2 * np.arctan(cell.config.baseline / 2 / distance)), abs=0.05)
+    # the right camera turned so the axes cross at the nominal port, on the left one's axis
+    left = cell.cameras[0].base_from_camera
+    target = np.linalg.inv(left) @ np.r_[cell.config.port_nominal, 1.0]
+    assert target[:2] == pytest.approx([0.0, 0.0], abs=1e-9)
+    assert rig.vergence_deg == pytest.approx(np.degrees(np.arctan2(cell.config.baseline, target[2])), abs=1e-9)
     port = cell._port_bodies[0]
     for camera in cell.cameras:
         _, depth, segmentation = camera.render_true()
@@ -76,5 +79,29 @@ def test_bad_settings_are_refused():
         ChargingCellConfig(sensor="kinect_v2").validate()
     with pytest.raises(ConfigError, match="unknown connector"):
         ChargingCellConfig(port="chademo").validate()
+    with pytest.raises(ConfigError, match="edge-on"):
+        ChargingCellConfig(max_angle_deg=70).validate()
     with pytest.raises(ConfigError, match="camera_scale"):
         ChargingCellConfig(camera_scale=2.0).validate()
+
+
+def test_parking_moves_the_truth_and_equation_1_fits_the_pair(cell):
+    before = cell.base_from_port
+    parking = cell.park(np.random.default_rng(9))
+    assert cell.base_from_port == pytest.approx(parking.base_from_port)
+    assert np.linalg.norm(cell.base_from_port[:3, 3] - before[:3, 3]) > 1e-3
+    # the pair is the paper's: Eq. 1 on noise-free, undistorted pixels of the port's pins
+    from earcore.charging.connectors import connector
+    from earcore.charging.stereo import verging_triangulation
+
+    rig = cell.rig
+    truth = np.linalg.inv(cell.cameras[0].base_from_camera) @ cell.base_from_port
+    points = connector("type2").reference_points @ truth[:3, :3].T + truth[:3, 3]
+    ideal = type(rig)(rig.K_left, rig.K_right, rig.right_from_left)
+    left, right = ideal.project(points)
+    estimate = verging_triangulation(left, right, rig.K_left[0, 0], rig.baseline, rig.vergence_deg, (rig.K_left[0, 2], rig.K_left[1, 2]))
+    # first order: centimetres at this vergence (17°), where the exact triangulation is exact
+    assert np.abs(estimate - points).max() < 0.03
+    from earcore.charging.stereo import triangulate
+
+    assert triangulate(ideal, left, right) == pytest.approx(points, abs=1e-9)

@@ -6,7 +6,7 @@ import pytest
 
 from earcore.charging.connectors import CONNECTORS, connector, hole_polygon
 from earcore.errors import ConfigError
-from earcore.mesh import densify, extrude, inside_polygon, polygon_area, triangulate
+from earcore.mesh import densify, extrude, inside_polygon, offset_polygon, polygon_area, triangulate
 
 
 def square(cx, cy, half):
@@ -121,3 +121,29 @@ def test_through_holes_and_the_inside_test():
     ell = np.array([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], dtype=float)
     points = np.array([[0.5, 0.5], [1.5, 0.5], [0.5, 1.5], [1.5, 1.5], [2.5, 0.5], [-0.1, 1.0]])
     assert inside_polygon(points, ell).tolist() == [True, True, True, False, False, False]
+
+
+def test_offsets_and_concave_blind_holes():
+    ell = np.array([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], dtype=float) * 0.01
+    inset = offset_polygon(ell, -0.001)
+    # every edge moved inwards by exactly the distance (the lines, measured by hand)
+    expected = np.array([[0.001, 0.001], [0.019, 0.001], [0.019, 0.009], [0.009, 0.009], [0.009, 0.019], [0.001, 0.019]])
+    assert np.abs(inset - expected).max() < 1e-12
+    # an L-shaped blind hole: its floor covers exactly its footprint
+    plate = extrude(densify(square(0.01, 0.01, 0.02), 0.005), 0.01, [(densify(ell, 0.004), 0.004)])
+    assert edges_are_closed(plate)
+    assert plate.volume_and_centroid()[0] == pytest.approx(0.04 * 0.04 * 0.01 - 3e-4 * 0.004, rel=1e-9)
+
+
+def test_bad_meshing_inputs_are_refused_not_left_open():
+    outline = densify(square(0, 0, 0.5), 0.1)
+    with pytest.raises(ValueError, match="repeats a vertex"):
+        triangulate(np.concatenate([square(0, 0, 1), square(0, 0, 1)[:1]]))
+    with pytest.raises(ValueError, match="non-finite"):
+        triangulate(np.array([[0, 0], [1, 0], [np.nan, 1]]))
+    with pytest.raises(ValueError, match="lost"):
+        triangulate(outline, [densify(square(0.05, -0.39, 0.1), 0.1)])  # a hole nearer the outline than its edges allow
+    with pytest.raises(ValueError, match="not inside"):
+        extrude(square(0, 0, 0.05), 0.02, [(square(0.06, 0, 0.01), 0.01)])
+    with pytest.raises(ValueError, match="overlap"):
+        extrude(densify(square(0, 0, 0.05), 0.01), 0.02, [(square(0, 0, 0.01), 0.01), (square(0.005, 0, 0.01), 0.01)])
