@@ -224,17 +224,18 @@ def _sample(field: EdgeField, pixels: np.ndarray, layers: tuple[str, ...] = ("gx
     return [getattr(field, name)[y, x] * ok for name in layers]
 
 
-def _image_tangents(model: ShapeModel, pose: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _image_tangents(model: ShapeModel, pose: np.ndarray, K: np.ndarray, dist: np.ndarray, occlusion: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Projected model points (M, 2), their unit image normals (M, 2, pointing out of
     their rings) and a visibility
     mask (M; points on faces turned towards the camera) for one pose (4, 4), or for a
-    stack of poses (P, 4, 4) with a leading P on every output."""
+    stack of poses (P, 4, 4) with a leading P on every output. Without `occlusion`
+    points hidden by the model's rim count as visible (the coarse search's shortcut)."""
     poses = np.asarray(pose, dtype=np.float64)
     single = poses.ndim == 2
     poses = poses[None] if single else poses
     eps = 0.0005
     both = np.concatenate([model.points - eps * model.tangents, model.points + eps * model.tangents, model.points + eps * model.normals])  # (3M, 3)
-    cam = np.einsum("pij,nj->pni", poses[:, :3, :3], both) + poses[:, None, :3, 3]
+    cam = np.matmul(poses[:, :3, :3], both.T).transpose(0, 2, 1) + poses[:, None, :3, 3]
     ends = project_points(cam, K, dist).reshape(len(poses), 3, -1, 2)
     a, b, out = ends[:, 0], ends[:, 1], ends[:, 2]
     centre = (a + b) / 2
@@ -244,7 +245,7 @@ def _image_tangents(model: ShapeModel, pose: np.ndarray, K: np.ndarray, dist: np
     normal *= np.where(((out - centre) * normal).sum(2, keepdims=True) < 0, -1.0, 1.0)  # pointing out of the ring
     points = cam[:, : len(model.points)]  # the first ends are near enough for the test
     facing = np.einsum("pi,pni->pn", poses[:, :3, 2], -points) > 0
-    if model.rim is not None:
+    if occlusion and model.rim is not None:
         polygon, height = model.rim
         below = model.points[:, 2] < height - 1e-9
         if below.any():
@@ -274,7 +275,7 @@ def score(
     points that can be seen; `coarse` on the spread field (tolerates a few pixels, for
     the search); `inner` over the points inside the outermost outline only (what tells
     connector types apart: their outer circles are alike)."""
-    pixels, normal, visible = _image_tangents(model, pose, K, dist)
+    pixels, normal, visible = _image_tangents(model, pose, K, dist, occlusion=not coarse)
     if inner:
         visible = visible & ~model.outer
     shape = pixels.shape[:-1]
@@ -346,12 +347,12 @@ def _candidates(
     if not narrow:
         return _ellipses(gray, lo_px, hi_px)
     # dark regions no bigger than the connector: a black-hat (closing minus image) with
-    # a disc a little wider than the connector at its nearest keeps those and drops
+    # a square a little wider than the connector at its nearest keeps those and drops
     # larger dark areas (a dark car's whole side)
     small = cv2.resize(gray, (gray.shape[1] // 4, gray.shape[0] // 4), interpolation=cv2.INTER_AREA)
     size = int(1.3 * 2 * hi_px / 4) | 1
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-    mask = (cv2.morphologyEx(cv2.GaussianBlur(small, (0, 0), 1.0), cv2.MORPH_BLACKHAT, disc) > 8).astype(np.uint8)
+    square = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))  # separable: fast at any size
+    mask = (cv2.morphologyEx(cv2.GaussianBlur(small, (0, 0), 1.0), cv2.MORPH_BLACKHAT, square) > 8).astype(np.uint8)
     count, _, stats, _ = cv2.connectedComponentsWithStats(mask)
     out = []
     for x, y, w, h, area in stats[1:count]:
