@@ -41,10 +41,9 @@ def main(argv: list[str] | None = None) -> int:
     k = connector(args.port)
     model = ShapeModel.port(k)
     rig = cell.rig
-    rng = np.random.default_rng(args.seed)
     rows = []
     for i in range(args.parkings):
-        parking = cell.park(rng) if i else cell.parking
+        parking = cell.park() if i else cell.parking  # the cell's own seeded sequence
         left, right = cell.capture()
         truth = np.linalg.inv(cell.cameras[0].base_from_camera) @ parking.base_from_port
         row: dict = {"angle_deg": parking.angle_deg, "distance_m": float(np.linalg.norm(truth[:3, 3]))}
