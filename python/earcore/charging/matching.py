@@ -293,18 +293,22 @@ def score(
     return float(means) if np.ndim(means) == 0 else means
 
 
-def _pose(normal_cam: np.ndarray, roll: float, centre_cam: np.ndarray) -> np.ndarray:
-    """A pose with z along `normal_cam` (towards the camera), turned by `roll` about it,
-    at `centre_cam`."""
+def _poses(normal_cam: np.ndarray, rolls: np.ndarray, centre_cam: np.ndarray) -> np.ndarray:
+    """(R, 4, 4) poses with z along `normal_cam` (towards the camera), turned by each of
+    `rolls` (rad) about it, at `centre_cam`."""
     z = normal_cam / np.linalg.norm(normal_cam)
     helper = np.array([0.0, -1.0, 0.0]) if abs(z[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
     y = helper - z * (helper @ z)
     y /= np.linalg.norm(y)
     x = np.cross(y, z)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, y, z], 1) @ axis_angle_matrix([0.0, 0.0, 1.0], roll)
-    pose[:3, 3] = centre_cam
-    return pose
+    c, s = np.cos(rolls), np.sin(rolls)
+    poses = np.zeros((len(rolls), 4, 4))
+    poses[:, :3, 0] = c[:, None] * x + s[:, None] * y  # the frame turned about its z
+    poses[:, :3, 1] = -s[:, None] * x + c[:, None] * y
+    poses[:, :3, 2] = z
+    poses[:, :3, 3] = centre_cam
+    poses[:, 3, 3] = 1.0
+    return poses
 
 
 def _ellipses(gray: np.ndarray, lo_px: float, hi_px: float, offset: tuple[int, int] = (0, 0)) -> list[tuple[np.ndarray, float, float, np.ndarray]]:
@@ -427,7 +431,7 @@ def find_all(
         for sign in (1.0, -1.0):
             normal = axis_angle_matrix(hinge, sign * tilt) @ (-direction)
             centre_cam = direction * depth - normal * outer_z  # the outline's centre on the ray
-            poses = np.stack([_pose(normal, roll, centre_cam) for roll in rolls])
+            poses = _poses(normal, rolls, centre_cam)
             scores = np.asarray(score(field, model, poses, K, dist, coarse=True))
             k = int(np.argmax(scores))
             found.append((float(scores[k]), poses[k], field, (x0, y0, x1, y1)))
@@ -506,16 +510,16 @@ def refine_pose(
             use = visible & found & model.precise
             if use.sum() < 6:
                 continue
-            # Jacobian of each point's position along its normal, by finite differences
-            jac = np.empty((int(use.sum()), 6))
-            for k in range(6):
-                delta = np.zeros(6)
-                delta[k] = 1e-6
-                moved = pose.copy()
-                moved[:3, :3] = rotation_from_vector(delta[:3]) @ pose[:3, :3]
-                moved[:3, 3] = pose[:3, 3] + delta[3:]
-                p2, _, _ = _image_tangents(model, cam_from_first @ moved, K, dist)
-                jac[:, k] = ((p2[use] - pixels[use]) * normals[use]).sum(1) / 1e-6
+            # each point's move along its normal for a turn ω (about the model's origin, in
+            # the first camera's axes) and a shift v: δp = C_R (ω × R·p + v), through the
+            # pinhole's derivative (the lens' own is small and only slows convergence)
+            turned = model.points[use] @ pose[:3, :3].T  # R·p
+            cam = (turned + pose[:3, 3]) @ cam_from_first[:3, :3].T + cam_from_first[:3, 3]
+            x, y, z = cam.T
+            n = normals[use]
+            row = np.stack([n[:, 0] * K[0, 0] / z, n[:, 1] * K[1, 1] / z, -(n[:, 0] * K[0, 0] * x + n[:, 1] * K[1, 1] * y) / (z * z)], 1)
+            row = row @ cam_from_first[:3, :3]  # d(offset)/d(point in the first camera)
+            jac = np.concatenate([np.cross(turned, row), row], 1)  # row·(ω × a) = ω·(a × row)
             rows.append(jac)
             targets.append(offset[use])
         if not rows:
