@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Mesh", "densify", "extrude", "inside_polygon", "offset_polygon", "polygon_area", "triangulate"]
+__all__ = ["Mesh", "circle", "densify", "extrude", "inside_polygon", "offset_polygon", "polygon_area", "triangulate"]
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,12 @@ def polygon_area(polygon: np.ndarray) -> float:
     """Signed area of a polygon (N, 2): positive counter-clockwise (the shoelace)."""
     x, y = polygon[:, 0], polygon[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def circle(radius: float, segments: int = 96, centre: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """(segments, 2) points on a circle, counter-clockwise from +x."""
+    angles = np.arange(segments) * 2 * np.pi / segments
+    return np.stack([centre[0] + radius * np.cos(angles), centre[1] + radius * np.sin(angles)], 1)
 
 
 def densify(polygon: np.ndarray, max_edge: float) -> np.ndarray:

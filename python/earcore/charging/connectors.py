@@ -30,7 +30,7 @@ from functools import cached_property
 import numpy as np
 
 from earcore.errors import ConfigError
-from earcore.mesh import Mesh, densify, extrude, offset_polygon
+from earcore.mesh import Mesh, circle, densify, extrude, offset_polygon
 
 __all__ = ["COLLAR", "CONNECTORS", "GAP", "PLUG_CLEARANCE", "RECESS", "Connector", "Contact", "connector", "hole_polygon"]
 
@@ -107,8 +107,7 @@ class Connector:
         shift = np.eye(4)
         shift[2, 3] = RECESS
         nose = extrude(offset_polygon(self.outline, -PLUG_CLEARANCE), RECESS).moved(shift)
-        angles = np.linspace(0, 2 * np.pi, 97)[:-1]
-        shell = extrude((self.radius + COLLAR) * np.stack([np.cos(angles), np.sin(angles)], 1), length - RECESS)
+        shell = extrude(circle(self.radius + COLLAR), length - RECESS)
         shift[2, 3] = length
         return Mesh.union([nose, shell.moved(shift)])
 
@@ -117,9 +116,7 @@ class Connector:
         to z = −pin_length (a polygon inside the pin's circle)."""
         pins = []
         for c in self.contacts:
-            angles = np.arange(SEGMENTS) * 2 * np.pi / SEGMENTS
-            circle = np.stack([c.x + c.radius * np.cos(angles), c.y + c.radius * np.sin(angles)], 1)
-            pins.append(extrude(circle, self.pin_length))
+            pins.append(extrude(circle(c.radius, SEGMENTS, (c.x, c.y)), self.pin_length))
         return pins
 
 

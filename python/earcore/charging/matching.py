@@ -38,7 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from earcore.charging.connectors import COLLAR, GAP, PLUG_CLEARANCE, RECESS, Connector
-from earcore.mesh import inside_polygon, offset_polygon
+from earcore.charging.stereo import project_points
+from earcore.mesh import circle, densify, inside_polygon, offset_polygon
 from earcore.transforms import axis_angle_matrix, rotation_from_vector
 
 __all__ = ["EdgeField", "Match", "ShapeModel", "edge_field", "find", "find_all", "project_points", "refine_pose", "score"]
@@ -71,8 +72,6 @@ class ShapeModel:
 
     @staticmethod
     def _ring(polygon: np.ndarray, z: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
-        from earcore.mesh import densify
-
         dense = densify(polygon, spacing)
         nxt = np.roll(dense, -1, axis=0)
         prev = np.roll(dense, 1, axis=0)
@@ -115,14 +114,10 @@ class ShapeModel:
         it), the recess' rim (the face's outline at the collar's front) and each
         contact's hole on the face (`rim`: what hides the holes at an angle)."""
         radius = k.radius + COLLAR + GAP
-        angles = np.linspace(0, 2 * np.pi, 97)[:-1]
-        circle = np.stack([np.cos(angles), np.sin(angles)], 1)
         # the car's paint outside the dark gap, the collar outside the recess, the face around the holes
-        rings = [(circle * radius, RECESS, True, True, 1), (k.outline, RECESS, False, True, 1)]
+        rings = [(circle(radius), RECESS, True, True, 1), (k.outline, RECESS, False, True, 1)]
         for c in k.contacts:
-            a = np.linspace(0, 2 * np.pi, 17)[:-1]
-            r = k.hole_radius(c)
-            rings.append((np.stack([c.x + r * np.cos(a), c.y + r * np.sin(a)], 1), 0.0, False, False, 1))
+            rings.append((circle(k.hole_radius(c), 16, (c.x, c.y)), 0.0, False, False, 1))
         return cls._build(f"{k.name} port", rings, k.reference_points, radius, spacing, np.eye(4), (k.outline, RECESS))
 
     @classmethod
@@ -132,13 +127,10 @@ class ShapeModel:
         front face (z = 0) and the pins' tips (z = −pin_length), in the tip frame, whose z
         points away from a viewer the pins point at (the model's frame is the tip's
         turned about x)."""
-        angles = np.linspace(0, 2 * np.pi, 97)[:-1]
-        shell = (k.radius + COLLAR) * np.stack([np.cos(angles), np.sin(angles)], 1)
         # anything behind the shell, the same plastic around the nose, the metal pins brighter than it
-        rings = [(shell, RECESS, True, True, 0), (offset_polygon(k.outline, -PLUG_CLEARANCE), 0.0, False, True, 0)]
+        rings = [(circle(k.radius + COLLAR), RECESS, True, True, 0), (offset_polygon(k.outline, -PLUG_CLEARANCE), 0.0, False, True, 0)]
         for c in k.contacts:
-            a = np.linspace(0, 2 * np.pi, 13)[:-1]
-            rings.append((np.stack([c.x + c.radius * np.cos(a), c.y + c.radius * np.sin(a)], 1), -k.pin_length, False, True, -1))
+            rings.append((circle(c.radius, 12, (c.x, c.y)), -k.pin_length, False, True, -1))
         reference = k.reference_points - [0.0, 0.0, k.pin_length]
         turned = np.eye(4)
         turned[:3, :3] = axis_angle_matrix([1.0, 0.0, 0.0], np.pi)
@@ -195,19 +187,6 @@ class Match:
     #: Whether the score is below the `min_score` the match was found with: a doubtful
     #: match (a reflection, a partial view) that must not be acted on.
     flagged: bool = False
-
-
-def project_points(cam: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Pixels (..., 2) of camera-frame points (..., 3) through the pinhole K and OpenCV's
-    lens model (k1, k2, p1, p2, k3): cv2.projectPoints without its Jacobians."""
-    x = cam[..., 0] / cam[..., 2]
-    y = cam[..., 1] / cam[..., 2]
-    k1, k2, p1, p2, k3 = (list(np.asarray(dist, dtype=np.float64).ravel()) + [0.0] * 5)[:5]
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], -1)
 
 
 def _project(points: np.ndarray, pose: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:

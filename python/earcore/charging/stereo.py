@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["StereoRig", "triangulate", "verging_pose", "verging_rig", "verging_triangulation"]
+__all__ = ["StereoRig", "project_points", "triangulate", "verging_pose", "verging_rig", "verging_triangulation"]
 
 
 @dataclass(frozen=True)
@@ -52,13 +52,22 @@ class StereoRig:
 
     def project(self, points_left: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels (N, 2) of left-camera points (N, 3) in the left and in the right image."""
-        import cv2
+        pts = np.asarray(points_left, dtype=np.float64).reshape(-1, 3)
+        right = pts @ self.right_from_left[:3, :3].T + self.right_from_left[:3, 3]
+        return project_points(pts, self.K_left, self.dist_left), project_points(right, self.K_right, self.dist_right)
 
-        pts = np.ascontiguousarray(np.asarray(points_left, dtype=np.float64).reshape(-1, 3))
-        rvec, _ = cv2.Rodrigues(self.right_from_left[:3, :3])
-        left, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K_left, np.asarray(self.dist_left, float))
-        right, _ = cv2.projectPoints(pts, rvec, self.right_from_left[:3, 3].astype(np.float64), self.K_right, np.asarray(self.dist_right, float))
-        return left.reshape(-1, 2), right.reshape(-1, 2)
+
+def project_points(cam: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) of camera-frame points (..., 3) through the pinhole K and OpenCV's
+    lens model (k1, k2, p1, p2, k3): cv2.projectPoints without its Jacobians."""
+    x = cam[..., 0] / cam[..., 2]
+    y = cam[..., 1] / cam[..., 2]
+    k1, k2, p1, p2, k3 = (list(np.asarray(dist, dtype=np.float64).ravel()) + [0.0] * 5)[:5]
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], -1)
 
 
 def verging_pose(baseline: float, vergence_deg: float) -> np.ndarray:

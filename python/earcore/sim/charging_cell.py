@@ -31,7 +31,7 @@ from earcore import robots
 from earcore.charging.connectors import COLLAR, GAP, RECESS, Connector, connector, hole_polygon
 from earcore.charging.stereo import StereoRig, verging_pose
 from earcore.errors import ConfigError
-from earcore.mesh import Mesh, densify, extrude, offset_polygon
+from earcore.mesh import Mesh, circle, densify, extrude, offset_polygon
 from earcore.sim.camera import SimulatedCamera
 from earcore.sim.sensors import SENSORS
 from earcore.transforms import axis_angle_matrix, look_at, quaternion
@@ -184,8 +184,7 @@ class ChargingCell:
         depth = k.hole_depth + 0.011
         port = self._mesh_body(k.port_mesh(depth), base_from_port, (0.10, 0.10, 0.105), collision=True)
         # the collar: a ring around the face, its front RECESS ahead of it
-        ring = np.linspace(0, 2 * np.pi, 97)[:-1]
-        outer = (k.radius + COLLAR) * np.stack([np.cos(ring), np.sin(ring)], 1)
+        outer = circle(k.radius + COLLAR)
         collar_depth = depth + RECESS
         collar_pose = base_from_port.copy()
         collar_pose[:3, 3] = base_from_port[:3, :3] @ [0.0, 0.0, RECESS] + base_from_port[:3, 3]
@@ -208,7 +207,7 @@ class ChargingCell:
         side = densify(np.array([[-0.7, -0.45], [0.7, -0.45], [0.7, 0.45], [-0.7, 0.45]]), 0.03)
         # with the gap every inlet has between its housing and the body (dark, GAP wide)
         thickness = collar_depth + 0.01
-        opening = (k.radius + COLLAR + GAP) * np.stack([np.cos(ring), np.sin(ring)], 1)
+        opening = circle(k.radius + COLLAR + GAP)
         panel = self._mesh_body(extrude(side, thickness, [(opening, thickness - 0.0005)], spacing=0.03), collar_pose, colour, collision=True)
         gap_pose = collar_pose.copy()
         gap_pose[:3, 3] = collar_pose[:3, :3] @ [0.0, 0.0, -0.001] + collar_pose[:3, 3]  # shallow: its walls hide little at an angle
