@@ -232,3 +232,18 @@ def extrude(outline: np.ndarray, depth: float, holes: Sequence[tuple[np.ndarray,
         triangles.append(floor_tris + n)  # the hole's floor faces up
         n += len(floor)
     return Mesh(np.concatenate(vertices).astype(np.float64), np.concatenate(triangles).astype(np.int64))
+
+
+def frustum(top_radius: float, bottom_radius: float, depth: float, segments: int = 96) -> Mesh:
+    """The closed solid of a truncated cone from z = −depth (`bottom_radius`) to z = 0
+    (`top_radius`), its circles `circle`'s polygons: `extrude` of a circle with a slope."""
+    if depth <= 0 or min(top_radius, bottom_radius) <= 0:
+        raise ValueError(f"frustum: depth and radii must be positive, got {depth}, {top_radius}, {bottom_radius}")
+    top, bottom = circle(top_radius, segments), circle(bottom_radius, segments)
+    vertices = np.concatenate([np.c_[top, np.zeros(segments)], np.c_[bottom, np.full(segments, -depth)], [[0.0, 0.0, 0.0], [0.0, 0.0, -depth]]])
+    ring = np.arange(segments)
+    nxt = np.roll(ring, -1)
+    centre_top, centre_bottom = 2 * segments, 2 * segments + 1
+    caps = [np.c_[np.full(segments, centre_top), ring, nxt], np.c_[np.full(segments, centre_bottom), nxt + segments, ring + segments]]
+    triangles = np.concatenate([*caps, _wall(ring, ring + segments, outward=True)])
+    return Mesh(vertices.astype(np.float64), triangles.astype(np.int64))

@@ -56,6 +56,10 @@ def _command(name: str, rest: list[str]) -> int:
         from earcore.app.parts import main as parts_main
 
         return parts_main(rest)
+    if name == "charge":
+        from earcore.app.charge import main as charge_main
+
+        return charge_main(rest)
     if name in ("train", "evaluate", "export"):
         from earcore.app.pose import evaluate_main, export_main, train_main
 
@@ -78,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("experiment", help="the papers' experiments, e.g. `earcore experiment table2` (Paper II)", add_help=False)
     sub.add_parser("dataset", help="labelled images from the simulator, e.g. `earcore dataset robots --out data`", add_help=False)
     sub.add_parser("parts", help="parts on the table: `earcore parts generate|train|evaluate` (IROS 2018 detector)", add_help=False)
+    sub.add_parser("charge", help="the EV charging station (Paper III): find the port, plug in and out (`earcore charge --runs 20`)", add_help=False)
     sub.add_parser("train", help="train a network, e.g. `earcore train pose --data data --out run`", add_help=False)
     sub.add_parser("evaluate", help="evaluate a trained network on held-out images (`earcore evaluate pose`)", add_help=False)
     sub.add_parser("export", help="export a trained network to ONNX (`earcore export pose`)", add_help=False)

@@ -21,7 +21,7 @@ import numpy as np
 
 from earcore.calibration.errors import DegeneratePoses, TooFewFrames
 from earcore.registration import rigid_fit, rigid_fit_ransac
-from earcore.transforms import pose_from_vector, rotation_angle
+from earcore.transforms import mean_pose, pose_from_vector, rotation_angle
 
 __all__ = [
     "EyeToHand",
@@ -128,8 +128,7 @@ def _check_rotation_variety(flanges: np.ndarray, camera: str, min_rotation_deg: 
     if spread < min_rotation_deg:
         raise DegeneratePoses(
             camera,
-            f"the flange turned by at most {spread:.1f}° between frames (< {min_rotation_deg}°): the board's mount "
-            "cannot be told from the camera's pose",
+            f"the flange turned by at most {spread:.1f}° between frames (< {min_rotation_deg}°): the board's mount cannot be told from the camera's pose",
         )
 
 
@@ -146,16 +145,23 @@ def fit_eye_to_hand_from_poses(
     """X = base_from_camera and Z = flange_from_board from the board's pose in every
     frame (F, 4, 4; e.g. PnP in a colour-only camera) and the flange's: the AX = ZB
     problem, A_i = camera_from_board_i, B_i = base_from_flange_i, solved by OpenCV's
-    `calibrateRobotWorldHandEye` ("shah" or "li"). In OpenCV's names the board is the
-    "world", the robot base the "gripper" and the flange the "base". The rmse is the
-    RMS distance between the corners where each frame's pose and where the robot put
-    them (it includes PnP's error along the view)."""
+    `calibrateRobotWorldHandEye` ("shah" or "li": both unknowns at once) or its
+    `calibrateHandEye` ("tsai" for Tsai-Lenz, "park", "horaud", "andreff",
+    "daniilidis": X from the frames' relative motions, then Z as the mean of
+    F_i⁻¹·X·A_i). In OpenCV's names the board is the "world", the robot base the
+    "gripper" and the flange the "base". The rmse is the RMS distance between the
+    corners where each frame's pose and where the robot put them (it includes the
+    pose estimates' error along the view)."""
     from earcore.calibration.board import _cv2
 
     cv2 = _cv2()
     methods = {"shah": cv2.CALIB_ROBOT_WORLD_HAND_EYE_SHAH, "li": cv2.CALIB_ROBOT_WORLD_HAND_EYE_LI}
-    if method not in methods:
-        raise ValueError(f"method must be one of {sorted(methods)}, got {method!r}")
+    relative = {
+        "tsai": cv2.CALIB_HAND_EYE_TSAI, "park": cv2.CALIB_HAND_EYE_PARK, "horaud": cv2.CALIB_HAND_EYE_HORAUD,
+        "andreff": cv2.CALIB_HAND_EYE_ANDREFF, "daniilidis": cv2.CALIB_HAND_EYE_DANIILIDIS,
+    }  # fmt: skip
+    if method not in methods and method not in relative:
+        raise ValueError(f"method must be one of {sorted(methods) + sorted(relative)}, got {method!r}")
     A = np.asarray(camera_from_board, dtype=np.float64).reshape(-1, 4, 4)
     F = np.asarray(base_from_flange, dtype=np.float64).reshape(-1, 4, 4)
     if len(A) != len(F):
@@ -165,14 +171,29 @@ def fit_eye_to_hand_from_poses(
     if len(A) < min_frames:
         raise TooFewFrames(camera, len(A), min_frames, "for AX = ZB")
     _check_rotation_variety(F, camera, min_rotation_deg)
-    r_board_from_flange, t_board_from_flange, r_camera_from_base, t_camera_from_base = cv2.calibrateRobotWorldHandEye(
-        [a[:3, :3] for a in A], [a[:3, 3].reshape(3, 1) for a in A],
-        [f[:3, :3] for f in F], [f[:3, 3].reshape(3, 1) for f in F], method=methods[method],
-    )
-    board_from_flange, camera_from_base = np.eye(4), np.eye(4)
-    board_from_flange[:3, :3], board_from_flange[:3, 3] = r_board_from_flange, np.ravel(t_board_from_flange)
-    camera_from_base[:3, :3], camera_from_base[:3, 3] = r_camera_from_base, np.ravel(t_camera_from_base)
-    x, z = np.linalg.inv(camera_from_base), np.linalg.inv(board_from_flange)
+    if method in relative:
+        # eye-to-hand through the eye-in-hand solver: the flange's inverse poses in, the
+        # camera's pose in the base out
+        flange_from_base = np.linalg.inv(F)
+        r_x, t_x = cv2.calibrateHandEye(
+            [f[:3, :3] for f in flange_from_base], [f[:3, 3].reshape(3, 1) for f in flange_from_base],
+            [a[:3, :3] for a in A], [a[:3, 3].reshape(3, 1) for a in A], method=relative[method],
+        )  # fmt: skip
+        x: np.ndarray = np.eye(4)
+        x[:3, :3], x[:3, 3] = r_x, np.ravel(t_x)
+        z: np.ndarray = mean_pose(flange_from_base @ x @ A)
+    else:
+        r_board_from_flange, t_board_from_flange, r_camera_from_base, t_camera_from_base = cv2.calibrateRobotWorldHandEye(
+            [a[:3, :3] for a in A],
+            [a[:3, 3].reshape(3, 1) for a in A],
+            [f[:3, :3] for f in F],
+            [f[:3, 3].reshape(3, 1) for f in F],
+            method=methods[method],
+        )
+        board_from_flange, camera_from_base = np.eye(4), np.eye(4)
+        board_from_flange[:3, :3], board_from_flange[:3, 3] = r_board_from_flange, np.ravel(t_board_from_flange)
+        camera_from_base[:3, :3], camera_from_base[:3, 3] = r_camera_from_base, np.ravel(t_camera_from_base)
+        x, z = np.linalg.inv(camera_from_base), np.linalg.inv(board_from_flange)
     if not (np.isfinite(x).all() and np.isfinite(z).all()):
         raise DegeneratePoses(camera, "AX = ZB has no solution for these poses")
     seen = np.concatenate([apply_pose(x @ a, board_points) for a in A])

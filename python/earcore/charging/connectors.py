@@ -7,8 +7,9 @@ body with one pin per contact).
 Frames. A port's frame has its origin at the centre of the face, z pointing out of the
 car (towards the robot), x to the right and y up for an upright car. A plug's tip frame
 has its origin at the centre of the plug's front face and the same axes as the port's
-frame when the two are mated; the pins stand out of the front face along −z. Fully
-inserted, `port_from_tip = translation(0, 0, −insertion_depth)`.
+frame when the two are mated; the pins stand out of the front face along −z. Mated
+(fully in), `port_from_tip` is the identity; the pins' tips first touch the face at
+`port_from_tip = translation(0, 0, insertion_depth)`.
 
 Gender follows the charging-station model of Paper III, not the cars: the port holds
 holes and the plug carries the pins, so a pin that misses its hole lands on the face.
@@ -30,7 +31,7 @@ from functools import cached_property
 import numpy as np
 
 from earcore.errors import ConfigError
-from earcore.mesh import Mesh, circle, densify, extrude, offset_polygon
+from earcore.mesh import Mesh, circle, densify, extrude, frustum, offset_polygon
 
 __all__ = ["COLLAR", "CONNECTORS", "GAP", "PLUG_CLEARANCE", "RECESS", "Connector", "Contact", "connector", "hole_polygon"]
 
@@ -44,6 +45,10 @@ RECESS = 0.006
 GAP = 0.002
 #: How much smaller than the port's face outline the plug's nose is (m).
 PLUG_CLEARANCE = 0.0005
+#: How far the plug's nose reaches into its shell (m), and how steeply the shell
+#: narrows behind its front rim (degrees from the axis).
+NOSE_OVERLAP = 0.001
+PLUG_TAPER = 35.0
 
 
 @dataclass(frozen=True)
@@ -77,7 +82,7 @@ class Connector:
 
     @property
     def insertion_depth(self) -> float:
-        """How far the plug's front face goes into the port when fully inserted (m)."""
+        """How far the plug travels from its pins touching the port's face to mated (m)."""
         return self.pin_length
 
     @cached_property
@@ -99,15 +104,21 @@ class Connector:
         holes = [(hole_polygon(c.x, c.y, self.hole_radius(c)), self.hole_depth) for c in self.contacts]
         return extrude(self.outline, depth, holes)
 
-    def plug_body_mesh(self, length: float = 0.06) -> Mesh:
+    def plug_body_mesh(self, length: float = 0.04) -> Mesh:
         """The plug's body in its tip frame: a nose of the face's outline (PLUG_CLEARANCE
         inside it) from the front face (z = 0) back to RECESS, the depth it enters an
-        installed port's recess, then a round shell as wide as the port's collar back to
-        z = `length`."""
+        installed port's recess, then a shell as wide as the port's collar at its front,
+        narrowing back to z = `length` at PLUG_TAPER (as a plug's housing narrows to its
+        grip). Seen less than PLUG_TAPER off its axis, the shell's front rim is the plug's
+        outline: its side hides behind it."""
+        back = self.radius + COLLAR - (length - RECESS) * np.tan(np.radians(PLUG_TAPER))
+        if back < 0.005:
+            raise ConfigError(f"{self.name}: a plug {length * 1000:.0f} mm long narrows to {back * 1000:.1f} mm at its back (at least 5 mm)")
         shift = np.eye(4)
-        shift[2, 3] = RECESS
-        nose = extrude(offset_polygon(self.outline, -PLUG_CLEARANCE), RECESS).moved(shift)
-        shell = extrude(circle(self.radius + COLLAR), length - RECESS)
+        shift[2, 3] = RECESS + NOSE_OVERLAP
+        # (reaching NOSE_OVERLAP into the shell: no two faces share the plane z = RECESS)
+        nose = extrude(offset_polygon(self.outline, -PLUG_CLEARANCE), RECESS + NOSE_OVERLAP).moved(shift)
+        shell = frustum(back, self.radius + COLLAR, length - RECESS)
         shift[2, 3] = length
         return Mesh.union([nose, shell.moved(shift)])
 

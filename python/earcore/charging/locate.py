@@ -55,11 +55,11 @@ def locate(
     ]
     if not found[0] or not found[1]:
         return None
-    reference = model.reference @ model.object_from_model[:3, :3].T + model.object_from_model[:3, 3]  # in the object's frame
+    # fitted in the model's frame, whose z faces the camera as the plane fit's normal does
     best = None
     for a in found[0][:pairs]:
         for b in found[1][:pairs]:
-            fit = pose_from_points(reference, triangulate(rig, a.reference_pixels, b.reference_pixels))
+            fit = pose_from_points(model.reference, triangulate(rig, a.reference_pixels, b.reference_pixels))
             if best is None or fit.rms_m < best[0].rms_m:
                 best = (fit, a, b)
     assert best is not None
@@ -70,11 +70,12 @@ def locate(
         gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
         fields.append(edge_field(gray[y0:y1, x0:x1], offset=(x0, y0)))
     cameras = [(rig.K_left, rig.dist_left, np.eye(4)), (rig.K_right, rig.dist_right, rig.right_from_left)]
-    both = refine_pose(fields, model, fit.camera_from_port @ model.object_from_model, cameras) @ np.linalg.inv(model.object_from_model)
+    model_from_object = np.linalg.inv(model.object_from_model)
+    both = refine_pose(fields, model, fit.camera_from_port, cameras) @ model_from_object
     reasons = []
     for side, match in (("left", a), ("right", b)):
         if match.flagged:
             reasons.append(f"the {side} image's match scores {match.score:.2f} < {min_score}")
     if fit.rms_m * 1000 > max_fit_mm:
         reasons.append(f"the triangulated pins fit their layout to {fit.rms_m * 1000:.1f} mm > {max_fit_mm} mm")
-    return PortEstimate(both, fit.camera_from_port, (a, b), fit.rms_m * 1000, bool(reasons), tuple(reasons), time.perf_counter() - start)
+    return PortEstimate(both, fit.camera_from_port @ model_from_object, (a, b), fit.rms_m * 1000, bool(reasons), tuple(reasons), time.perf_counter() - start)

@@ -290,14 +290,24 @@ def _poses(normal_cam: np.ndarray, rolls: np.ndarray, centre_cam: np.ndarray) ->
     return poses
 
 
-def _ellipses(gray: np.ndarray, lo_px: float, hi_px: float, offset: tuple[int, int] = (0, 0)) -> list[tuple[np.ndarray, float, float, np.ndarray]]:
-    """(centre, major and minor semi-axes, the minor axis' direction) of the edge
-    contours of `gray` that are ellipses with a major semi-axis in [lo_px, hi_px]."""
+def _ellipses(
+    gray: np.ndarray, lo_px: float, hi_px: float, offset: tuple[int, int] = (0, 0), source: str = "edges"
+) -> list[tuple[np.ndarray, float, float, np.ndarray]]:
+    """(centre, major and minor semi-axes, the minor axis' direction) of the contours of
+    `gray` that are ellipses with a major semi-axis in [lo_px, hi_px]: its edges'
+    contours (`source` "edges") or the outlines of its darkest blobs ("blobs": an edge
+    contour of a dark outline that touches a neighbour's edges, a plug before the
+    robot's flange, runs on along them)."""
     import cv2
 
-    edges = cv2.Canny(cv2.GaussianBlur(gray, (5, 5), 1.0), 10, 30)
-    contours, _ = cv2.findContours(edges, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    out = []
+    blurred = cv2.GaussianBlur(gray, (5, 5), 1.0)
+    if source == "edges":
+        contours, _ = cv2.findContours(cv2.Canny(blurred, 10, 30), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    else:
+        darkest, middle = np.percentile(blurred, [2, 50])
+        dark = (blurred < darkest + 0.35 * (middle - darkest)).astype(np.uint8)
+        contours, _ = cv2.findContours(dark, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    out: list[tuple[np.ndarray, float, float, np.ndarray]] = []
     for c in contours:
         if len(c) < max(12, lo_px):  # at least a good part of the outline
             continue
@@ -314,7 +324,39 @@ def _ellipses(gray: np.ndarray, lo_px: float, hi_px: float, offset: tuple[int, i
         if np.median(np.abs(radial - 1.0)) > 0.06:
             continue
         minor_dir = np.array([np.cos(a), np.sin(a)]) if w < h else np.array([-np.sin(a), np.cos(a)])
-        out.append((np.array([cx + offset[0], cy + offset[1]]), major, minor, minor_dir))
+        centre = np.array([cx + offset[0], cy + offset[1]])
+        out.append((centre, major, minor, minor_dir))
+    return out
+
+
+def _distinct(ellipses: list) -> list:
+    """`ellipses` without repeats (the same outline found as an edge and as a blob)."""
+    out: list = []
+    for e in ellipses:
+        if not any(np.abs(e[0] - o[0]).max() < 2 and abs(e[1] - o[1]) < 0.03 * e[1] and abs(e[2] - o[2]) < 0.03 * e[2] for o in out):
+            out.append(e)
+    return out
+
+
+def _dark_regions(darkness: np.ndarray, threshold: float, max_half: float, depth: int = 3) -> list[np.ndarray]:
+    """Connected regions (x, y, w, h, area; quarter-resolution pixels) darker than their
+    surroundings by more than `threshold`. A region wider than 2·`max_half` (full-
+    resolution pixels) is split at a higher threshold, half its darkest: a black
+    connector beside faintly shaded surfaces (a white robot's side) merges with them at
+    a low threshold that a dark car's paint needs."""
+    import cv2
+
+    count, labels, stats, _ = cv2.connectedComponentsWithStats((darkness > threshold).astype(np.uint8))
+    out = []
+    for i in range(1, count):
+        x, y, w, h, _ = stats[i]
+        if 4 * max(w, h) / 2 <= max_half or depth == 0:
+            out.append(stats[i])
+            continue
+        inside = np.where(labels[y : y + h, x : x + w] == i, darkness[y : y + h, x : x + w], 0)
+        higher = max(threshold * 2, 0.5 * float(inside.max()))
+        for sub in _dark_regions(inside, higher, max_half, depth - 1):
+            out.append(sub + np.array([x, y, 0, 0, 0]))
     return out
 
 
@@ -328,17 +370,16 @@ def _candidates(
     f = float(K[0, 0])
     lo_px, hi_px = 0.8 * f * model.outer_radius / distances[1], 1.2 * f * model.outer_radius / distances[0]
     if not narrow:
-        return _ellipses(gray, lo_px, hi_px)
+        return _distinct(_ellipses(gray, lo_px, hi_px) + _ellipses(gray, lo_px, hi_px, source="blobs"))
     # dark regions no bigger than the connector: a black-hat (closing minus image) with
     # a square a little wider than the connector at its nearest keeps those and drops
     # larger dark areas (a dark car's whole side)
     small = cv2.resize(gray, (gray.shape[1] // 4, gray.shape[0] // 4), interpolation=cv2.INTER_AREA)
     size = int(1.3 * 2 * hi_px / 4) | 1
     square = cv2.getStructuringElement(cv2.MORPH_RECT, (size, size))  # separable: fast at any size
-    mask = (cv2.morphologyEx(cv2.GaussianBlur(small, (0, 0), 1.0), cv2.MORPH_BLACKHAT, square) > 8).astype(np.uint8)
-    count, _, stats, _ = cv2.connectedComponentsWithStats(mask)
+    darkness = cv2.morphologyEx(cv2.GaussianBlur(small, (0, 0), 1.0), cv2.MORPH_BLACKHAT, square)
     out = []
-    for x, y, w, h, area in stats[1:count]:
+    for x, y, w, h, area in _dark_regions(darkness, 8, 1.3 * hi_px / 2):
         side = 4 * max(w, h) / 2
         if not 0.5 * lo_px <= side <= 1.3 * hi_px or area < 0.2 * w * h:
             continue
@@ -346,8 +387,10 @@ def _candidates(
         cx, cy = 4 * (x + w / 2), 4 * (y + h / 2)
         x0, y0 = max(int(cx) - half, 0), max(int(cy) - half, 0)
         x1, y1 = min(int(cx) + half, gray.shape[1]), min(int(cy) + half, gray.shape[0])
-        found = _ellipses(gray[y0:y1, x0:x1], lo_px, hi_px, (x0, y0))
-        out += sorted(found, key=lambda e: -e[1])[:2]  # the outermost outline first
+        window = gray[y0:y1, x0:x1]
+        edges = sorted(_ellipses(window, lo_px, hi_px, (x0, y0)), key=lambda e: -e[1])[:2]  # the outermost outline first
+        blobs = sorted(_ellipses(window, lo_px, hi_px, (x0, y0), source="blobs"), key=lambda e: -e[1])[:1]
+        out += _distinct(edges + blobs)
     return out
 
 

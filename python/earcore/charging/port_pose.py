@@ -58,14 +58,15 @@ def plane_normal(a: float, b: float) -> np.ndarray:
 
 
 def pose_from_points(model: np.ndarray, measured: np.ndarray) -> PoseFit:
-    """`camera_from_port` from the connector's reference points (K, 3; on its face,
-    z = 0) and the same points measured in the camera (K, 3, in the same order): the
-    axis from the plane fit, the turn about it from the layout."""
+    """`camera_from_port` from the connector's reference points (K, 3; in one plane
+    z = const of its frame, z facing the camera: the port's face) and the same points
+    measured in the camera (K, 3, in the same order): the axis from the plane fit, the
+    turn about it from the layout."""
     model, measured = np.asarray(model, float), np.asarray(measured, float)
     if model.shape != measured.shape or model.ndim != 2 or model.shape[1] != 3 or len(model) < 3:
         raise ValueError(f"pose_from_points: expected matching (K >= 3, 3) arrays, got {model.shape} and {measured.shape}")
-    if np.abs(model[:, 2]).max() > 1e-9:
-        raise ValueError("pose_from_points: the model's points must lie on its face (z = 0)")
+    if np.ptp(model[:, 2]) > 1e-9:
+        raise ValueError("pose_from_points: the model's points must lie in one plane z = const")
     z_axis = plane_normal(*fit_plane(measured)[:2])
     # any in-plane basis, then the layout's turn in it
     helper = np.array([1.0, 0.0, 0.0]) if abs(z_axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])

@@ -33,10 +33,19 @@ from earcore.charging.stereo import StereoRig, verging_pose
 from earcore.errors import ConfigError
 from earcore.mesh import Mesh, circle, densify, extrude, offset_polygon
 from earcore.sim.camera import SimulatedCamera
+from earcore.sim.compliant_holder import Compliance, CompliantHolder
 from earcore.sim.sensors import SENSORS
 from earcore.transforms import axis_angle_matrix, look_at, quaternion
 
 __all__ = ["ChargingCell", "ChargingCellConfig", "Parking", "STANDBY"]
+
+#: Collision margin and friction of the plug and the port (m): pybullet's default margin
+#: (1 mm) would close the pins' 0.4 mm clearance.
+CONTACT_MARGIN = 1e-4
+FRICTION = 0.3
+#: The plug's length behind its front face, and of its shell's front rim in the physics (m).
+PLUG_LENGTH = 0.04
+SHELL_RIM = 0.005
 
 #: The UR10's stand-by joints: arm folded up and turned aside, clear of the cameras' view.
 STANDBY = np.array([-np.pi / 2, -2.4, 2.3, -1.5, -np.pi / 2, 0.0])
@@ -56,6 +65,8 @@ class ChargingCellConfig:
     max_roll_deg: float = 5.0
     #: The stereo pair: its midpoint, baseline (m) and camera model (`SENSORS`).
     rig_position: tuple[float, float, float] = (-0.6, -0.8, 0.7)
+    #: Where the left camera looks (default: the nominal port).
+    camera_target: tuple[float, float, float] | None = None
     baseline: float = 0.6
     sensor: str = "machine_vision"
     #: The cameras' resolution as a fraction of the sensor's (quick runs and tests).
@@ -64,6 +75,12 @@ class ChargingCellConfig:
     image_noise: float = 2.0
     #: The plug's tip from the flange: along the flange's z (m).
     tip_offset: float = 0.14
+    #: The plug's mass with the share of its cable's weight the holder carries (kg).
+    plug_mass: float = 0.5
+    cable_mass: float = 1.0
+    #: The plug holder's passive compliance and the physics' time step (s).
+    compliance: Compliance = field(default_factory=Compliance)
+    time_step: float = 0.001
     car_colours: tuple[tuple[float, float, float], ...] = field(
         default=((0.55, 0.05, 0.05), (0.1, 0.2, 0.45), (0.75, 0.75, 0.75), (0.95, 0.95, 0.93), (0.25, 0.28, 0.35), (0.15, 0.35, 0.2))
     )
@@ -77,6 +94,8 @@ class ChargingCellConfig:
             raise ConfigError(f"charging cell: max_angle_deg must be in [0, 55] (beyond, the port is seen too edge-on to match), got {self.max_angle_deg}")
         if not 0 < self.camera_scale <= 1:
             raise ConfigError(f"charging cell: camera_scale must be in (0, 1], got {self.camera_scale}")
+        if not 0 < self.time_step <= 0.002 or self.plug_mass <= 0 or self.cable_mass < 0:
+            raise ConfigError("charging cell: time_step must be in (0, 2 ms] (contacts at the pins' clearance) and the masses positive")
         if self.baseline <= 0 or self.parking_area < 0:
             raise ConfigError("charging cell: baseline must be positive and parking_area not negative")
         return self
@@ -114,6 +133,9 @@ class ChargingCell:
         self.plug_connector: Connector = connector(c.plug)
         self.p = p = BulletClient(pybullet.DIRECT)
         p.setGravity(0, 0, -9.81)
+        p.setPhysicsEngineParameter(fixedTimeStep=c.time_step, numSolverIterations=50)
+        #: Simulated seconds the physics has run.
+        self.time = 0.0
         self._static = self._build_static()
         self.robot_id = p.loadURDF(str(robots.urdf_path(c.robot)), useFixedBase=True)
         self.joint_ids = [j for j in range(p.getNumJoints(self.robot_id)) if p.getJointInfo(self.robot_id, j)[2] != p.JOINT_FIXED]
@@ -123,6 +145,8 @@ class ChargingCell:
         self.flange_from_tip[:3, :3] = axis_angle_matrix([1.0, 0.0, 0.0], np.pi)  # the pins point along the flange's z
         self.flange_from_tip[2, 3] = c.tip_offset
         self._plug = self._build_plug()
+        self.plug_id, self.holder = self._build_plug_physics()
+        self._last_target: np.ndarray | None = None
         #: A light above and behind the cameras, ambient enough for black plastic to show.
         self.lighting = {"lightDirection": [-0.3, -1.0, 1.5], "lightAmbientCoeff": 0.45, "lightDiffuseCoeff": 0.6, "lightSpecularCoeff": 0.0, "shadow": 0}
         self._port_bodies: list[int] = []
@@ -143,7 +167,10 @@ class ChargingCell:
             p.GEOM_MESH, vertices=flat.vertices.tolist(), indices=flat.triangles.ravel().tolist(), normals=normals, rgbaColor=[*colour, 1.0]
         )
         shape = p.createCollisionShape(p.GEOM_MESH, vertices=vertices, indices=indices, flags=p.GEOM_FORCE_CONCAVE_TRIMESH) if collision else -1
-        return p.createMultiBody(0, shape, visual, pose[:3, 3].tolist(), list(quaternion(pose[:3, :3])))
+        body = p.createMultiBody(0, shape, visual, pose[:3, 3].tolist(), list(quaternion(pose[:3, :3])))
+        if collision:
+            p.changeDynamics(body, -1, collisionMargin=CONTACT_MARGIN, lateralFriction=FRICTION)
+        return body
 
     def _box(self, centre, half, rotation: np.ndarray, colour) -> int:
         p = self.p
@@ -156,12 +183,17 @@ class ChargingCell:
         post = self._box((0.0, 0.0, -0.52), (0.08, 0.08, 0.5), np.eye(3), (0.35, 0.35, 0.38))
         return [floor, post]
 
+    def drive_away(self) -> None:
+        """Take the car out of the cell (until the next `park`)."""
+        for body in self._port_bodies:
+            self.p.removeBody(body)
+        self._port_bodies = []
+
     def park(self, rng: np.random.Generator | None = None) -> Parking:
         """Put the car's side and its port at a new random place (imperfect parking)."""
-        c, p = self.config, self.p
+        c = self.config
         rng = self.rng if rng is None else rng
-        for body in self._port_bodies:
-            p.removeBody(body)
+        self.drive_away()
         nominal = np.asarray(c.port_nominal, dtype=np.float64)
         facing = _upright_port(np.asarray(c.rig_position) - nominal)
         centre = nominal + facing[:, 0] * rng.uniform(-0.5, 0.5) * c.parking_area + facing[:, 1] * rng.uniform(-0.5, 0.5) * c.parking_area
@@ -215,16 +247,48 @@ class ChargingCell:
         return [port, collar, sleeve, dark, panel, gap]
 
     def _build_plug(self) -> list[int]:
+        """The plug as the cameras see it (no collision; placed where the physics' plug is)."""
         k = self.plug_connector
-        body = self._mesh_body(k.plug_body_mesh(0.07), np.eye(4), (0.12, 0.12, 0.13))
+        body = self._mesh_body(k.plug_body_mesh(PLUG_LENGTH), np.eye(4), (0.12, 0.12, 0.13))
+        # matt plastic (the renderer's default specular would paint it light grey), shiny pins
+        self.p.changeVisualShape(body, -1, specularColor=[0.05, 0.05, 0.05])
         pins = self._mesh_body(Mesh.union(k.pin_meshes()), np.eye(4), (0.75, 0.68, 0.45))
         return [body, pins]
+
+    def _build_plug_physics(self) -> tuple[int, CompliantHolder]:
+        """The plug as the physics sees it, a free body in its tip frame: one capsule
+        per pin (round tips, as real pins have: they lead a pin into its hole within
+        about its radius) and the front rim of the shell behind the nose, which stops on
+        the collar's front when the plug is fully in. The nose itself is left out: its
+        clearance (0.5 mm) is wider than the pins' and they guide it."""
+        c, p, k = self.config, self.p, self.plug_connector
+        types, radii, lengths, frames = [], [], [], []
+        for ct in k.contacts:
+            types.append(p.GEOM_CAPSULE)
+            radii.append(ct.radius)
+            lengths.append(k.pin_length - 2 * ct.radius)
+            frames.append([ct.x, ct.y, -k.pin_length / 2])
+        types.append(p.GEOM_CYLINDER)
+        radii.append(k.radius + COLLAR)
+        lengths.append(SHELL_RIM)
+        frames.append([0.0, 0.0, RECESS + SHELL_RIM / 2])
+        shape = p.createCollisionShapeArray(shapeTypes=types, radii=radii, lengths=lengths, collisionFramePositions=frames)
+        mass = c.plug_mass + c.cable_mass
+        inertia = (3e-3, 3e-3, 2e-3)  # the plug with its cable's stiff first part
+        # a speck of a visual inside the plug: a body without one is drawn with its
+        # collision shapes, over the plug the cameras should see
+        speck = p.createVisualShape(p.GEOM_SPHERE, radius=1e-4, visualFramePosition=[0.0, 0.0, PLUG_LENGTH / 2])
+        body = p.createMultiBody(mass, shape, speck)
+        p.changeDynamics(body, -1, collisionMargin=CONTACT_MARGIN, lateralFriction=FRICTION, localInertiaDiagonal=inertia, linearDamping=0.0, angularDamping=0.0)
+        for link in range(-1, p.getNumJoints(self.robot_id)):
+            p.setCollisionFilterPair(body, self.robot_id, -1, link, 0)
+        return body, CompliantHolder(p, body, c.compliance, mass, inertia)
 
     def _build_cameras(self) -> list[SimulatedCamera]:
         c = self.config
         sensor = SENSORS[c.sensor] if c.camera_scale == 1.0 else SENSORS[c.sensor].scaled(c.camera_scale)
         middle = np.asarray(c.rig_position, dtype=np.float64)
-        target = np.asarray(c.port_nominal, dtype=np.float64)
+        target = np.asarray(c.port_nominal if c.camera_target is None else c.camera_target, dtype=np.float64)
         forward = (target - middle) / np.linalg.norm(target - middle)
         side = np.cross(forward, [0.0, 0.0, 1.0])
         side /= np.linalg.norm(side)
@@ -241,13 +305,49 @@ class ChargingCell:
 
     # -- the robot -----------------------------------------------------------------------------
 
-    def set_joints(self, q) -> None:
+    def _set_robot(self, q) -> None:
         q = np.asarray(q, dtype=np.float64)
-        if q.shape != (len(self.joint_ids),):
-            raise ValueError(f"expected {len(self.joint_ids)} joints, got shape {q.shape}")
+        if q.shape != (len(self.joint_ids),) or not np.isfinite(q).all():
+            raise ValueError(f"expected {len(self.joint_ids)} finite joints, got shape {q.shape}")
         for j, v in zip(self.joint_ids, q):
             self.p.resetJointState(self.robot_id, j, float(v))
+
+    def set_joints(self, q) -> None:
+        """Put the robot at `q` and the plug in its holder at rest (motion in free space:
+        no physics)."""
+        self._set_robot(q)
+        pose = self.base_from_tip()
+        self.p.resetBasePositionAndOrientation(self.plug_id, pose[:3, 3].tolist(), list(quaternion(pose[:3, :3])))
+        self.p.resetBaseVelocity(self.plug_id, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+        self._last_target = pose
         self._place_plug()
+
+    def servo(self, q) -> np.ndarray:
+        """One physics tick with the robot commanded to `q`: the holder pulls the plug
+        towards the flange's tip pose, contacts push back. Returns the wrist sensor's
+        force on the plug in the tip frame (N): z < 0 pushes the plug along its pins."""
+        self._set_robot(q)
+        target = self.base_from_tip()
+        last = target if self._last_target is None else self._last_target
+        velocity = (target[:3, 3] - last[:3, 3]) / self.config.time_step
+        force = self.holder.apply(target, velocity)
+        self.p.stepSimulation()
+        self._last_target = target
+        self.time += self.config.time_step
+        return force
+
+    def base_from_plug(self) -> np.ndarray:
+        """Where the plug's tip frame truly is (it lags the flange in contact)."""
+        position, orientation = self.p.getBasePositionAndOrientation(self.plug_id)
+        m = np.eye(4)
+        m[:3, :3] = np.reshape(self.p.getMatrixFromQuaternion(orientation), (3, 3))
+        m[:3, 3] = position
+        return m
+
+    def plug_contact_force(self) -> float:
+        """The sum of the normal forces between the plug and the car (N), the truth the
+        wrist sensor's reading approximates."""
+        return float(sum(c[9] for c in self.p.getContactPoints(self.plug_id)))
 
     @property
     def joints(self) -> np.ndarray:
@@ -264,7 +364,7 @@ class ChargingCell:
         return self.base_from_flange() @ self.flange_from_tip
 
     def _place_plug(self) -> None:
-        pose = self.base_from_tip()
+        pose = self.base_from_plug()
         x, y, z, w = quaternion(pose[:3, :3])
         for body in self._plug:
             self.p.resetBasePositionAndOrientation(body, pose[:3, 3].tolist(), [x, y, z, w])
@@ -286,6 +386,7 @@ class ChargingCell:
 
     def capture(self) -> tuple[np.ndarray, np.ndarray]:
         """Both cameras' colour images (H, W, 3 uint8) with the sensor's noise."""
+        self._place_plug()
         out = []
         for camera in self.cameras:
             image = camera.render_colour().astype(np.float64)

@@ -146,6 +146,11 @@ def test_ax_zb_recovers_camera_and_mount_from_board_poses():
     exact = np.array([np.linalg.inv(x) @ f @ z for f in flanges])
     li = fit_eye_to_hand_from_poses(exact, flanges, corners, method="li")
     assert np.abs(li.base_from_camera - x).max() < 1e-6 and li.rmse < 1e-6
+    # Tsai-Lenz (from relative motions, the mount after): exact on exact poses, close on noisy ones
+    tsai = fit_eye_to_hand_from_poses(exact, flanges, corners, method="tsai")
+    assert np.abs(tsai.base_from_camera - x).max() < 1e-6 and np.abs(tsai.flange_from_board - z).max() < 1e-6
+    tsai = fit_eye_to_hand_from_poses(poses, flanges, corners, method="tsai")
+    assert np.linalg.norm(tsai.base_from_camera[:3, 3] - x[:3, 3]) < 3e-3 and angle_deg(tsai.base_from_camera, x) < 0.15
     # Bad input: too few frames, no rotation variety, wrong counts, unknown method.
     with pytest.raises(TooFewFrames, match="webcam"):
         fit_eye_to_hand_from_poses(exact[:2], flanges[:2], corners, camera="webcam")
@@ -156,7 +161,7 @@ def test_ax_zb_recovers_camera_and_mount_from_board_poses():
     with pytest.raises(ValueError, match="board poses"):
         fit_eye_to_hand_from_poses(exact[:5], flanges, corners)
     with pytest.raises(ValueError, match="method"):
-        fit_eye_to_hand_from_poses(exact, flanges, corners, method="tsai")
+        fit_eye_to_hand_from_poses(exact, flanges, corners, method="lenz")
 
 
 def test_reprojection_refinement_recovers_camera_and_mount():

@@ -90,8 +90,8 @@ def test_port_and_plug_meshes(name):
     assert edges_are_closed(port)
     holes = sum(polygon_area(hole_polygon(k.x, k.y, c.hole_radius(k))) for k in c.contacts)
     assert port.volume_and_centroid()[0] == pytest.approx(polygon_area(c.outline) * 0.035 - holes * c.hole_depth, rel=1e-9)
-    body = c.plug_body_mesh(0.06)
-    assert body.vertices[:, 2].min() == pytest.approx(0.0) and body.vertices[:, 2].max() == pytest.approx(0.06)
+    body = c.plug_body_mesh(0.04)
+    assert body.vertices[:, 2].min() == pytest.approx(0.0) and body.vertices[:, 2].max() == pytest.approx(0.04)
     for contact, pin in zip(c.contacts, c.pin_meshes()):
         assert edges_are_closed(pin)
         assert pin.vertices[:, 2].min() == pytest.approx(-c.pin_length)

@@ -84,8 +84,17 @@ def test_pose_inputs_are_checked():
     model = connector("type2").reference_points
     with pytest.raises(ValueError, match="matching"):
         pose_from_points(model, model[:4])
-    with pytest.raises(ValueError, match="face"):
-        pose_from_points(model + [0, 0, 0.01], model)
+    bent = model.copy()
+    bent[0, 2] = 0.01
+    with pytest.raises(ValueError, match="one plane"):
+        pose_from_points(bent, model)
+    # a layout on another plane of its frame (a plug's pins' tips, z = -20 mm) fits as well
+    tips = model - [0.0, 0.0, 0.02]
+    pose = np.eye(4)
+    pose[:3, :3] = rotation_from_vector([0.1, np.pi - 0.3, 0.05])  # z towards the camera
+    pose[:3, 3] = [0.1, -0.05, 1.8]
+    fit = pose_from_points(tips, tips @ pose[:3, :3].T + pose[:3, 3])
+    assert np.abs(fit.camera_from_port - pose).max() < 1e-9
     rig = verging_rig(K, 0.4, 10.0)
     with pytest.raises(ValueError, match=r"\(K, 2\)"):
         refine_in_images(rig, np.eye(4), model, np.zeros((3, 2)), np.zeros((7, 2)))
