@@ -33,7 +33,7 @@ __all__ = ["main"]
 
 #: Plugged in, as the simulation's truth sees it: the plug's tip within this of the
 #: mated pose along the axis (m).
-MATED_TOLERANCE = 0.0015
+MATED_TOLERANCE = 0.001
 
 
 def _parser(prog: str) -> Parser:
@@ -47,9 +47,23 @@ def _parser(prog: str) -> Parser:
     parser.add_argument("--force-threshold", type=float, default=25.0, help="stop inserting above this force along the axis (N, default 25)")
     parser.add_argument("--camera-pose", choices=("markerless", "truth"), default="markerless", help="calibrate without markers first (default) or use the truth")
     parser.add_argument("--calibration-poses", type=positive_int, default=30, help="poses the robot may use to calibrate (default 30)")
-    parser.add_argument("--rough", default="30,3", metavar="MM,DEG", help="how far off the installation's rough camera pose is (default 30,3)")
+    parser.add_argument("--rough", type=_rough, default=(30.0, 3.0), metavar="MM,DEG", help="how far off the installation's rough camera pose is (default 30,3)")
     parser.add_argument("--out", type=Path, default=Path("out/charge"), help="where the reports go (default out/charge)")
     return parser
+
+
+def _rough(text: str) -> tuple[float, float]:
+    """MM,DEG: two finite numbers >= 0."""
+    import argparse
+    import math
+
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MM,DEG, got {text!r}") from None
+    if not (math.isfinite(mm) and math.isfinite(deg) and mm >= 0 and deg >= 0):
+        raise argparse.ArgumentTypeError(f"MM and DEG must be finite and >= 0, got {text!r}")
+    return mm, deg
 
 
 def _pose_errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
@@ -157,8 +171,9 @@ def _summary_figure(path: Path, runs: list[dict[str, Any]], threshold: float, li
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
-    statuses = ["plugged", "blocked", "refused"]
-    axes[0].bar(statuses, [sum(r["status"] == s for r in runs) for s in statuses], color=["tab:green", "tab:orange", "tab:gray"])
+    statuses = ["plugged", "blocked", "not reached", "stuck", "refused"]
+    colours = ["tab:green", "tab:orange", "tab:purple", "tab:red", "tab:gray"]
+    axes[0].bar(statuses, [sum(r["status"] == s for r in runs) for s in statuses], color=colours)
     axes[0].set_title(f"{len(runs)} parkings")
     errors = [r["pose_error"] for r in runs if "pose_error" in r]
     if errors:
@@ -237,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
         "plugged": len(plugged),
         "plugged_truth": sum(bool(r.get("plugged_truth")) for r in runs),
         "blocked": sum(r["status"] == "blocked" for r in runs),
+        "not_reached": sum(r["status"] == "not reached" for r in runs),
+        "stuck": sum(r["status"] == "stuck" for r in runs),
         "refused": sum(r["status"] == "refused" for r in runs),
         "attempted_while_flagged": 0,  # a flagged estimate is refused before planning (charging.session)
         "max_peak_force_n": max((r["peak_force_n"] for r in runs if "peak_force_n" in r), default=0.0),
@@ -267,10 +284,7 @@ def _calibrate(cell, robot, link, args) -> tuple[np.ndarray, np.ndarray, dict[st
     true_camera, true_tip = cell.cameras[0].base_from_camera, cell.flange_from_tip
     if args.camera_pose == "truth":
         return true_camera, true_tip, {"method": "truth (simulation)"}
-    try:
-        mm, deg = (float(v) for v in args.rough.split(","))
-    except ValueError:
-        raise ValueError(f"--rough must be MM,DEG, got {args.rough!r}") from None
+    mm, deg = args.rough
     rng = np.random.default_rng([args.seed, 7])
 
     def off(translation: float, rotation_deg: float) -> np.ndarray:

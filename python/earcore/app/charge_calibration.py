@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+import earcore
 from earcore.calibration.eye_to_hand import apply_pose, fit_eye_to_hand, fit_eye_to_hand_from_poses
 from earcore.charging.connectors import Connector
 from earcore.charging.locate import locate
@@ -104,29 +105,35 @@ def calibrate_markerless(
     flanges, seen, discarded = [], [], []
     tried, q = 0, start
     tip_from_flange = np.linalg.inv(rough_tip)
-    for target in _targets(c, rough_camera, middle, rng):
-        if tried >= c.poses:
-            break
-        try:
-            q = solve_ik(robot, target @ tip_from_flange, link=flange_link, seed_q=q, position_tolerance=1e-3, orientation_tolerance=5e-3,
-                         restarts=4, iterations=150, rng=rng).q  # fmt: skip
-        except UnreachablePose:
-            continue  # not a pose tried: the robot never went there
-        tried += 1
-        station.set_joints(q)
-        left, right = station.capture()
-        estimate = locate(left, right, model, rig)
-        if progress is not None:
-            progress(tried)
-        if estimate is None:
-            discarded.append(f"pose {tried}: the plug not found in both images")
-            continue
-        if estimate.flagged:
-            discarded.append(f"pose {tried}: " + "; ".join(estimate.reasons))
-            continue
-        flanges.append(robot.fk(q)[flange_link])
-        seen.append(estimate.camera_from_port)
-    station.set_joints(start)
+    free_space = earcore.OcTree(0.05)  # nothing but the robot itself to avoid
+    try:
+        for target in _targets(c, rough_camera, middle, rng):
+            if tried >= c.poses:
+                break
+            try:
+                q = solve_ik(robot, target @ tip_from_flange, link=flange_link, seed_q=q, tree=free_space, position_tolerance=1e-3,
+                             orientation_tolerance=5e-3, restarts=4, iterations=150, rng=rng).q  # fmt: skip
+            except UnreachablePose:
+                continue  # not a pose tried: the robot never went there
+            if robot.check_motion(free_space, station.joints, q, 0.02):
+                q = station.joints
+                continue  # the arm would pass through itself on the way
+            tried += 1
+            station.set_joints(q)
+            left, right = station.capture()
+            estimate = locate(left, right, model, rig)
+            if progress is not None:
+                progress(tried)
+            if estimate is None:
+                discarded.append(f"pose {tried}: the plug not found in both images")
+                continue
+            if estimate.flagged:
+                discarded.append(f"pose {tried}: " + "; ".join(estimate.reasons))
+                continue
+            flanges.append(robot.fk(q)[flange_link])
+            seen.append(estimate.camera_from_port)
+    finally:
+        station.set_joints(start)
     if len(seen) < c.min_good:
         raise CalibrationFailed(f"only {len(seen)} of {tried} poses showed the plug well (need {c.min_good}): " + "; ".join(discarded[:5]))
     flanges_arr, seen_arr = np.array(flanges), np.array(seen)

@@ -33,7 +33,7 @@ own frame; for the plug its tip frame turned about x); `Match` gives the object'
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -69,6 +69,13 @@ class ShapeModel:
     #: An opening (polygon in the model's x, y at height z) the points below it are seen
     #: through: a point whose line of sight crosses z outside the polygon is hidden.
     rim: tuple[np.ndarray, float] | None = None
+
+    def subset(self, keep: np.ndarray) -> ShapeModel:
+        """The model with only the points where `keep` (M bool) holds."""
+        return replace(
+            self, points=self.points[keep], tangents=self.tangents[keep], outer=self.outer[keep], normals=self.normals[keep],
+            polarity=self.polarity[keep], precise=self.precise[keep],
+        )  # fmt: skip
 
     @staticmethod
     def _ring(polygon: np.ndarray, z: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -409,15 +416,18 @@ def find_all(
     narrow: bool = True,
     refine: bool = True,
     distances: tuple[float, float] = (1.0, 3.0),
-    roll_step_deg: float = 3.0,
+    roll_step_deg: float = 6.0,
     refine_best: int = 4,
     min_score: float = 0.55,
 ) -> list[Match]:
     """The refined hypotheses of `model` in a colour or grey image, best first (empty
     when no candidate region is found). A single image cannot tell a planar pattern
     tilted one way from the same tilted the other way (they look alike up to
-    perspective); `charging.locate` settles that with the second camera. Distances (m) bound the search's scale; the `refine_best` best
-    hypotheses of the search are refined and the best of them kept; a match scoring
+    perspective); `charging.locate` settles that with the second camera. Distances (m)
+    bound the search's scale. The turn about the axis is searched every `roll_step_deg`
+    on the points inside the outermost outline (a circle: alike at every turn), then
+    at a third of the step around the best. The `refine_best` best hypotheses of the
+    search are refined and the best of them kept; a match scoring
     under `min_score` comes back `flagged`. The image is 8-bit: (H, W) grey, (H, W, 3)
     RGB or (H, W, 4) RGBA."""
     import cv2
@@ -434,6 +444,8 @@ def find_all(
     dist = np.zeros(5) if distortion is None else np.asarray(distortion, dtype=np.float64)
     found: list[tuple[float, np.ndarray, EdgeField, tuple[int, int, int, int]]] = []
     rolls = np.radians(np.arange(0.0, 360.0, roll_step_deg))
+    fine = np.radians(roll_step_deg) * np.array([-2.0, -1.0, 1.0, 2.0]) / 3
+    inner_points = model.subset(~model.outer)
     outer_z = float(model.points[model.outer, 2].mean())  # the outer outline's plane in the model
     for centre, major, minor, minor_dir in _candidates(gray, model, K, narrow, distances):
         # a window around the region, edges only there
@@ -453,8 +465,11 @@ def find_all(
         for sign in (1.0, -1.0):
             normal = axis_angle_matrix(hinge, sign * tilt) @ (-direction)
             centre_cam = direction * depth - normal * outer_z  # the outline's centre on the ray
-            poses = _poses(normal, rolls, centre_cam)
-            scores = np.asarray(score(field, model, poses, K, dist, coarse=True))
+            scores = np.asarray(score(field, inner_points, _poses(normal, rolls, centre_cam), K, dist, coarse=True))
+            best = rolls[int(np.argmax(scores))]
+            around = np.r_[best, best + fine]
+            poses = _poses(normal, around, centre_cam)
+            scores = np.asarray(score(field, inner_points, poses, K, dist, coarse=True))
             k = int(np.argmax(scores))
             found.append((float(scores[k]), poses[k], field, (x0, y0, x1, y1)))
     if not found:
@@ -468,8 +483,8 @@ def find_all(
         camera_from_object = pose @ np.linalg.inv(model.object_from_model)
         H = K @ np.c_[camera_from_object[:3, :2], camera_from_object[:3, 3]]
         reference = _project(model.reference, pose, K, dist)
-        inner = float(score(field, model, pose, K, dist, inner=True))
-        out.append(Match(camera_from_object, H / H[2, 2], s, reference, window, time.perf_counter() - start, inner, s < min_score))
+        inner_score = float(score(field, model, pose, K, dist, inner=True))
+        out.append(Match(camera_from_object, H / H[2, 2], s, reference, window, time.perf_counter() - start, inner_score, s < min_score))
     return sorted(out, key=lambda m: -m.score)
 
 

@@ -30,7 +30,7 @@ from earcore.planning.errors import PlanningError
 from earcore.planning.ik import UnreachablePose, solve_ik
 from earcore.transforms import rotation_vector
 
-__all__ = ["PlugInConfig", "PlugInPlan", "PlugInResult", "PortOutOfReach", "axis_error", "car_keep_out", "plan_plug_in", "plug_in", "unplug"]
+__all__ = ["PlugInConfig", "PlugInPlan", "PlugInResult", "PlugStuck", "PortOutOfReach", "axis_error", "car_keep_out", "plan_plug_in", "plug_in", "unplug"]
 
 
 class PortOutOfReach(PlanningError):
@@ -157,6 +157,11 @@ def plan_plug_in(
     base_from_port = np.asarray(base_from_port, dtype=np.float64)
     if base_from_port.shape != (4, 4) or not np.isfinite(base_from_port).all():
         raise ValueError(f"base_from_port must be a finite 4x4 pose, got shape {base_from_port.shape}")
+    if c.approach_distance <= insertion_depth + c.standoff:
+        raise ConfigError(
+            f"plug-in: the approach ends {c.approach_distance * 1000:.0f} mm from the face, inside the align step's "
+            f"{(insertion_depth + c.standoff) * 1000:.0f} mm (the pins' length and the standoff)"
+        )
     tree = car_keep_out(base_from_port) if tree is None else tree
     rng = rng or np.random.default_rng(0)
     start = c.approach_distance
@@ -176,6 +181,9 @@ def plan_plug_in(
     end = -c.overtravel
     insert_offsets = np.linspace(touch + c.standoff, end, max(2, int(np.ceil((touch + c.standoff - end) / c.step)) + 1))
     insert = _line(model, link, flange_from_tip, base_from_port, insert_offsets, align[-1])
+    touching = model.check_configurations(tree, np.vstack([align, insert]))
+    if touching.any():
+        raise PortOutOfReach("the arm would touch the car (or itself) on the straight moves to the port")
     return PlugInPlan(base_from_port, path, align, insert, insertion_depth, c)
 
 
@@ -225,11 +233,16 @@ def plug_in(station, plan: PlugInPlan) -> PlugInResult:
     station.time += _joint_seconds(np.vstack([q0, plan.approach]), c.joint_speed)
     trace: list = []
     executed: list = [plan.approach[-1]]
-    _follow(station, plan.align, c.tool_speed * c.align_fraction, c.step, watch=c.force_threshold, trace=trace, executed=executed, acceleration=c.acceleration)
+    stopped, peak = _follow(
+        station, plan.align, c.tool_speed * c.align_fraction, c.step, watch=c.force_threshold, trace=trace, executed=executed, acceleration=c.acceleration
+    )
+    if stopped:  # something met the plug before the pins should reach the face: go no further
+        return PlugInResult(False, True, -c.standoff, peak, np.array(trace).reshape(-1, 2), executed, station.time - start)
     stopped, peak = _follow(
         station, plan.insert, c.tool_speed * c.insert_fraction, c.step, watch=c.force_threshold, trace=trace, executed=executed, acceleration=c.acceleration
     )
-    # judge the depth by where the commanded pose stopped
+    # judged by where the commanded pose stopped: the shell on the collar at the mating
+    # depth, or a pin on the face short of it
     traveled = _travelled(plan, executed[-1])
     inserted = stopped and traveled >= plan.insertion_depth - c.depth_tolerance
     peak = max(peak, max((f for _, f in trace), default=0.0))
@@ -247,16 +260,23 @@ def _joint_seconds(path: np.ndarray, speed: float) -> float:
     return float(np.abs(np.diff(path, axis=0)).max(axis=1).sum() / speed) if len(path) > 1 else 0.0
 
 
+class PlugStuck(PlanningError):
+    """Pulling the plug out met more force than the pins stand: the robot stopped."""
+
+
 def unplug(station, result: PlugInResult, standby: np.ndarray, config: PlugInConfig | None = None) -> np.ndarray:
     """Wait `pause`, pull out by replaying the executed states in reverse (at the pace
     they went in), then go back to `standby`. Returns the force trace while pulling
-    (T, 2): time (s) and force along the axis (N; negative pulls)."""
+    (T, 2): time (s) and force along the axis (N; negative pulls). Raises PlugStuck,
+    with the robot stopped where it was, when the force passes `force_limit`."""
     c = config or PlugInConfig()
-    for _ in range(int(round(c.pause / station.config.time_step))):
-        station.servo(result.executed[-1])
     trace = []
-    for q in result.executed[::-1]:
-        trace.append((station.time, -float(station.servo(q)[2])))
+    holding = [result.executed[-1]] * int(round(c.pause / station.config.time_step))
+    for q in holding + result.executed[::-1]:
+        force = -float(station.servo(q)[2])
+        trace.append((station.time, force))
+        if abs(force) > c.force_limit:
+            raise PlugStuck(f"unplugging met {force:.0f} N (limit {c.force_limit:.0f} N): stopped with the plug in the port")
     q0 = station.joints
     station.set_joints(standby)
     station.time += _joint_seconds(np.vstack([q0, standby]), c.joint_speed)

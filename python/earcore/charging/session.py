@@ -1,7 +1,9 @@
 """One charging session at the station: look, decide, plug in, unplug.
 
     outcome = charge(station, robot, flange_link, base_from_camera, plug="type2", standby=q)
-    outcome.status        # "plugged", "blocked" (stopped by the force) or "refused"
+    outcome.status        # "plugged", "blocked" (stopped by the force), "refused" (before
+                          # moving), "not reached" (no contact: the port deeper than
+                          # estimated) or "stuck" (unplugging stopped by the force)
     outcome.reason        # why it was refused or blocked
 
 The stereo pair's images are searched for each known port type; the best match's type
@@ -21,7 +23,7 @@ import numpy as np
 from earcore.charging.connectors import CONNECTORS, connector
 from earcore.charging.locate import PortEstimate, locate
 from earcore.charging.matching import ShapeModel, find
-from earcore.charging.plug_in import PlugInConfig, PlugInResult, PortOutOfReach, plan_plug_in, plug_in, unplug
+from earcore.charging.plug_in import PlugInConfig, PlugInResult, PlugStuck, PortOutOfReach, plan_plug_in, plug_in, unplug
 
 __all__ = ["ChargeOutcome", "charge", "identify_port"]
 
@@ -95,9 +97,15 @@ def charge(
         return refused(str(exc), estimate, base_from_port)
     result = plug_in(station, plan)
     judged = judge() if judge is not None else None
-    # no pause against a blocked pin: straight back out
-    trace = unplug(station, result, standby, c if result.inserted else replace(c, pause=0.0))
+    try:
+        # no pause against a blocked pin: straight back out
+        trace = unplug(station, result, standby, c if result.inserted else replace(c, pause=0.0))
+    except PlugStuck as exc:
+        return ChargeOutcome("stuck", str(exc), port_type, estimate, base_from_port, result, None, (left, right), judged)
     if result.inserted:
         return ChargeOutcome("plugged", "", port_type, estimate, base_from_port, result, trace, (left, right), judged)
+    if not result.stopped_by_force:
+        reason = f"the plug went {result.depth * 1000:.1f} mm past the pins' contact without meeting the port: it lies deeper than estimated"
+        return ChargeOutcome("not reached", reason, port_type, estimate, base_from_port, result, trace, (left, right), judged)
     reason = f"insertion blocked {result.depth * 1000:.1f} mm in (force {result.peak_force:.0f} N)"
     return ChargeOutcome("blocked", reason, port_type, estimate, base_from_port, result, trace, (left, right), judged)

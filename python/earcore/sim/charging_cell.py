@@ -35,7 +35,7 @@ from earcore.mesh import Mesh, circle, densify, extrude, offset_polygon
 from earcore.sim.camera import SimulatedCamera
 from earcore.sim.compliant_holder import Compliance, CompliantHolder
 from earcore.sim.sensors import SENSORS
-from earcore.transforms import axis_angle_matrix, look_at, quaternion
+from earcore.transforms import axis_angle_matrix, look_at, quaternion, rotation_vector
 
 __all__ = ["ChargingCell", "ChargingCellConfig", "Parking", "STANDBY"]
 
@@ -330,7 +330,8 @@ class ChargingCell:
         target = self.base_from_tip()
         last = target if self._last_target is None else self._last_target
         velocity = (target[:3, 3] - last[:3, 3]) / self.config.time_step
-        force = self.holder.apply(target, velocity)
+        turning = rotation_vector(target[:3, :3] @ last[:3, :3].T) / self.config.time_step
+        force = self.holder.apply(target, velocity, turning)
         self.p.stepSimulation()
         self._last_target = target
         self.time += self.config.time_step

@@ -5,7 +5,7 @@ the body is what a wrist force sensor reads (the body's weight is compensated, a
 robot's payload setting does).
 
     holder = CompliantHolder(client, body, Compliance(), mass=1.5, inertia=(3e-3, 3e-3, 2e-3))
-    force = holder.apply(base_from_target, target_velocity)   # then client.stepSimulation()
+    force = holder.apply(base_from_target, velocity, angular_velocity)   # then stepSimulation()
 """
 
 from __future__ import annotations
@@ -47,9 +47,9 @@ class CompliantHolder:
         self.rotational_damping = 2.0 * np.sqrt(compliance.rotational * float(np.max(inertia)))
         self.weight = np.array([0.0, 0.0, self.mass * gravity])
 
-    def apply(self, base_from_target: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    def apply(self, base_from_target: np.ndarray, velocity: np.ndarray, angular_velocity=(0.0, 0.0, 0.0)) -> np.ndarray:
         """Push the body towards `base_from_target` moving at `velocity` (m/s, base
-        frame); return the spring-damper's force on the body in the target's frame (N;
+        frame) and turning at `angular_velocity` (rad/s, base frame); return the spring-damper's force on the body in the target's frame (N;
         the weight's compensation left out: what a tared wrist sensor reads)."""
         p = self.p
         position, orientation = p.getBasePositionAndOrientation(self.body)
@@ -59,7 +59,8 @@ class CompliantHolder:
         rate = rotation.T @ (np.asarray(velocity, dtype=np.float64) - np.asarray(linear))
         local = self.stiffness * error + self.damping * rate
         body_rotation = np.reshape(p.getMatrixFromQuaternion(orientation), (3, 3))
-        torque = self.compliance.rotational * rotation_vector(rotation @ body_rotation.T) - self.rotational_damping * np.asarray(angular)
+        turn = np.asarray(angular_velocity, dtype=np.float64) - np.asarray(angular)
+        torque = self.compliance.rotational * rotation_vector(rotation @ body_rotation.T) + self.rotational_damping * turn
         p.applyExternalForce(self.body, -1, (rotation @ local + self.weight).tolist(), position, p.WORLD_FRAME)
         p.applyExternalTorque(self.body, -1, torque.tolist(), p.WORLD_FRAME)
         return local

@@ -13,6 +13,7 @@ import pytest
 from earcore import robots
 from earcore.charging.plug_in import PlugInConfig, PortOutOfReach, plan_plug_in, plug_in, unplug
 from earcore.charging.session import charge
+from earcore.errors import ConfigError
 from earcore.sim.charging_cell import STANDBY, ChargingCell, ChargingCellConfig
 from earcore.sim.compliant_holder import Compliance
 from earcore.transforms import axis_angle_matrix
@@ -67,6 +68,52 @@ def test_a_turned_pose_is_blocked_by_the_pins_and_stopped_by_the_force(ur10):
         assert result.peak_force < PlugInConfig().force_limit
     finally:
         cell.close()
+
+
+def _moved_along_axis(pose: np.ndarray, offset: float, turn_deg: float = 0.0) -> np.ndarray:
+    out = pose.copy()
+    out[:3, 3] += pose[:3, 2] * offset
+    out[:3, :3] = out[:3, :3] @ axis_angle_matrix([0.0, 0.0, 1.0], np.radians(turn_deg))
+    return out
+
+
+def test_a_pin_met_while_aligning_stops_there(ur10):
+    """A port believed 10 mm deeper (and turned): the pins meet the face during the
+    align step, which stops at the threshold; the insert step is not tried."""
+    cell = ChargingCell(ChargingCellConfig(seed=4, camera_scale=0.25))
+    try:
+        result, at = _run(cell, ur10, _moved_along_axis(cell.base_from_port, -0.010, 8.0))
+        assert result.stopped_by_force and not result.inserted
+        assert result.depth == pytest.approx(-PlugInConfig().standoff)
+        assert result.peak_force < PlugInConfig().force_limit
+        assert at[2, 3] == pytest.approx(cell.plug_connector.pin_length, abs=0.001)  # resting on the face
+        unplug(cell, result, STANDBY, PlugInConfig(pause=0.0))  # backs out without a spike
+    finally:
+        cell.close()
+
+
+def test_a_port_shallower_than_believed_is_not_reached(ur10):
+    """A port believed 8 mm in front of where it is: the commanded travel ends before
+    the plug meets it. Not stopped by force, not inserted."""
+    cell = ChargingCell(ChargingCellConfig(seed=6, camera_scale=0.25))
+    try:
+        result, at = _run(cell, ur10, _moved_along_axis(cell.base_from_port, 0.008))
+        assert not result.stopped_by_force and not result.inserted
+        assert at[2, 3] > 0.001  # short of mated
+    finally:
+        cell.close()
+
+
+def test_plan_inputs_are_checked(ur10):
+    model, link = ur10
+    pose = np.eye(4)
+    pose[:3, 3] = [0.0, 0.9, 0.2]
+    with pytest.raises(ConfigError, match="approach"):
+        plan_plug_in(model, link, np.eye(4), pose, STANDBY, 0.02, PlugInConfig(approach_distance=0.02))
+    with pytest.raises(ValueError, match="finite"):
+        plan_plug_in(model, link, np.eye(4), np.full((4, 4), np.nan), STANDBY, 0.02)
+    with pytest.raises(ConfigError, match="force_threshold"):
+        PlugInConfig(force_threshold=80.0)
 
 
 def test_a_port_out_of_reach_is_refused_before_any_motion(ur10):
