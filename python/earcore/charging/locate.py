@@ -41,6 +41,27 @@ class PortEstimate:
     seconds: float
 
 
+def _on_epipolar_lines(rig: StereoRig, centres_left: list[np.ndarray], near: float = 0.3, far: float = 6.0):
+    """A test of a right-image ellipse (centre px, major semi-axis px): does its centre
+    lie on the epipolar line of one of the left image's finds (their centres' rays from
+    `near` to `far` m, projected), within 8 px and a quarter of its size?"""
+    segments = []
+    for centre in centres_left:
+        ray = np.asarray(centre, dtype=np.float64) / np.linalg.norm(centre)
+        _, ends = rig.project(np.stack([ray * near, ray * far]))
+        segments.append(ends)
+
+    def accept(centre_px: np.ndarray, major_px: float) -> bool:
+        for a, b in segments:
+            ab = b - a
+            t = np.clip((centre_px - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+            if np.linalg.norm(centre_px - (a + t * ab)) <= 8.0 + 0.25 * major_px:
+                return True
+        return False
+
+    return accept
+
+
 def locate(
     left: np.ndarray, right: np.ndarray, model: ShapeModel, rig: StereoRig, *, min_score: float = 0.55, max_fit_mm: float = 2.0, pairs: int = 3, **options
 ) -> PortEstimate | None:
@@ -49,12 +70,15 @@ def locate(
     import cv2
 
     start = time.perf_counter()
-    found = [
-        find_all(image, model, K, dist, min_score=min_score, **options)
-        for image, K, dist in ((left, rig.K_left, rig.dist_left), (right, rig.K_right, rig.dist_right))
-    ]
-    if not found[0] or not found[1]:
+    found_left = find_all(left, model, rig.K_left, rig.dist_left, min_score=min_score, **options)
+    if not found_left:
         return None
+    # the right image searched only along the left finds' epipolar lines
+    on_lines = _on_epipolar_lines(rig, [m.camera_from_object[:3, 3] for m in found_left[:pairs]])
+    found_right = find_all(right, model, rig.K_right, rig.dist_right, min_score=min_score, where=on_lines, **options)
+    if not found_right:
+        return None
+    found = [found_left, found_right]
     # fitted in the model's frame, whose z faces the camera as the plane fit's normal does
     best = None
     for a in found[0][:pairs]:
@@ -71,7 +95,7 @@ def locate(
         fields.append(edge_field(gray[y0:y1, x0:x1], offset=(x0, y0)))
     cameras = [(rig.K_left, rig.dist_left, np.eye(4)), (rig.K_right, rig.dist_right, rig.right_from_left)]
     model_from_object = np.linalg.inv(model.object_from_model)
-    both = refine_pose(fields, model, fit.camera_from_port, cameras) @ model_from_object
+    both = refine_pose(fields, model, fit.camera_from_port, cameras, sharp_only=False) @ model_from_object
     reasons = []
     for side, match in (("left", a), ("right", b)):
         if match.flagged:

@@ -33,6 +33,7 @@ own frame; for the plug its tip frame turned about x); `Match` gives the object'
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -419,6 +420,7 @@ def find_all(
     roll_step_deg: float = 6.0,
     refine_best: int = 4,
     min_score: float = 0.55,
+    where: Callable[[np.ndarray, float], bool] | None = None,
 ) -> list[Match]:
     """The refined hypotheses of `model` in a colour or grey image, best first (empty
     when no candidate region is found). A single image cannot tell a planar pattern
@@ -427,8 +429,11 @@ def find_all(
     bound the search's scale. The turn about the axis is searched every `roll_step_deg`
     on the points inside the outermost outline (a circle: alike at every turn), then
     at a third of the step around the best. The `refine_best` best hypotheses of the
-    search are refined and the best of them kept; a match scoring
-    under `min_score` comes back `flagged`. The image is 8-bit: (H, W) grey, (H, W, 3)
+    search (those within 60 % of the best's coarse score) are refined and the best of
+    them kept; a match scoring
+    under `min_score` comes back `flagged`. `where(centre_px, major_px)` keeps only the
+    candidate ellipses it accepts (`locate`: those on the other image's epipolar lines).
+    The image is 8-bit: (H, W) grey, (H, W, 3)
     RGB or (H, W, 4) RGBA."""
     import cv2
 
@@ -446,13 +451,22 @@ def find_all(
     rolls = np.radians(np.arange(0.0, 360.0, roll_step_deg))
     fine = np.radians(roll_step_deg) * np.array([-2.0, -1.0, 1.0, 2.0]) / 3
     inner_points = model.subset(~model.outer)
+    sparse = inner_points.subset(np.arange(len(inner_points.points)) % 2 == 0)  # the first, coarsest pass
+    fields: list[tuple[tuple[int, int, int, int], EdgeField]] = []
     outer_z = float(model.points[model.outer, 2].mean())  # the outer outline's plane in the model
-    for centre, major, minor, minor_dir in _candidates(gray, model, K, narrow, distances):
+    # the largest first: a smaller candidate's window inside a larger one's shares its edges
+    candidates = [e for e in _candidates(gray, model, K, narrow, distances) if where is None or where(e[0], e[1])]
+    for centre, major, minor, minor_dir in sorted(candidates, key=lambda e: -e[1]):
         # a window around the region, edges only there
         half = int(major * 1.6) + 8
         x0, y0 = max(int(centre[0]) - half, 0), max(int(centre[1]) - half, 0)
         x1, y1 = min(int(centre[0]) + half, gray.shape[1]), min(int(centre[1]) + half, gray.shape[0])
-        field = edge_field(gray[y0:y1, x0:x1], offset=(x0, y0))
+        inside = [(w, f) for w, f in fields if w[0] <= x0 and w[1] <= y0 and w[2] >= x1 and w[3] >= y1]
+        if inside:
+            (x0, y0, x1, y1), field = inside[0]
+        else:
+            field = edge_field(gray[y0:y1, x0:x1], offset=(x0, y0))
+            fields.append(((x0, y0, x1, y1), field))
         ray = cv2.undistortPoints(centre.reshape(1, 1, 2), K, dist).reshape(2)
         direction = np.array([ray[0], ray[1], 1.0])
         direction /= np.linalg.norm(direction)
@@ -465,7 +479,7 @@ def find_all(
         for sign in (1.0, -1.0):
             normal = axis_angle_matrix(hinge, sign * tilt) @ (-direction)
             centre_cam = direction * depth - normal * outer_z  # the outline's centre on the ray
-            scores = np.asarray(score(field, inner_points, _poses(normal, rolls, centre_cam), K, dist, coarse=True))
+            scores = np.asarray(score(field, sparse, _poses(normal, rolls, centre_cam), K, dist, coarse=True))
             best = rolls[int(np.argmax(scores))]
             around = np.r_[best, best + fine]
             poses = _poses(normal, around, centre_cam)
@@ -476,7 +490,10 @@ def find_all(
         return []
     # the few best hypotheses refined
     out = []
-    for _, pose, field, window in sorted(found, key=lambda f: -f[0])[: refine_best if refine else 1]:
+    ranked = sorted(found, key=lambda f: -f[0])
+    # a hypothesis far behind the best in the coarse search is not worth refining
+    ranked = [h for h in ranked if h[0] >= 0.6 * ranked[0][0]]
+    for _, pose, field, window in ranked[: refine_best if refine else 1]:
         if refine:
             pose = refine_pose([field], model, pose, [(K, dist, np.eye(4))])
         s = float(score(field, model, pose, K, dist))
@@ -532,19 +549,31 @@ def _edge_targets(
 
 
 def refine_pose(
-    fields: list[EdgeField], model: ShapeModel, pose: np.ndarray, cameras: list[tuple[np.ndarray, np.ndarray, np.ndarray]], *, rounds: int = 6, reach: float = 4.0
+    fields: list[EdgeField],
+    model: ShapeModel,
+    pose: np.ndarray,
+    cameras: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    *,
+    rounds: int = 6,
+    reach: float = 4.0,
+    sharp_only: bool = True,
 ) -> np.ndarray:
     """Moving edges: the model's pose in the first camera (`camera_from_model`) that
     puts the model's edges on the image edges of every camera. `cameras` holds (K, distortion,
-    camera_from_first) per field."""
+    camera_from_first) per field. `sharp_only`: only the model's `precise` points (one
+    image: the holes' edges, blurred by their walls, would pull a fit from a rough start
+    astray); without it the holes count too (both images from a close start: their plane
+    behind the rim steadies the tilt)."""
     pose = np.asarray(pose, dtype=np.float64).copy()
+    if sharp_only and not model.precise.all():
+        model = model.subset(model.precise)
     for r in range(rounds):
         rows, targets = [], []
         for field, (K, dist, cam_from_first) in zip(fields, cameras):
             here = cam_from_first @ pose
             pixels, normals, visible = _image_tangents(model, here, K, dist)
             offset, found = _edge_targets(field, pixels, normals, reach if r < rounds - 2 else 2.0, model.polarity)
-            use = visible & found & model.precise
+            use = visible & found
             if use.sum() < 6:
                 continue
             # each point's move along its normal for a turn ω (about the model's origin, in

@@ -12,7 +12,7 @@ behind the robot, its midpoint at `rig_position`: the left camera aimed at the n
 port, the right one beside it turned about its vertical axis to look there too (the
 paper's "looking slightly inwards", Eq. 1's geometry), so the port is about 2 m away. Parking is
 imperfect (`park`): the port lands anywhere in a square of `parking_area` on the car's
-side, its axis 0 to `max_angle_deg` off the direction to the cameras, turned about its
+side, its axis `min_angle_deg` to `max_angle_deg` off the direction to the cameras, turned about its
 axis by up to `max_roll_deg` (a car on a slope).
 
 The port is black plastic installed as `charging.connectors` describes: a round collar
@@ -62,6 +62,7 @@ class ChargingCellConfig:
     port_nominal: tuple[float, float, float] = (0.0, 1.0, 0.15)
     parking_area: float = 0.20
     max_angle_deg: float = 45.0
+    min_angle_deg: float = 0.0
     max_roll_deg: float = 5.0
     #: The stereo pair: its midpoint, baseline (m) and camera model (`SENSORS`).
     rig_position: tuple[float, float, float] = (-0.6, -0.8, 0.7)
@@ -90,8 +91,11 @@ class ChargingCellConfig:
         if self.sensor not in SENSORS or SENSORS[self.sensor].has_depth:
             colour = ", ".join(k for k, s in SENSORS.items() if not s.has_depth)
             raise ConfigError(f"charging cell: sensor must be a colour camera ({colour}), got {self.sensor!r}")
-        if not 0 <= self.max_angle_deg <= 55:
-            raise ConfigError(f"charging cell: max_angle_deg must be in [0, 55] (beyond, the port is seen too edge-on to match), got {self.max_angle_deg}")
+        if not 0 <= self.min_angle_deg <= self.max_angle_deg <= 55:
+            raise ConfigError(
+                f"charging cell: need 0 <= min_angle_deg <= max_angle_deg <= 55 (beyond, the port is seen too edge-on to match), "
+                f"got {self.min_angle_deg}, {self.max_angle_deg}"
+            )
         if not 0 < self.camera_scale <= 1:
             raise ConfigError(f"charging cell: camera_scale must be in (0, 1], got {self.camera_scale}")
         if not 0 < self.time_step <= 0.002 or self.plug_mass <= 0 or self.cable_mass < 0:
@@ -200,7 +204,7 @@ class ChargingCell:
         to_cameras = np.asarray(c.rig_position) - centre
         to_cameras /= np.linalg.norm(to_cameras)
         # the axis: the direction to the cameras tipped by the angle about a random line across it
-        angle = float(rng.uniform(0.0, c.max_angle_deg))
+        angle = float(rng.uniform(c.min_angle_deg, c.max_angle_deg))
         across = np.cross(to_cameras, rng.normal(size=3))
         axis = axis_angle_matrix(across / np.linalg.norm(across), np.radians(angle)) @ to_cameras
         roll = float(rng.uniform(-c.max_roll_deg, c.max_roll_deg))
