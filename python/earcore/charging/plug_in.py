@@ -59,8 +59,10 @@ class PlugInConfig:
     #: Full insertion: the plug stopped within this of the mating depth (m).
     depth_tolerance: float = 0.0015
     pause: float = 1.0
-    #: Spacing of the IK waypoints on straight-line moves (m).
+    #: Spacing of the IK waypoints on straight-line moves (m), and how many arm
+    #: configurations (IK branches) are tried before a port counts as out of reach.
     step: float = 0.0005
+    branches: int = 6
 
     def __post_init__(self) -> None:
         if not 0 < self.insert_fraction <= self.align_fraction <= 1:
@@ -69,6 +71,8 @@ class PlugInConfig:
             raise ConfigError(f"plug-in: need 0 < force_threshold < force_limit, got {self.force_threshold}, {self.force_limit}")
         if min(self.approach_distance, self.standoff, self.tool_speed, self.joint_speed, self.step, self.acceleration) <= 0:
             raise ConfigError("plug-in: distances, speeds and the step must be positive")
+        if self.branches < 1:
+            raise ConfigError(f"plug-in: branches must be at least 1, got {self.branches}")
 
 
 @dataclass
@@ -166,25 +170,36 @@ def plan_plug_in(
     rng = rng or np.random.default_rng(0)
     start = c.approach_distance
     target = _tip_pose(base_from_port, start) @ np.linalg.inv(flange_from_tip)
-    try:
-        q_approach = solve_ik(
-            model, target, link=link, seed_q=q_now, tree=tree, position_tolerance=2e-5, orientation_tolerance=2e-4, restarts=30, iterations=150, rng=rng
-        ).q
-    except UnreachablePose as exc:
-        distance = np.linalg.norm(base_from_port[:3, 3] - model.base[:3, 3])
-        raise PortOutOfReach(f"the port ({distance:.2f} m from the robot's base) is out of reach: {exc}") from None
-    path = _free_path(model, tree, np.asarray(q_now, dtype=np.float64), q_approach)
-    # align: from the approach pose to the standoff, the pins' tips then standoff from the face
     touch = insertion_depth
     align_offsets = np.linspace(start, touch + c.standoff, max(2, int(np.ceil((start - touch - c.standoff) / c.step)) + 1))
-    align = _line(model, link, flange_from_tip, base_from_port, align_offsets, q_approach)
     end = -c.overtravel
     insert_offsets = np.linspace(touch + c.standoff, end, max(2, int(np.ceil((touch + c.standoff - end) / c.step)) + 1))
-    insert = _line(model, link, flange_from_tip, base_from_port, insert_offsets, align[-1])
-    touching = model.check_configurations(tree, np.vstack([align, insert]))
-    if touching.any():
-        raise PortOutOfReach("the arm would touch the car (or itself) on the straight moves to the port")
-    return PlugInPlan(base_from_port, path, align, insert, insertion_depth, c)
+    # one arm configuration (IK branch) after another, from the one nearest the current
+    # state, until one carries the plug all the way clear of the car and of itself
+    problems: list[str] = []
+    for branch in range(c.branches):
+        try:
+            q_approach = solve_ik(
+                model, target, link=link, seed_q=q_now if branch == 0 else None, tree=tree, position_tolerance=2e-5, orientation_tolerance=2e-4,
+                restarts=30 if branch == 0 else 10, iterations=150, rng=rng,
+            ).q  # fmt: skip
+        except UnreachablePose as exc:
+            if branch == 0:
+                distance = np.linalg.norm(base_from_port[:3, 3] - model.base[:3, 3])
+                raise PortOutOfReach(f"the port ({distance:.2f} m from the robot's base) is out of reach: {exc}") from None
+            problems.append(str(exc))
+            continue
+        try:
+            align = _line(model, link, flange_from_tip, base_from_port, align_offsets, q_approach)
+            insert = _line(model, link, flange_from_tip, base_from_port, insert_offsets, align[-1])
+            if model.check_configurations(tree, np.vstack([align, insert])).any():
+                raise PortOutOfReach("the arm would touch the car (or itself) on the straight moves to the port")
+            path = _free_path(model, tree, np.asarray(q_now, dtype=np.float64), q_approach)
+        except PortOutOfReach as exc:
+            problems.append(str(exc))
+            continue
+        return PlugInPlan(base_from_port, path, align, insert, insertion_depth, c)
+    raise PortOutOfReach(f"no arm configuration of {c.branches} carries the plug in: " + "; ".join(dict.fromkeys(problems)))
 
 
 def _free_path(model, tree, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:

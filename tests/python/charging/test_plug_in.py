@@ -104,6 +104,27 @@ def test_a_port_shallower_than_believed_is_not_reached(ur10):
         cell.close()
 
 
+def test_a_steep_parking_is_planned_with_the_arm_clear_of_the_car(ur10):
+    """A port at 45° to the cameras: the arm configuration nearest stand-by would sweep
+    the upper arm through the car's side; another is found, and every joint of every
+    waypoint stays in front of the car's side (the port's plane, by forward kinematics)."""
+    model, link = ur10
+    cell = ChargingCell(ChargingCellConfig(seed=0, camera_scale=0.25))
+    try:
+        for _ in range(10):
+            cell.park()
+        assert cell.parking.angle_deg > 40
+        with pytest.raises(PortOutOfReach, match="touch the car"):  # the nearest configuration alone
+            plan_plug_in(model, link, cell.flange_from_tip, cell.base_from_port, STANDBY, cell.plug_connector.insertion_depth, PlugInConfig(branches=1))
+        plan = plan_plug_in(model, link, cell.flange_from_tip, cell.base_from_port, STANDBY, cell.plug_connector.insertion_depth)
+        port_from_base = np.linalg.inv(cell.base_from_port)
+        for q in np.vstack([plan.approach, plan.align, plan.insert]):
+            origins = np.array([frame[:3, 3] for frame in model.fk(q)])
+            assert (origins @ port_from_base[:3, :3].T + port_from_base[:3, 3])[:, 2].min() > 0.05
+    finally:
+        cell.close()
+
+
 def test_plan_inputs_are_checked(ur10):
     model, link = ur10
     pose = np.eye(4)
