@@ -267,10 +267,12 @@ def main(argv: list[str] | None = None) -> int:
     }
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
     _summary_figure(args.out / "summary.png", runs, plug_config.force_threshold, plug_config.force_limit)
+    posed = any("pose_error" in r for r in runs)
+    pose = f"port pose {summary['median_position_mm']:.2f} mm / {summary['median_rotation_deg']:.2f}° median" if posed else "no port pose estimated"
     print(
         f"{summary['plugged']}/{len(runs)} plugged in ({summary['plugged_truth']} confirmed by the simulation), {summary['blocked']} blocked, "
-        f"{summary['refused']} refused; peak force {summary['max_peak_force_n']:.1f} N (limit {plug_config.force_limit:.0f} N); "
-        f"port pose {summary['median_position_mm']:.2f} mm / {summary['median_rotation_deg']:.2f}° median -> {args.out}"
+        f"{summary['not_reached']} not reached, {summary['stuck']} stuck, {summary['refused']} refused; peak force {summary['max_peak_force_n']:.1f} N "
+        f"(limit {plug_config.force_limit:.0f} N); {pose} -> {args.out}"
     )
     return 0
 

@@ -19,6 +19,13 @@ The port is black plastic installed as `charging.connectors` describes: a round 
 around a face recessed into it, a dark gap to the car's body, one hole per contact (the
 hole floors darker). The plug (Type 2 by default) rides on the
 flange in a holder, pointing along the flange's z (`flange_from_tip`).
+
+Physics: the robot is kinematic (`set_joints` for moves in free space, `servo` for one
+1 ms control tick). The plug is a free body in a compliant holder
+(`sim.compliant_holder`) whose force is the wrist sensor's reading; the port, its collar
+and the car's side are concave triangle meshes, so a pin meets the face unless it is
+within its hole's 0.4 mm clearance (or its round tip leads it in). `drive_away` takes the
+car out (the station calibrates then).
 """
 
 from __future__ import annotations
