@@ -177,12 +177,13 @@ def _summary_figure(path: Path, runs: list[dict[str, Any]], threshold: float, li
     axes[0].set_title(f"{len(runs)} parkings")
     errors = [r["pose_error"] for r in runs if "pose_error" in r]
     if errors:
-        axes[1].scatter(
+        dots = axes[1].scatter(
             [e["position_mm"] for e in errors], [e["rotation_deg"] for e in errors], c=[r["parking"]["angle_deg"] for r in runs if "pose_error" in r], cmap="viridis"
         )
+        fig.colorbar(dots, ax=axes[1], label="port's angle to the cameras (°)")
         axes[1].set_xlabel("position error (mm)")
         axes[1].set_ylabel("rotation error (°)")
-        axes[1].set_title("port pose (colour: angle to the cameras)")
+        axes[1].set_title("port pose against the truth")
     peaks = [r["peak_force_n"] for r in runs if "peak_force_n" in r]
     if peaks:
         axes[2].hist(peaks, bins=10, color="tab:blue")
