@@ -8,8 +8,9 @@ from earcore.planning.config import PlanningConfig
 from earcore.planning.errors import GoalInCollision, NoPathFound, PlanningError, StartInCollision
 from earcore.planning.ik import IkResult, UnreachablePose, solve_ik
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
-from earcore.planning.reflex import ObstacleTracker, ReflexMove, RiskReport, plan_reflex, protective_separation
+from earcore.planning.reflex import ObstacleTracker, ReflexMove, RiskReport, plan_reflex
 from earcore.planning.rrt import JointSpacePlanner, PlannedPath
+from earcore.planning.separation import protective_separation, shortest_avoidable_distance, ssm_speed_limit
 from earcore.planning.trajectory import Trajectory, path_length, time_parameterize
 
 __all__ = [
@@ -33,5 +34,7 @@ __all__ = [
     "path_length",
     "plan_reflex",
     "protective_separation",
+    "shortest_avoidable_distance",
+    "ssm_speed_limit",
     "time_parameterize",
 ]

@@ -30,9 +30,10 @@ import numpy as np
 
 import earcore
 from earcore.cloud import voxel_codes
+from earcore.planning.separation import protective_separation
 from earcore.planning.trajectory import cumsum0, densify, without_repeats
 
-__all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_recovery", "plan_reflex", "protective_separation"]
+__all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_recovery", "plan_reflex"]
 
 
 @dataclass
@@ -126,24 +127,6 @@ class RiskReport:
         """Eq. 3 (risk ≥ T), or an approaching obstacle closer than `min_separation`
         (a slow hand's risk stays below T until it touches)."""
         return self.risk >= threshold or (self.approaching and self.clearance < min_separation)
-
-
-def protective_separation(
-    human_speed: float,
-    robot_speed: float,
-    *,
-    reaction_time: float,
-    stopping_time: float,
-    intrusion: float = 0.0,
-    sensor_uncertainty: float = 0.05,
-    robot_uncertainty: float = 0.005,
-) -> float:
-    """ISO/TS 15066 (5.5.4.2) S_p = v_h (T_r + T_s) + v_r T_r + S_s + C + Z_d + Z_r, with
-    the robot's stopping distance S_s = v_r T_s / 2 (constant deceleration)."""
-    s_h = human_speed * (reaction_time + stopping_time)
-    s_r = robot_speed * reaction_time
-    s_s = 0.5 * robot_speed * stopping_time
-    return s_h + s_r + s_s + intrusion + sensor_uncertainty + robot_uncertainty
 
 
 class ObstacleTracker:

@@ -15,7 +15,6 @@ from earcore.planning import (  # noqa: E402
     JointSpacePlanner,
     ObstacleTracker,
     plan_reflex,
-    protective_separation,
 )
 
 
@@ -231,13 +230,6 @@ def test_keep_out_margin_around_tracked_obstacles(ur5):
     planner.set_keep_out(grown, voxel[None], res)
     planner.set_keep_out(grown, np.zeros((0, 3)), res)
     assert planner.is_valid(A) and planner.path_is_valid(np.stack([B, A, B]))
-
-
-def test_protective_separation_formula():
-    # ISO/TS 15066: v_h (T_r + T_s) + v_r T_r + v_r T_s / 2 + C + Z_d + Z_r.
-    got = protective_separation(1.6, 0.5, reaction_time=0.1, stopping_time=0.3, intrusion=0.02,
-                                sensor_uncertainty=0.05, robot_uncertainty=0.01)
-    assert got == pytest.approx(1.6 * 0.4 + 0.5 * 0.1 + 0.5 * 0.3 / 2 + 0.02 + 0.05 + 0.01)
 
 
 def test_reflex_backtracks_or_moves_away(ur5):
