@@ -33,6 +33,12 @@ class PlanningConfig:
     reflexes: bool = True
     beta: float = 1.5
     threshold: float = 1.0
+    #: When a reflex fires: "eq2", the paper's rule (risk D ≥ T), or "prediction": the
+    #: obstacle carried on at its velocity over the loop's latency and the robot's
+    #: stopping time meets the robot along its committed motion (`reflex.predicted_contact`,
+    #: the obstacle grown by `prediction_margin`, m). `min_separation` fires under either.
+    reflex_rule: str = "eq2"
+    prediction_margin: float = 0.05
     #: v in Eq. 2: the obstacle's velocity relative to the robot's closest point (true),
     #: or the obstacle's own velocity as in the paper (false).
     relative_velocity: bool = True
@@ -82,6 +88,8 @@ class PlanningConfig:
             raise ConfigError(f"{where}.replan_gain must be in [0, 1), got {self.replan_gain!r}")
         positive(self.beta, f"{where}.beta")
         positive(self.threshold, f"{where}.threshold")
+        one_of(self.reflex_rule, ("eq2", "prediction"), f"{where}.reflex_rule")
+        non_negative(self.prediction_margin, f"{where}.prediction_margin")
         fraction(self.backtrack_fraction, f"{where}.backtrack_fraction")
         positive(self.move_away_distance, f"{where}.move_away_distance")
         non_negative(self.min_separation, f"{where}.min_separation")

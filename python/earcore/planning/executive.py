@@ -21,7 +21,7 @@ import earcore
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.follower import Follower
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
-from earcore.planning.reflex import ObstacleTracker, RiskReport, path_is_clear, plan_recovery, plan_reflex
+from earcore.planning.reflex import ObstacleTracker, RiskReport, path_is_clear, plan_recovery, plan_reflex, predicted_contact
 from earcore.planning.trajectory import StopThenMove, Trajectory, Transfer, braking, path_length, time_parameterize, transfer
 
 __all__ = ["Executive", "TripReport"]
@@ -379,7 +379,7 @@ class Executive:
         # A running reflex is not restarted, except a backtrack the obstacle still
         # closes in on: then it becomes a move away.
         backtracking = self.motion is not None and self.motion.kind == "backtrack"
-        if report.fires(self.config.threshold, self.config.min_separation) and (not in_reflex or (close and backtracking)):
+        if self._fires(report, q, close) and (not in_reflex or (close and backtracking)):
             # The static scene (index cached) plus this frame's moving voxels
             # (exact): no rebuild of the live map's index before the reflex.
             move = plan_reflex(
@@ -415,6 +415,25 @@ class Executive:
             self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk})
             return report, True
         return report, False
+
+    def _fires(self, report: RiskReport, q: np.ndarray, close: bool) -> bool:
+        """The reflex rule (`PlanningConfig.reflex_rule`): Eq. 2-3, or the obstacle's
+        predicted course meeting the robot's committed motion within the latency and the
+        stopping time; an approaching obstacle within `min_separation` fires either way."""
+        if self.config.reflex_rule == "eq2":
+            return report.fires(self.config.threshold, self.config.min_separation)
+        if close:
+            return True
+        if not report.approaching:
+            return False
+        stopping = float(np.max(np.abs(self.command) / self.a_max))
+        horizon = 1.0 / 15.0 + 0.005 + stopping  # a map frame, the layer's compute, braking
+        ahead = np.arange(0.0, horizon + 1e-9, 1.0 / 30.0)
+        if self.motion is not None:
+            committed = self.motion.trajectory.sample(self.cell.time - self.motion.start + ahead)
+        else:
+            committed = np.asarray(q, dtype=np.float64)[None]
+        return predicted_contact(self.robot, report, committed, horizon, self.tree.resolution, margin=self.config.prediction_margin)
 
     def _reflex_motion(self, q: np.ndarray, move, *, escape: bool):
         """What the robot does for a reflex `move` planned from q while it moves at its

@@ -33,7 +33,7 @@ from earcore.cloud import voxel_codes
 from earcore.planning.separation import protective_separation
 from earcore.planning.trajectory import cumsum0, densify, without_repeats
 
-__all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_recovery", "plan_reflex"]
+__all__ = ["ObstacleTrack", "ObstacleTracker", "ReflexMove", "RiskReport", "plan_recovery", "plan_reflex", "predicted_contact"]
 
 
 @dataclass
@@ -319,6 +319,24 @@ def _velocity_weights(times: list[float]) -> tuple[list[float] | None, list[floa
     r1 = (s0 * s4 - s2 * s2) / det
     r2 = -(s0 * s3 - s1 * s2) / det
     return slope, [r0 + r1 * x + r2 * x * x for x in t]
+
+
+def predicted_contact(
+    robot, report: RiskReport, committed: np.ndarray, horizon: float, voxel_size: float, *, margin: float = 0.05, step: float = 1 / 30
+) -> bool:
+    """Whether the obstacle of `report`, carried on at its velocity for `horizon` seconds
+    (its voxels swept every `step`), meets the robot anywhere along its `committed`
+    joint states over the same horizon (M, dof), with `margin` (m) around the obstacle
+    for what the cameras miss of it. The prediction rule: a hand that passes beside the
+    robot's way, or moves away, does not fire; one whose course crosses it does."""
+    if report.voxels is None or not len(report.voxels) or report.velocity is None:
+        return False
+    times = np.arange(0.0, horizon + step / 2, step)
+    swept = (report.voxels[None, :, :] + times[:, None, None] * np.asarray(report.velocity)[None, None, :]).reshape(-1, 3)
+    # the swept voxels thinned to the grid (consecutive steps overlap) and grown by the margin
+    swept = (np.unique(np.floor(swept / voxel_size), axis=0) + 0.5) * voxel_size
+    qs = np.asarray(committed, dtype=np.float64).reshape(-1, robot.dof)
+    return bool(robot.touches_voxels(swept, voxel_size + 2 * margin, qs).any())
 
 
 @dataclass

@@ -104,7 +104,9 @@ def experiment_configs(seed: int = 0, camera_scale: float = 0.25, duration: floa
     return configs
 
 
-def table2(trips: int = 15, seed: int = 0, camera_scale: float = 0.25, out: Path = Path("out/table2"), only=None) -> dict:
+def table2(
+    trips: int = 15, seed: int = 0, camera_scale: float = 0.25, out: Path = Path("out/table2"), only=None, reflex_rule: str = "eq2"
+) -> dict:
     """Run the experiments; returns {experiment: figures per return trip}."""
     from earcore.app.run import run
 
@@ -112,6 +114,7 @@ def table2(trips: int = 15, seed: int = 0, camera_scale: float = 0.25, out: Path
     for name, config in experiment_configs(seed, camera_scale).items():
         if only and name not in only:
             continue
+        config.planning.reflex_rule = reflex_rule
         t0 = time.perf_counter()
         print(f"  {name} ...", file=sys.stderr)
         summary = run(config, out / name.replace(". ", "").lower(), progress=True, record=False, trips=2 * trips)
@@ -375,6 +378,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--camera-scale", type=scale, default=0.25, help="camera resolution factor (rendering dominates the run time)")
     parser.add_argument("--only", nargs="*", help="run only these experiments, e.g. 'Exp. 3' Direct")
     parser.add_argument("--out", type=Path, default=Path("out/table2"), help="output folder (fig7: out/fig7)")
+    parser.add_argument(
+        "--reflex-rule", choices=("eq2", "prediction"), default="eq2",
+        help="table2: when Exp. 3's reflexes fire: Eq. 2 (the paper) or the hand's predicted course meeting the robot's motion",
+    )  # fmt: skip
     if argv and argv[0] == "calibration":
         from earcore.app.experiments.calibration import main as calibration_main
 
@@ -395,7 +402,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"seen free in {100 * b['seen_free_while_fading']:.0f} % of the frames they were fading")
         print(f"picture: {out / 'fig7.png'}")
         return 0
-    results = table2(args.trips, args.seed, args.camera_scale, args.out, args.only)
+    results = table2(args.trips, args.seed, args.camera_scale, args.out, args.only, args.reflex_rule)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "table2.json").write_text(json.dumps(results, indent=2, default=float))
     print(format_table(results))
