@@ -28,9 +28,8 @@ import numpy as np
 from earcore.errors import ConfigError
 from earcore.planning.errors import PlanningError
 from earcore.planning.ik import UnreachablePose, solve_ik
-from earcore.transforms import rotation_vector
 
-__all__ = ["PlugInConfig", "PlugInPlan", "PlugInResult", "PlugStuck", "PortOutOfReach", "axis_error", "car_keep_out", "plan_plug_in", "plug_in", "unplug"]
+__all__ = ["PlugInConfig", "PlugInPlan", "PlugInResult", "PlugStuck", "PortOutOfReach", "car_keep_out", "plan_plug_in", "plug_in", "unplug"]
 
 
 class PortOutOfReach(PlanningError):
@@ -86,6 +85,8 @@ class PlugInPlan:
     #: The pins' travel from touching the face to fully in (m).
     insertion_depth: float
     config: PlugInConfig
+    #: Each insert waypoint's tip offset out of the face (m).
+    insert_offsets: np.ndarray
 
 
 @dataclass
@@ -198,7 +199,7 @@ def plan_plug_in(
         except PortOutOfReach as exc:
             problems.append(str(exc))
             continue
-        return PlugInPlan(base_from_port, path, align, insert, insertion_depth, c)
+        return PlugInPlan(base_from_port, path, align, insert, insertion_depth, c, insert_offsets)
     raise PortOutOfReach(f"no arm configuration of {c.branches} carries the plug in: " + "; ".join(dict.fromkeys(problems)))
 
 
@@ -266,9 +267,8 @@ def plug_in(station, plan: PlugInPlan) -> PlugInResult:
 
 def _travelled(plan: PlugInPlan, q: np.ndarray) -> float:
     """How far past the pins touching the face the waypoint nearest `q` is (m)."""
-    offsets = np.linspace(plan.insertion_depth + plan.config.standoff, -plan.config.overtravel, len(plan.insert))
     nearest = int(np.argmin(np.abs(plan.insert - q).max(axis=1)))
-    return float(plan.insertion_depth - offsets[nearest])
+    return float(plan.insertion_depth - plan.insert_offsets[nearest])
 
 
 def _joint_seconds(path: np.ndarray, speed: float) -> float:
@@ -297,8 +297,3 @@ def unplug(station, result: PlugInResult, standby: np.ndarray, config: PlugInCon
     station.time += _joint_seconds(np.vstack([q0, standby]), c.joint_speed)
     return np.array(trace).reshape(-1, 2)
 
-
-def axis_error(base_from_port: np.ndarray, base_from_tip: np.ndarray) -> tuple[float, float]:
-    """(lateral offset m, angle rad) of a plug's tip frame from the port's axis."""
-    local = np.linalg.inv(base_from_port) @ base_from_tip
-    return float(np.linalg.norm(local[:2, 3])), float(np.linalg.norm(rotation_vector(local[:3, :3])))
