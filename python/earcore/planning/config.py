@@ -33,12 +33,25 @@ class PlanningConfig:
     reflexes: bool = True
     beta: float = 1.5
     threshold: float = 1.0
-    #: When a reflex fires: "eq2", the paper's rule (risk D ≥ T), or "prediction": the
-    #: obstacle carried on at its velocity over the loop's latency and the robot's
-    #: stopping time meets the robot along its committed motion (`reflex.predicted_contact`,
-    #: the obstacle grown by `prediction_margin`, m). `min_separation` fires under either.
-    reflex_rule: str = "eq2"
+    #: When a reflex fires: "prediction": a moving obstacle's course over the reaction
+    #: and stopping time meets the robot's committed motion (`reflex.predicted_contact`,
+    #: the obstacle grown by `prediction_margin`, m; `Executive._fires`), or "eq2", the
+    #: paper's rule (risk D ≥ T). `min_separation` fires under either.
+    reflex_rule: str = "prediction"
     prediction_margin: float = 0.05
+    #: The prediction rule looks at least this far ahead (s) beyond the reaction time:
+    #: what a reflex needs to get clear when the robot stands or moves slowly.
+    escape_time: float = 0.3
+    #: Speed and separation monitoring (ISO/TS 15066) beside the reflexes: a plan's path
+    #: speed is scaled down so that every tracked obstacle stays at least its protective
+    #: separation from the robot, and back up as it leaves (`Executive.ssm_scale`).
+    #: The obstacle's speed towards the robot is the tracked one, at least
+    #: `ssm_human_speed` (m/s; the standard's 1.6 for people nobody tracks makes the arm
+    #: stand still within ~0.2 m of a hand); `ssm_uncertainty` (m) is added to the
+    #: separation for what the map misses (C + Z_d + Z_r of the standard).
+    ssm: bool = True
+    ssm_human_speed: float = 0.0
+    ssm_uncertainty: float = 0.02
     #: v in Eq. 2: the obstacle's velocity relative to the robot's closest point (true),
     #: or the obstacle's own velocity as in the paper (false).
     relative_velocity: bool = True
@@ -90,6 +103,9 @@ class PlanningConfig:
         positive(self.threshold, f"{where}.threshold")
         one_of(self.reflex_rule, ("eq2", "prediction"), f"{where}.reflex_rule")
         non_negative(self.prediction_margin, f"{where}.prediction_margin")
+        non_negative(self.escape_time, f"{where}.escape_time")
+        non_negative(self.ssm_human_speed, f"{where}.ssm_human_speed")
+        non_negative(self.ssm_uncertainty, f"{where}.ssm_uncertainty")
         fraction(self.backtrack_fraction, f"{where}.backtrack_fraction")
         positive(self.move_away_distance, f"{where}.move_away_distance")
         non_negative(self.min_separation, f"{where}.min_separation")

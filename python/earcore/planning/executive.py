@@ -21,10 +21,21 @@ import earcore
 from earcore.planning.errors import PlanningError, StartInCollision
 from earcore.planning.follower import Follower
 from earcore.planning.predictive import PlanChoice, PredictivePlanner, ReactivePlanner
-from earcore.planning.reflex import ObstacleTracker, RiskReport, path_is_clear, plan_recovery, plan_reflex, predicted_contact
+from earcore.planning.reflex import (
+    ObstacleTracker,
+    RiskReport,
+    path_is_clear,
+    plan_recovery,
+    plan_reflex,
+    predicted_contact,
+)
+from earcore.planning.separation import ssm_speed_limit
 from earcore.planning.trajectory import StopThenMove, Trajectory, Transfer, braking, path_length, time_parameterize, transfer
 
-__all__ = ["Executive", "TripReport"]
+__all__ = ["REACTION_TIME", "Executive", "TripReport"]
+
+#: The reflex layer's reaction time (s): a map frame (15 Hz) plus its compute (5 ms).
+REACTION_TIME = 1.0 / 15.0 + 0.005
 
 
 @contextmanager
@@ -70,6 +81,9 @@ class _Motion:
     trajectory: Trajectory | StopThenMove | Transfer
     start: float
     kind: str  # "plan" | "reflex" (move away) | "backtrack"
+    #: The motion's own clock (s): how far along its timing the reference is. It runs
+    #: at the speed scale of separation monitoring, real time when nobody is near.
+    elapsed: float = 0.0
 
 
 @dataclass
@@ -150,6 +164,15 @@ class Executive:
         #: without the time the machine gave to others (a shared VM stalls a thread now
         #: and then, which wall-clock latency includes).
         self.reflex_cpu: list[float] = []
+        #: Separation monitoring: the path speed's scale wanted by the last frame
+        #: (`ssm_scale`), the one the reference runs at now (it follows the wanted one
+        #: within the acceleration limits), and each frame's CPU time for it.
+        self.ssm_target = 1.0
+        self.speed_scale = 1.0
+        self.ssm_cpu: list[float] = []
+        self.ssm_slowed_frames = 0
+        #: (time, scale) whenever the wanted scale changed, for the pictures and reports.
+        self.ssm_log: list[tuple[float, float]] = []
         self._last_replan = 0.0
         self._in_contact = False
         #: The map as it was at the end of the warm-up (the static scene), for reflexes.
@@ -204,7 +227,7 @@ class Executive:
         frame, so a map that changes during a transition is seen where the arm goes."""
         if self.motion is None:
             return None
-        return self.way_onto(self.motion.trajectory, self.cell.time - self.motion.start)[0]
+        return self.way_onto(self.motion.trajectory, self.motion.elapsed)[0]
 
     def _plan(self, q: np.ndarray) -> PlanChoice | None:
         goal = self.goals[self.goal_index]
@@ -273,8 +296,10 @@ class Executive:
             self._new_trip()
         now = ahead = None
         if self.motion is not None:
-            t = self.cell.time - self.motion.start
-            now, ahead = self.motion.trajectory.sample(np.array([t, t + dt]))
+            scale = self._advance_scale(dt)
+            t = self.motion.elapsed
+            now, ahead = self.motion.trajectory.sample(np.array([t, t + scale * dt]))
+            self.motion.elapsed += scale * dt
         self.command = self.follower.command(q, self.command, now, ahead, dt)
         self.cell.command_velocities(self.command)
 
@@ -287,7 +312,7 @@ class Executive:
             self.progress.append(q.copy())
         if self.motion is None:
             return
-        done = self.cell.time - self.motion.start >= self.motion.trajectory.duration
+        done = self.motion.elapsed >= self.motion.trajectory.duration
         settled = np.abs(self.motion.trajectory.positions[-1] - q).max() < 1e-3
         if done and settled:
             if self.motion.kind == "plan" and np.abs(self.goals[self.goal_index] - q).max() < 1e-3:
@@ -379,7 +404,8 @@ class Executive:
         # A running reflex is not restarted, except a backtrack the obstacle still
         # closes in on: then it becomes a move away.
         backtracking = self.motion is not None and self.motion.kind == "backtrack"
-        if self._fires(report, q, close) and (not in_reflex or (close and backtracking)):
+        rule = self._fires(report, q, close)
+        if rule is not None and (not in_reflex or (close and backtracking)):
             # The static scene (index cached) plus this frame's moving voxels
             # (exact): no rebuild of the live map's index before the reflex.
             move = plan_reflex(
@@ -412,28 +438,109 @@ class Executive:
                 del self.progress[max(1, len(self.progress) - (len(move.path) - 1)):]
             self.reflex_latencies.append(time.perf_counter() - t0)
             self.reflex_cpu.append(time.thread_time() - cpu0)
-            self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk})
+            self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk, "rule": rule})
             return report, True
+        cpu = time.thread_time()
+        target = self.ssm_scale(q)
+        self.ssm_cpu.append(time.thread_time() - cpu)
+        if target != self.ssm_target:
+            self.ssm_log.append((cell.time, target))
+        self.ssm_target = target
+        self.ssm_slowed_frames += target < 1.0
         return report, False
 
-    def _fires(self, report: RiskReport, q: np.ndarray, close: bool) -> bool:
-        """The reflex rule (`PlanningConfig.reflex_rule`): Eq. 2-3, or the obstacle's
-        predicted course meeting the robot's committed motion within the latency and the
-        stopping time; an approaching obstacle within `min_separation` fires either way."""
-        if self.config.reflex_rule == "eq2":
-            return report.fires(self.config.threshold, self.config.min_separation)
+    def _fires(self, report: RiskReport, q: np.ndarray, close: bool) -> str | None:
+        """The reflex rule (`PlanningConfig.reflex_rule`): Eq. 2-3 ("eq2"), or a moving
+        obstacle's predicted course meeting the robot's committed motion within the
+        reaction and stopping time ("predicted"); an approaching obstacle within
+        `min_separation` fires under either ("close"). None: no reflex."""
         if close:
-            return True
-        if not report.approaching:
-            return False
+            return "close"
+        if self.config.reflex_rule == "eq2":
+            return "eq2" if report.fires(self.config.threshold) else None
+        tracks = [t for t in self.tracker.tracks if t.moving and t.approaching and len(t.voxels)]
+        if not tracks:
+            return None
+        committed, horizon = self._committed(q)
+        for track in tracks:
+            if predicted_contact(
+                self.robot, track.voxels, track.own_velocity, committed, horizon, self.tree.resolution,
+                margin=self.config.prediction_margin,
+            ):
+                return "predicted"
+        return None
+
+    def _committed(self, q: np.ndarray) -> tuple[np.ndarray, float]:
+        """The robot's committed joint states (every 1/30 s) if it reacts one frame
+        later: its motion goes on at the current speed scale for the reaction time, then
+        brakes to a stop along its path at the acceleration limits. The horizon (s) is
+        the reaction time plus the longer of that braking and `escape_time`, the time a
+        reflex needs to get clear of a hand that arrives while the robot stands."""
         stopping = float(np.max(np.abs(self.command) / self.a_max))
-        horizon = 1.0 / 15.0 + 0.005 + stopping  # a map frame, the layer's compute, braking
+        reaction = REACTION_TIME
+        horizon = reaction + max(stopping, self.config.escape_time)
+        if self.motion is None:
+            return np.asarray(q, dtype=np.float64)[None], horizon
+        scale = self.speed_scale if self.motion.kind == "plan" else 1.0
         ahead = np.arange(0.0, horizon + 1e-9, 1.0 / 30.0)
-        if self.motion is not None:
-            committed = self.motion.trajectory.sample(self.cell.time - self.motion.start + ahead)
-        else:
-            committed = np.asarray(q, dtype=np.float64)[None]
-        return predicted_contact(self.robot, report, committed, horizon, self.tree.resolution, margin=self.config.prediction_margin)
+        braking = np.clip(ahead - reaction, 0.0, stopping)
+        # the motion's clock: on at `scale`, then slowing linearly to rest over `stopping`
+        clock = scale * (np.minimum(ahead, reaction) + braking - (0.5 * braking**2 / stopping if stopping > 0 else 0.0))
+        return self.motion.trajectory.sample(self.motion.elapsed + clock), horizon
+
+    # --- speed and separation monitoring (ISO/TS 15066) -----------------------------
+
+    def _nominal_velocity(self, h: float = 1e-3) -> np.ndarray:
+        """The running motion's joint velocity at its clock, unscaled (rad/s)."""
+        assert self.motion is not None
+        t = self.motion.elapsed
+        a, b = self.motion.trajectory.sample(np.array([t, t + h]))
+        return (b - a) / h
+
+    def ssm_scale(self, q: np.ndarray) -> float:
+        """The path speed's scale (0-1) that keeps every tracked obstacle at least its
+        protective separation from the robot (`separation.ssm_speed_limit`): per track,
+        the robot's speed at its closest point towards the obstacle (running the plan
+        at full speed) against the largest that separation allows, with the obstacle's
+        speed towards the robot (tracked, at least `ssm_human_speed`), the reaction time
+        of a map frame plus the layer's compute, and the stopping time the scaled speed
+        needs at the acceleration limits. 1 for reflexes, without a plan, or moving away."""
+        if not self.config.ssm or self.motion is None or self.motion.kind != "plan":
+            return 1.0
+        nominal = self._nominal_velocity()
+        stopping = float(np.max(np.abs(nominal) / self.a_max))  # at full speed
+        scale = 1.0
+        for track in self.tracker.tracks:
+            d = track.clearance
+            if not np.isfinite(d) or d <= 0 or track.on_robot is None or track.link < 0:
+                continue  # touching is the reflex's matter
+            toward = (track.on_obstacle - track.on_robot) / d
+            robot_speed = float(toward @ (self.robot.jacobian(q, track.link, track.on_robot) @ nominal))
+            if robot_speed <= 1e-6 or stopping <= 0:
+                continue  # slowing a robot that moves away or stands does not help
+            human_speed = max(self.config.ssm_human_speed, -float(track.own_velocity @ toward))
+            allowed = ssm_speed_limit(
+                d, human_speed, reaction_time=REACTION_TIME, deceleration=robot_speed / stopping,
+                sensor_uncertainty=self.config.ssm_uncertainty, robot_uncertainty=0.0,
+            )
+            scale = min(scale, allowed / robot_speed)
+        return scale
+
+    def _advance_scale(self, dt: float) -> float:
+        """The speed scale for this control step: the wanted one (`ssm_target`), reached
+        as fast as the acceleration limits let the reference slow down (the follower
+        brakes at them), and regained at half that rate."""
+        assert self.motion is not None
+        if self.motion.kind != "plan":
+            return 1.0
+        target, scale = self.ssm_target, self.speed_scale
+        if target != scale:
+            speed = np.abs(self._nominal_velocity())
+            rate = float(np.min(self.a_max / np.maximum(speed, 1e-6)))  # 1/s: the reference's scale change at the limit
+            step = rate * dt if target < scale else 0.5 * rate * dt
+            scale = max(target, scale - step) if target < scale else min(target, scale + step)
+            self.speed_scale = scale
+        return scale
 
     def _reflex_motion(self, q: np.ndarray, move, *, escape: bool):
         """What the robot does for a reflex `move` planned from q while it moves at its
@@ -496,4 +603,12 @@ class Executive:
         out["reflex_compute_ms"] = (float(1e3 * lat.mean()), float(1e3 * lat.max())) if len(lat) else None
         cpu = np.array(self.reflex_cpu)
         out["reflex_cpu_ms"] = (float(1e3 * cpu.mean()), float(1e3 * cpu.max())) if len(cpu) else None
+        rules: dict[str, int] = {}
+        for reflex in self.log.reflexes:
+            if "rule" in reflex:
+                rules[reflex["rule"]] = rules.get(reflex["rule"], 0) + 1
+        out["reflex_rules"] = rules
+        ssm = np.array(self.ssm_cpu)
+        out["ssm_cpu_ms"] = (float(1e3 * ssm.mean()), float(1e3 * ssm.max())) if len(ssm) else None
+        out["ssm_slowed_frames"] = self.ssm_slowed_frames
         return out

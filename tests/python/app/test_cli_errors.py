@@ -33,6 +33,7 @@ BAD_OPTIONS = [
     (["experiment", "table2", "--trips", "0"], "--trips"),
     (["experiment", "table2", "--only", "Exp. 9"], "--only"),
     (["experiment", "table2", "--only"], "--only"),
+    (["experiment", "table2", "--scenario", "calm"], "--scenario"),
     (["experiment", "fig7", "--repetitions", "0"], "--repetitions"),
     (["experiment", "table2", "--camera-scale", "-1"], "--camera-scale"),
     (["experiment", "nonsense"], "name"),

@@ -105,3 +105,52 @@ def test_fig7_measures_how_often_fading_voxels_are_seen_free():
     assert bands[0.2]["swept_voxels"] == 1 and bands[0.2]["mean_danger_swept"] == bands[0.2]["mean_danger"]
     assert bands[0.32]["voxels"] == 1 and bands[0.32]["swept_voxels"] == 0 and bands[0.32]["mean_danger_swept"] == 0.0
     assert bands[0.32]["mean_danger"] == pytest.approx(np.mean(np.float32(c_middle)), rel=1e-6)
+
+@pytest.mark.parametrize("scenario", ["stress", "paper"])
+def test_table2_scenarios_reach_into_the_direct_path_at_their_pace(scenario):
+    pytest.importorskip("pybullet")
+    from earcore.app.experiments.planning import SCENARIOS, experiment_configs
+    from earcore.sim.person import reach_duration
+
+    configs = experiment_configs(seed=3, scenario=scenario, duration=300.0)
+    person = configs["Exp. 3"].cell.person
+    assert configs["Exp. 2"].cell.person.reach_starts == person.reach_starts  # the same reaches for both planners
+    ranges = SCENARIOS[scenario]
+    assert len(person.reach_starts) >= 10
+    for name, values in (("speeds", person.reach_speeds), ("holds", person.reach_holds)):
+        lo, hi = ranges[name]
+        assert all(lo <= v <= hi for v in values)
+    # one reach after another, the pause between them in the scenario's range
+    for k in range(len(person.reach_starts) - 1):
+        go = reach_duration(person.rest_hand, person.reach_targets[k], person.reach_speeds[k])
+        pause = person.reach_starts[k + 1] - person.reach_starts[k] - 2 * go - person.reach_holds[k]
+        assert ranges["gaps"][0] - 1e-9 <= pause <= ranges["gaps"][1] + 1e-9
+    # the hand is held in the tool's A-B sweep (the UR5's A and B: the tool at x 0.2-0.45 m, y 0-0.5 m)
+    targets = np.array(person.reach_targets)
+    assert np.all((targets[:, 0] > 0.2) & (targets[:, 0] < 0.4) & (targets[:, 1] > 0.2) & (targets[:, 1] < 0.5))
+    with pytest.raises(ValueError, match="scenario"):
+        experiment_configs(scenario="calm")
+
+
+def test_limit_analysis_counts_reaches_started_too_close_and_their_contacts():
+    """Two reaches at 1.6 m/s: one starting 5 mm from the robot (inside any limit), one
+    5 m away (outside); a contact after the first belongs to it."""
+    from types import SimpleNamespace
+
+    import earcore
+    from earcore.app.experiments.planning import limit_analysis
+
+    ur5 = earcore.robots.load("ur5")
+    q = np.array([0.0, -1.9, 1.6, -1.3, -1.57, 0.0])
+    frames = [(1.0, q, np.zeros(6), 0.005), (2.0, q, np.zeros(6), 0.3), (5.0, q, np.zeros(6), 5.0), (6.0, q, np.zeros(6), 5.0)]
+    executive = SimpleNamespace(
+        frames=frames, robot=ur5, v_max=np.full(6, 1.57), a_max=np.full(6, 1.8), contact_times=[2.5],
+    )
+    person = SimpleNamespace(
+        rest_hand=(0.85, 0.5, 0.05), reach_starts=[1.0, 5.0, 100.0], reach_targets=[(0.3, 0.3, 0.5)] * 3,
+        reach_speeds=[1.6, 1.6, 1.6],
+    )
+    result = limit_analysis(executive, person)
+    assert result["reaches"] == 2  # the third starts after the last frame
+    assert result["inside_limit"] == 1 and result["contacts"] == 1 and result["contacts_inside_limit"] == 1
+    assert 0.005 < result["limits_m"][0] < 5.0

@@ -3,16 +3,23 @@ the danger-map construction test (Fig. 7).
 
 A-B-A return trips of the UR5, four experiments with one seed:
   Exp. 1  reactive planner, a static pillar blocking the direct path;
-  Exp. 2  reactive planner, a person's arm entering the direct path at random
-          (one reach after another, held 2-5 s, peak hand speed 0.25-1.6 m/s;
-          `HELD_HAND_WANDER` lets the held hand move about);
+  Exp. 2  reactive planner, a person's arm entering the direct path at random;
   Exp. 3  predictive planner + reflexes, the same arm (same reaches);
   Direct  no obstacle.
+Two scenarios of the person's reaches (`SCENARIOS`):
+  stress  one reach after another, 0.5-3 s apart, held 2-5 s, peak hand speed
+          0.25-1.6 m/s (`HELD_HAND_WANDER` lets the held hand move about);
+  paper   Paper II's protocol: the hand brought into the direct path at operator pace
+          (0.2-0.5 m/s) at random times (1-8 s apart), held 2-8 s.
 Prints mean ± std per return trip of planning, optimisation and execution time, path
-length, and the totals of collisions (true contacts), reflexes and stops, and the
-minimum true robot-person distance.
+length, and the totals of collisions (true contacts), reflexes (by the rule that fired)
+and stops, and the minimum true robot-person distance; with the stress scenario also
+the physical limit: the reaches that started closer than the shortest distance from
+which the arm can still avoid them (`separation.shortest_avoidable_distance`). Writes
+table2.json and paths.png (the tool's paths over the trips on the danger the map held,
+top view, in the manner of Paper II's Fig. 8).
 
-    earcore experiment table2 [--trips 15] [--seed 0] [--camera-scale 0.25] [--out out/table2]
+    earcore experiment table2 [--scenario stress|paper] [--trips 15] [--seed 0] [--camera-scale 0.25] [--out out/table2]
 
 Fig. 7: the obstacle plate (10 × 20 cm) on the end-effector runs horizontal circles of
 radius 20, 32 and 46 cm around the robot's base (9.1, 14.69, 21.06 s each), the whole
@@ -40,8 +47,10 @@ import numpy as np
 from earcore import DANGER_ON_HIT
 from earcore.app.arguments import Parser, count, positive_int, scale
 from earcore.app.config import RunConfig
+from earcore.planning.executive import REACTION_TIME, Executive
+from earcore.sim.cell import default_waypoints
 
-__all__ = ["CirclesDriver", "experiment_configs", "fig7", "main", "table2"]
+__all__ = ["SCENARIOS", "CirclesDriver", "WatchedExecutive", "draw_paths", "experiment_configs", "fig7", "limit_analysis", "main", "table2"]
 
 #: How far the held hand moves about its target (m) in Exp. 2 and 3. Still (0) by
 #: default: with 8 cm of wander (up to 0.28 m/s) both planners touched the person
@@ -53,29 +62,41 @@ HELD_HAND_WANDER = 0.0
 PILLAR = (0.28, 0.33, 0.0, 0.38, 0.43, 0.8)
 
 
-def _reaches(seed: int, duration: float, rest=(0.85, 0.5, 0.05)):
-    """Random reaches into the direct path, one after another (0.5-3 s apart): the hand
-    aimed at the middle of the tool's A-B sweep, held there 2-5 s (Paper II's obstacle
-    was held into the path by hand), peak speed 0.25-1.6 m/s (slow and fast reaches
-    alike)."""
+#: The person's reaches per scenario: peak hand speed (m/s), how long the hand is held
+#: in the path (s) and the pause between reaches (s), each drawn uniformly.
+SCENARIOS = {
+    "stress": {"speeds": (0.25, 1.6), "holds": (2.0, 5.0), "gaps": (0.5, 3.0)},
+    "paper": {"speeds": (0.2, 0.5), "holds": (2.0, 8.0), "gaps": (1.0, 8.0)},
+}
+
+
+def _reaches(seed: int, duration: float, rest=(0.85, 0.5, 0.05), scenario: str = "stress"):
+    """Random reaches into the direct path, one after another: the hand aimed at the
+    middle of the tool's A-B sweep and held there (Paper II's obstacle was held into the
+    path by hand), at the speeds, holds and pauses of the `scenario` (`SCENARIOS`)."""
     from earcore.sim.person import reach_duration
 
+    ranges = SCENARIOS[scenario]
     rng = np.random.default_rng([seed, 7])
     starts, targets, speeds, holds = [], [], [], []
     t = rng.uniform(1.0, 3.0)
     while t < duration:
         target = rng.uniform([0.22, 0.25, 0.4], [0.36, 0.48, 0.56])
-        speed, hold = rng.uniform(0.25, 1.6), rng.uniform(2.0, 5.0)
+        speed, hold = rng.uniform(*ranges["speeds"]), rng.uniform(*ranges["holds"])
         starts.append(float(t))
         targets.append(tuple(float(v) for v in target))
         speeds.append(float(speed))
         holds.append(float(hold))
         go = reach_duration(rest, target, speed)
-        t += 2 * go + hold + rng.uniform(0.5, 3.0)
+        t += 2 * go + hold + rng.uniform(*ranges["gaps"])
     return starts, targets, speeds, holds
 
 
-def experiment_configs(seed: int = 0, camera_scale: float = 0.25, duration: float = 600.0) -> dict[str, RunConfig]:
+def experiment_configs(
+    seed: int = 0, camera_scale: float = 0.25, duration: float = 600.0, scenario: str = "stress"
+) -> dict[str, RunConfig]:
+    if scenario not in SCENARIOS:
+        raise ValueError(f"scenario must be one of {sorted(SCENARIOS)}, got {scenario!r}")
     base = RunConfig(duration=duration, snapshots=[])
     base.cell.seed = seed
     base.cell.camera_scale = camera_scale
@@ -88,7 +109,7 @@ def experiment_configs(seed: int = 0, camera_scale: float = 0.25, duration: floa
     configs["Exp. 1"] = exp1
     person = deepcopy(base)
     person.cell.person.enabled = True
-    starts, targets, speeds, holds = _reaches(seed, duration, person.cell.person.rest_hand)
+    starts, targets, speeds, holds = _reaches(seed, duration, person.cell.person.rest_hand, scenario)
     person.cell.person.reach_starts = starts
     person.cell.person.reach_targets = targets
     person.cell.person.reach_speeds = speeds
@@ -104,20 +125,124 @@ def experiment_configs(seed: int = 0, camera_scale: float = 0.25, duration: floa
     return configs
 
 
+class WatchedExecutive(Executive):
+    """The planning executive with what Table II's pictures and the limit analysis
+    need: per map frame of a trip the time, joint state, command and true robot-person
+    distance; the times contacts began; and the danger of each map column (its highest
+    voxel's, top view) averaged over frames sampled every `DANGER_EVERY`."""
+
+    DANGER_EVERY = 5
+    #: The top view's grid: lower corner (m), cell (m) and cells.
+    GRID_LO = np.array([-0.6, -0.6])
+    GRID_CELL = 0.05
+    GRID_SHAPE = (28, 28)
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.frames: list[tuple[float, np.ndarray, np.ndarray, float]] = []
+        self.contact_times: list[float] = []
+        self._danger_sum = np.zeros(self.GRID_SHAPE)
+        self._danger_samples = 0
+        self._frame_index = 0
+
+    @property
+    def danger_top(self) -> np.ndarray:
+        """Each map column's danger averaged over the sampled frames (top view)."""
+        return self._danger_sum / max(self._danger_samples, 1)
+
+    def on_frame(self):
+        report = super().on_frame()
+        if self.trip is not None:
+            distance = self.person_distance() if self.person_distance is not None else float("inf")
+            if distance <= 0 and (not self.frames or self.frames[-1][3] > 0):
+                self.contact_times.append(self.cell.time)
+            self.frames.append((self.cell.time, self.cell.q.copy(), self.command.copy(), distance))
+        self._frame_index += 1
+        if self._frame_index % self.DANGER_EVERY == 0:
+            centres, _, values = self.tree.danger_voxels()
+            cells = np.floor((centres[:, :2] - self.GRID_LO) / self.GRID_CELL).astype(int)
+            inside = np.all((cells >= 0) & (cells < self.GRID_SHAPE), axis=1)
+            column = np.zeros(self.GRID_SHAPE)
+            np.maximum.at(column, tuple(cells[inside].T), values[inside])
+            self._danger_sum += column
+            self._danger_samples += 1
+        return report
+
+
+def limit_analysis(executive: WatchedExecutive, person) -> dict:
+    """Item 4 of the stress scenario: for every reach that started during the trips, the
+    shortest distance from which the arm could still avoid it
+    (`separation.shortest_avoidable_distance`: the reach's peak hand speed over its
+    length, the reflex layer's reaction time, and the tool's top speed and acceleration
+    straight away from the reach's target at the joint limits, with the tool's speed
+    towards it then), against the true robot-person distance when it started; and the
+    contacts, each counted with the last reach that started before it."""
+    from earcore.planning.separation import shortest_avoidable_distance
+
+    if not executive.frames:
+        return {"reaches": 0, "inside_limit": 0, "contacts": 0, "contacts_inside_limit": 0, "limits_m": []}
+    robot = executive.robot
+    times = np.array([f[0] for f in executive.frames])
+    rest = np.asarray(person.rest_hand, dtype=np.float64)
+    rows = []
+    for start, target, speed in zip(person.reach_starts, person.reach_targets, person.reach_speeds):
+        if not times[0] <= start <= times[-1]:
+            continue
+        _, q, qd, gap = executive.frames[int(np.searchsorted(times, start))]
+        tool = robot.fk(q)[-1, :3, 3]
+        away = tool - np.asarray(target)
+        away /= max(float(np.linalg.norm(away)), 1e-9)
+        jacobian = robot.jacobian(q, len(robot.link_names) - 1, tool)
+        joints = np.abs(np.linalg.pinv(jacobian) @ away)  # joint speeds per m/s of the tool away
+        top = float(np.min(executive.v_max / np.maximum(joints, 1e-9)))
+        acceleration = float(np.min(executive.a_max / np.maximum(joints, 1e-9)))
+        towards = max(0.0, -float(away @ (jacobian @ qd)))
+        limit = shortest_avoidable_distance(
+            speed, reach=float(np.linalg.norm(np.asarray(target) - rest)), latency=REACTION_TIME,
+            max_speed=top, acceleration=acceleration, robot_speed=towards,
+        )
+        rows.append((start, limit, gap))
+    starts = np.array([r[0] for r in rows])
+    inside = {i for i, (_, limit, gap) in enumerate(rows) if gap < limit}
+    owners = [int(np.searchsorted(starts, t, side="right")) - 1 for t in executive.contact_times]
+    return {
+        "reaches": len(rows),
+        "inside_limit": len(inside),
+        "contacts": len(owners),
+        "contacts_inside_limit": sum(o in inside for o in owners),
+        "limits_m": [round(float(r[1]), 3) for r in rows],
+    }
+
+
 def table2(
-    trips: int = 15, seed: int = 0, camera_scale: float = 0.25, out: Path = Path("out/table2"), only=None, reflex_rule: str = "eq2"
+    trips: int = 15,
+    seed: int = 0,
+    camera_scale: float = 0.25,
+    out: Path = Path("out/table2"),
+    only=None,
+    reflex_rule: str = "prediction",
+    scenario: str = "stress",
 ) -> dict:
-    """Run the experiments; returns {experiment: figures per return trip}."""
+    """Run the experiments; returns {experiment: figures per return trip}; draws the
+    tool's paths over the danger map (paths.png in `out`)."""
     from earcore.app.run import run
 
-    results = {}
-    for name, config in experiment_configs(seed, camera_scale).items():
+    results, watched = {}, {}
+    for name, config in experiment_configs(seed, camera_scale, scenario=scenario).items():
         if only and name not in only:
             continue
         config.planning.reflex_rule = reflex_rule
+
+        def make(cell, pipeline, config=config, name=name):
+            watched[name] = WatchedExecutive(
+                cell, pipeline, config.planning, default_waypoints(config.cell.robot), seed=config.cell.seed,
+                person_distance=cell.robot_person_distance,
+            )
+            return watched[name]
+
         t0 = time.perf_counter()
         print(f"  {name} ...", file=sys.stderr)
-        summary = run(config, out / name.replace(". ", "").lower(), progress=True, record=False, trips=2 * trips)
+        summary = run(config, out / name.replace(". ", "").lower(), progress=True, record=False, trips=2 * trips, driver=make)
         moves = summary.get("trips", [])
         # A return trip is two moves (A→B, B→A).
         pairs = [moves[i : i + 2] for i in range(0, len(moves) - 1, 2)]
@@ -125,20 +250,73 @@ def table2(
             key: [sum(m[key] for m in pair) for pair in pairs]
             for key in ("planning_time", "optimisation_time", "execution_time", "path_length")
         }
+        planning = summary.get("planning", {})
         results[name] = {
             "return_trips": len(pairs),
             **{k: (float(np.mean(v)), float(np.std(v))) if v else (float("nan"), float("nan")) for k, v in per_trip.items()},
+            "execution_times": per_trip["execution_time"],
             "collisions": sum(m["collisions"] for m in moves),
             "reflexes": sum(m["reflexes"] for m in moves),
+            "reflex_rules": planning.get("reflex_rules", {}),
             "stops": sum(m["stops"] for m in moves),
             "min_clearance_m": min((m["min_clearance"] for m in moves), default=float("inf")),
-            "reflex_compute_ms": summary.get("planning", {}).get("reflex_compute_ms"),
-            "reflex_cpu_ms": summary.get("planning", {}).get("reflex_cpu_ms"),
-            "refused_plans": summary.get("planning", {}).get("refused_plans", 0),
+            "reflex_compute_ms": planning.get("reflex_compute_ms"),
+            "reflex_cpu_ms": planning.get("reflex_cpu_ms"),
+            "ssm_cpu_ms": planning.get("ssm_cpu_ms"),
+            "ssm_slowed_frames": planning.get("ssm_slowed_frames", 0),
+            "refused_plans": planning.get("refused_plans", 0),
             "wall_s": round(time.perf_counter() - t0, 1),
         }
+        if config.cell.person.enabled and scenario == "stress":
+            results[name]["limit"] = limit_analysis(watched[name], config.cell.person)
         print(f"  {name}: {len(pairs)} return trips in {results[name]['wall_s']} s", file=sys.stderr)
+    if watched:
+        out.mkdir(parents=True, exist_ok=True)
+        draw_paths(out / "paths.png", watched, results, scenario, seed)
     return results
+
+
+def draw_paths(png: Path, watched: dict[str, WatchedExecutive], results: dict, scenario: str, seed: int) -> None:
+    """Paper II's Fig. 8 in simulation: per experiment, the tool's paths over the trips
+    (top view, one colour per return trip) on the map's danger averaged over the run
+    (static scenery stays at 1; the person's reaches fade)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(watched)
+    fig, axes = plt.subplots(1, len(names), figsize=(max(6.0, 4.2 * len(names)), 5.0), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        executive = watched[name]
+        lo, cell = executive.GRID_LO, executive.GRID_CELL
+        extent = (lo[0], lo[0] + cell * executive.GRID_SHAPE[0], lo[1], lo[1] + cell * executive.GRID_SHAPE[1])
+        ax.imshow(executive.danger_top.T, origin="lower", extent=extent, cmap="Reds", vmin=0, vmax=1, alpha=0.8)
+        if executive.frames:
+            times = np.array([f[0] for f in executive.frames])
+            tools = executive.robot.fk(np.array([f[1] for f in executive.frames]))[:, -1, :3, 3]
+            starts = [t.start_time for t in executive.trips[::2]] + [np.inf]
+            colours = plt.cm.viridis(np.linspace(0, 1, max(1, len(starts) - 1)))
+            for k in range(len(starts) - 1):
+                sel = (times >= starts[k]) & (times < starts[k + 1])
+                ax.plot(tools[sel, 0], tools[sel, 1], color=colours[k], lw=0.9)
+            for t in executive.contact_times:
+                i = int(np.searchsorted(times, t))
+                ax.plot(*tools[min(i, len(tools) - 1), :2], "kx", ms=8)
+        ax.plot(0, 0, "ks", ms=6)
+        r = results[name]
+        ax.set_title(f"{name}: {r['execution_time'][0]:.1f} s/trip, {r['reflexes']} reflexes,\n"
+                     f"{r['collisions']} contacts, {r['stops']} stops", fontsize=9)
+        ax.set_xlim(extent[0], extent[1])
+        ax.set_ylim(extent[2], extent[3])
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+    axes[0][0].set_ylabel("y (m)")
+    fig.suptitle(f"Table II, {scenario} scenario, seed {seed}\ntool paths per return trip (colour) on the average danger "
+                 "(x: contact)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(png, dpi=90)
+    plt.close(fig)
 
 
 def format_table(results: dict) -> str:
@@ -156,8 +334,15 @@ def format_table(results: dict) -> str:
               ("plans refused for their way on", "refused_plans"))
     for label, key in counts:
         lines.append(f"| {label} | " + " | ".join(str(results[n].get(key, 0)) for n in names) + " |")
+    lines.append("| reflexes by rule | " + " | ".join(
+        ", ".join(f"{k} {v}" for k, v in sorted(results[n].get("reflex_rules", {}).items())) or "–" for n in names) + " |")
     lines.append("| min. robot-person distance (m) | " + " | ".join(
         f"{results[n]['min_clearance_m']:.3f}" if np.isfinite(results[n]["min_clearance_m"]) else "–" for n in names) + " |")
+    if any("limit" in results[n] for n in names):
+        lines.append("| reaches started inside the avoidable limit | " + " | ".join(
+            f"{results[n]['limit']['inside_limit']} of {results[n]['limit']['reaches']} "
+            f"({results[n]['limit']['contacts_inside_limit']} of {results[n]['limit']['contacts']} contacts)"
+            if "limit" in results[n] else "–" for n in names) + " |")
     return "\n".join(lines)
 
 
@@ -379,9 +564,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", nargs="*", help="run only these experiments, e.g. 'Exp. 3' Direct")
     parser.add_argument("--out", type=Path, default=Path("out/table2"), help="output folder (fig7: out/fig7)")
     parser.add_argument(
-        "--reflex-rule", choices=("eq2", "prediction"), default="eq2",
-        help="table2: when Exp. 3's reflexes fire: Eq. 2 (the paper) or the hand's predicted course meeting the robot's motion",
+        "--reflex-rule", choices=("eq2", "prediction"), default="prediction",
+        help="table2: when Exp. 3's reflexes fire: the hand's predicted course meeting the robot's motion (default) or Eq. 2 (the paper)",
     )  # fmt: skip
+    parser.add_argument("--scenario", choices=sorted(SCENARIOS), default="stress",
+                        help="table2: the person's reaches: fast ones one after another (stress) or Paper II's protocol (paper)")
     if argv and argv[0] == "calibration":
         from earcore.app.experiments.calibration import main as calibration_main
 
@@ -402,10 +589,11 @@ def main(argv: list[str] | None = None) -> int:
                   f"seen free in {100 * b['seen_free_while_fading']:.0f} % of the frames they were fading")
         print(f"picture: {out / 'fig7.png'}")
         return 0
-    results = table2(args.trips, args.seed, args.camera_scale, args.out, args.only, args.reflex_rule)
+    results = table2(args.trips, args.seed, args.camera_scale, args.out, args.only, args.reflex_rule, args.scenario)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "table2.json").write_text(json.dumps(results, indent=2, default=float))
     print(format_table(results))
+    print(f"picture: {args.out / 'paths.png'}")
     return 0
 
 
