@@ -67,6 +67,9 @@ class TripReport:
     plans: int = 0
     stops: int = 0
     reflexes: int = 0
+    #: Plans halted by separation monitoring because the prediction rule saw an obstacle's
+    #: course meet them, while braking still kept clear of it (instead of a reflex).
+    protective_stops: int = 0
     collisions: int = 0
     #: Smallest true robot-person distance during the trip (m; inf without a person).
     min_clearance: float = float("inf")
@@ -101,6 +104,8 @@ class ExecutiveLog:
     #: velocity then was not free ("rejoined": False where the arm would not have got
     #: back onto the path within the follower's horizon).
     refused_plans: list[dict] = field(default_factory=list)
+    #: Times of the protective stops (`Executive._fires`).
+    protective_stops: list[float] = field(default_factory=list)
 
 
 class Executive:
@@ -220,6 +225,11 @@ class Executive:
             self.log.refused_plans.append({"time": self.cell.time, "rejoined": rejoined})
             return False
         self.motion = _Motion(trajectory, self.cell.time, "plan")
+        # Its timing starts from the arm's real speed: it runs at full scale, slowed from
+        # there by what separation monitoring asks for it.
+        self.speed_scale = 1.0
+        if self.reflexes_on:
+            self._set_ssm_target(self.ssm_scale(self.cell.q))
         return True
 
     def remaining_way(self) -> np.ndarray | None:
@@ -404,7 +414,16 @@ class Executive:
         # A running reflex is not restarted, except a backtrack the obstacle still
         # closes in on: then it becomes a move away.
         backtracking = self.motion is not None and self.motion.kind == "backtrack"
-        rule = self._fires(report, q, close)
+        cpu = time.thread_time()
+        free = self.ssm_scale(q)
+        self.ssm_cpu.append(time.thread_time() - cpu)
+        rule = self._fires(report, q, close, free)
+        if rule == "stop":
+            if self.ssm_target > 0 and self.trip is not None:
+                self.trip.protective_stops += 1
+                self.log.protective_stops.append(cell.time)
+            self._set_ssm_target(0.0)
+            return report, False
         if rule is not None and (not in_reflex or (close and backtracking)):
             # The static scene (index cached) plus this frame's moving voxels
             # (exact): no rebuild of the live map's index before the reflex.
@@ -440,20 +459,24 @@ class Executive:
             self.reflex_cpu.append(time.thread_time() - cpu0)
             self.log.reflexes.append({"time": cell.time, "kind": move.kind if move else "stop", "risk": report.risk, "rule": rule})
             return report, True
-        cpu = time.thread_time()
-        target = self.ssm_scale(q)
-        self.ssm_cpu.append(time.thread_time() - cpu)
-        if target != self.ssm_target:
-            self.ssm_log.append((cell.time, target))
-        self.ssm_target = target
-        self.ssm_slowed_frames += target < 1.0
+        self._set_ssm_target(free)
         return report, False
 
-    def _fires(self, report: RiskReport, q: np.ndarray, close: bool) -> str | None:
+    def _set_ssm_target(self, target: float) -> None:
+        if target != self.ssm_target:
+            self.ssm_log.append((self.cell.time, target))
+        self.ssm_target = target
+        self.ssm_slowed_frames += target < 1.0
+
+    def _fires(self, report: RiskReport, q: np.ndarray, close: bool, free: float = 1.0) -> str | None:
         """The reflex rule (`PlanningConfig.reflex_rule`): Eq. 2-3 ("eq2"), or a moving
-        obstacle's predicted course meeting the robot's committed motion within the
-        reaction and stopping time ("predicted"); an approaching obstacle within
-        `min_separation` fires under either ("close"). None: no reflex."""
+        obstacle's predicted course meeting the robot's committed motion, were it to
+        react one frame later (at the speed scale `free` that separation monitoring
+        allows; `_committed`). Under the prediction rule with separation monitoring, a
+        plan that can still brake clear of every course when it brakes now stops
+        instead ("stop", a protective stop); otherwise the reflex fires ("predicted").
+        An approaching obstacle within `min_separation` fires under either ("close").
+        None: neither."""
         if close:
             return "close"
         if self.config.reflex_rule == "eq2":
@@ -461,41 +484,59 @@ class Executive:
         tracks = [t for t in self.tracker.tracks if t.moving and t.approaching and len(t.voxels)]
         if not tracks:
             return None
-        committed, horizon = self._committed(q)
-        for track in tracks:
-            if predicted_contact(
+        committed, horizon = self._committed(q, free, REACTION_TIME)
+        if not self._meets(tracks, committed, horizon):
+            return None
+        if self.config.ssm and self.motion is not None and self.motion.kind == "plan":
+            halting, horizon = self._committed(q, self.speed_scale, 0.0)
+            if not self._meets(tracks, halting, horizon):
+                return "stop"
+        return "predicted"
+
+    def _meets(self, tracks, committed: np.ndarray, horizon: float) -> bool:
+        """Whether any track's predicted course meets the `committed` joint states."""
+        return any(
+            predicted_contact(
                 self.robot, track.voxels, track.own_velocity, committed, horizon, self.tree.resolution,
                 margin=self.config.prediction_margin,
-            ):
-                return "predicted"
-        return None
+            )
+            for track in tracks
+        )
 
-    def _committed(self, q: np.ndarray) -> tuple[np.ndarray, float]:
-        """The robot's committed joint states (every 1/30 s) if it reacts one frame
-        later: its motion goes on at the current speed scale for the reaction time, then
-        brakes to a stop along its path at the acceleration limits. The horizon (s) is
-        the reaction time plus the longer of that braking and `escape_time`, the time a
-        reflex needs to get clear of a hand that arrives while the robot stands."""
-        stopping = float(np.max(np.abs(self.command) / self.a_max))
-        reaction = REACTION_TIME
+    def _committed(self, q: np.ndarray, scale: float, reaction: float) -> tuple[np.ndarray, float]:
+        """The robot's joint states (every 1/30 s) if it reacts after `reaction` seconds:
+        its motion goes on at the speed `scale` until then (a plan's; reflexes run at
+        full speed), then brakes to rest along its path at the acceleration limits. The
+        horizon (s) is the reaction time plus the longer of that braking and
+        `escape_time`, the time a reflex needs to get clear of a hand that arrives while
+        the robot stands. Returns the states and the horizon."""
+        if self.motion is None:  # stopped, or braking at every joint's limit
+            stop = braking(q, self.command, self.a_max)
+            horizon = reaction + max(stop.duration, self.config.escape_time)
+            return stop.sample(np.arange(0.0, horizon + 1e-9, 1.0 / 30.0)), horizon
+        if self.motion.kind != "plan":
+            scale = 1.0
+        # braking from the faster of the speed now and the one it is scaled to
+        speed = np.maximum(np.abs(self.command), scale * np.abs(self._nominal_velocity()))
+        stopping = float(np.max(speed / self.a_max))
         horizon = reaction + max(stopping, self.config.escape_time)
-        if self.motion is None:
-            return np.asarray(q, dtype=np.float64)[None], horizon
-        scale = self.speed_scale if self.motion.kind == "plan" else 1.0
         ahead = np.arange(0.0, horizon + 1e-9, 1.0 / 30.0)
-        braking = np.clip(ahead - reaction, 0.0, stopping)
+        slowing = np.clip(ahead - reaction, 0.0, stopping)
         # the motion's clock: on at `scale`, then slowing linearly to rest over `stopping`
-        clock = scale * (np.minimum(ahead, reaction) + braking - (0.5 * braking**2 / stopping if stopping > 0 else 0.0))
+        clock = scale * (np.minimum(ahead, reaction) + slowing - (0.5 * slowing**2 / stopping if stopping > 0 else 0.0))
         return self.motion.trajectory.sample(self.motion.elapsed + clock), horizon
 
     # --- speed and separation monitoring (ISO/TS 15066) -----------------------------
 
     def _nominal_velocity(self, h: float = 1e-3) -> np.ndarray:
-        """The running motion's joint velocity at its clock, unscaled (rad/s)."""
+        """The running motion's joint velocity, unscaled (rad/s): the fastest of its clock
+        now and over the next reaction time (a motion starting from rest, or at a
+        corner, speeds up before the next frame)."""
         assert self.motion is not None
-        t = self.motion.elapsed
-        a, b = self.motion.trajectory.sample(np.array([t, t + h]))
-        return (b - a) / h
+        t = self.motion.elapsed + np.array([0.0, 0.5, 1.0]) * REACTION_TIME
+        a, b = self.motion.trajectory.sample(t), self.motion.trajectory.sample(t + h)
+        velocities = (b - a) / h
+        return velocities[int(np.argmax(np.abs(velocities).max(axis=1)))]
 
     def ssm_scale(self, q: np.ndarray) -> float:
         """The path speed's scale (0-1) that keeps every tracked obstacle at least its
@@ -594,7 +635,7 @@ class Executive:
         for key in ("planning_time", "optimisation_time", "execution_time", "path_length", "tool_path_length"):
             values = np.array([getattr(t, key) for t in trips])
             out[key] = (float(values.mean()), float(values.std())) if len(values) else (float("nan"), float("nan"))
-        for key in ("collisions", "reflexes", "stops", "plans"):
+        for key in ("collisions", "reflexes", "protective_stops", "stops", "plans"):
             out[key] = int(sum(getattr(t, key) for t in trips))
         out["refused_plans"] = len(self.log.refused_plans)
         clear = [t.min_clearance for t in trips]

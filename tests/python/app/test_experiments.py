@@ -134,7 +134,8 @@ def test_table2_scenarios_reach_into_the_direct_path_at_their_pace(scenario):
 
 def test_limit_analysis_counts_reaches_started_too_close_and_their_contacts():
     """Two reaches at 1.6 m/s: one starting 5 mm from the robot (inside any limit), one
-    5 m away (outside); a contact after the first belongs to it."""
+    5 m away (outside). A contact while the first is on its way (0.88 s from its start)
+    belongs to it; one while its hand is held is no reach's."""
     from types import SimpleNamespace
 
     import earcore
@@ -144,7 +145,7 @@ def test_limit_analysis_counts_reaches_started_too_close_and_their_contacts():
     q = np.array([0.0, -1.9, 1.6, -1.3, -1.57, 0.0])
     frames = [(1.0, q, np.zeros(6), 0.005), (2.0, q, np.zeros(6), 0.3), (5.0, q, np.zeros(6), 5.0), (6.0, q, np.zeros(6), 5.0)]
     executive = SimpleNamespace(
-        frames=frames, robot=ur5, v_max=np.full(6, 1.57), a_max=np.full(6, 1.8), contact_times=[2.5],
+        frames=frames, robot=ur5, v_max=np.full(6, 1.57), a_max=np.full(6, 1.8), contact_times=[1.5, 2.5],
     )
     person = SimpleNamespace(
         rest_hand=(0.85, 0.5, 0.05), reach_starts=[1.0, 5.0, 100.0], reach_targets=[(0.3, 0.3, 0.5)] * 3,
@@ -152,5 +153,5 @@ def test_limit_analysis_counts_reaches_started_too_close_and_their_contacts():
     )
     result = limit_analysis(executive, person)
     assert result["reaches"] == 2  # the third starts after the last frame
-    assert result["inside_limit"] == 1 and result["contacts"] == 1 and result["contacts_inside_limit"] == 1
+    assert result["inside_limit"] == 1 and result["contacts"] == 2 and result["contacts_inside_limit"] == 1
     assert 0.005 < result["limits_m"][0] < 5.0

@@ -128,8 +128,8 @@ def experiment_configs(
 class WatchedExecutive(Executive):
     """The planning executive with what Table II's pictures and the limit analysis
     need: per map frame of a trip the time, joint state, command and true robot-person
-    distance; the times contacts began; and the danger of each map column (its highest
-    voxel's, top view) averaged over frames sampled every `DANGER_EVERY`."""
+    distance; the times contacts began; and the danger of each map column (the largest
+    of its voxels', top view) averaged over frames sampled every `DANGER_EVERY`."""
 
     DANGER_EVERY = 5
     #: The top view's grid: lower corner (m), cell (m) and cells.
@@ -176,8 +176,13 @@ def limit_analysis(executive: WatchedExecutive, person) -> dict:
     length, the reflex layer's reaction time, and the tool's top speed and acceleration
     straight away from the reach's target at the joint limits, with the tool's speed
     towards it then), against the true robot-person distance when it started; and the
-    contacts, each counted with the last reach that started before it."""
+    contacts made while a reach was on its way (from its start to its target), each
+    counted with that reach. Conservative: the hand is taken at its peak speed all the
+    way and straight at the robot (the minimum-jerk reach averages 1/1.875 of its peak,
+    and aims at the middle of the sweep), and the arm's top speed and acceleration away
+    come from the minimum-norm joint motion, so the limit overstates what is unavoidable."""
     from earcore.planning.separation import shortest_avoidable_distance
+    from earcore.sim.person import reach_duration
 
     if not executive.frames:
         return {"reaches": 0, "inside_limit": 0, "contacts": 0, "contacts_inside_limit": 0, "limits_m": []}
@@ -201,10 +206,9 @@ def limit_analysis(executive: WatchedExecutive, person) -> dict:
             speed, reach=float(np.linalg.norm(np.asarray(target) - rest)), latency=REACTION_TIME,
             max_speed=top, acceleration=acceleration, robot_speed=towards,
         )
-        rows.append((start, limit, gap))
-    starts = np.array([r[0] for r in rows])
-    inside = {i for i, (_, limit, gap) in enumerate(rows) if gap < limit}
-    owners = [int(np.searchsorted(starts, t, side="right")) - 1 for t in executive.contact_times]
+        rows.append((start, limit, gap, start + reach_duration(rest, target, speed)))
+    inside = {i for i, (_, limit, gap, _) in enumerate(rows) if gap < limit}
+    owners = [next((i for i, r in enumerate(rows) if r[0] <= t <= r[3]), -1) for t in executive.contact_times]
     return {
         "reaches": len(rows),
         "inside_limit": len(inside),
@@ -258,6 +262,7 @@ def table2(
             "collisions": sum(m["collisions"] for m in moves),
             "reflexes": sum(m["reflexes"] for m in moves),
             "reflex_rules": planning.get("reflex_rules", {}),
+            "protective_stops": sum(m.get("protective_stops", 0) for m in moves),
             "stops": sum(m["stops"] for m in moves),
             "min_clearance_m": min((m["min_clearance"] for m in moves), default=float("inf")),
             "reflex_compute_ms": planning.get("reflex_compute_ms"),
@@ -270,8 +275,9 @@ def table2(
         if config.cell.person.enabled and scenario == "stress":
             results[name]["limit"] = limit_analysis(watched[name], config.cell.person)
         print(f"  {name}: {len(pairs)} return trips in {results[name]['wall_s']} s", file=sys.stderr)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table2.json").write_text(json.dumps(results, indent=2, default=float))
     if watched:
-        out.mkdir(parents=True, exist_ok=True)
         draw_paths(out / "paths.png", watched, results, scenario, seed)
     return results
 
@@ -330,7 +336,7 @@ def format_table(results: dict) -> str:
     lines = ["| | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
     for label, key, fmt in rows:
         lines.append(f"| {label} | " + " | ".join(fmt.format(*results[n][key]) for n in names) + " |")
-    counts = (("return trips", "return_trips"), ("collisions", "collisions"), ("reflexes", "reflexes"), ("stops", "stops"),
+    counts = (("return trips", "return_trips"), ("collisions", "collisions"), ("reflexes", "reflexes"), ("protective stops", "protective_stops"), ("stops", "stops"),
               ("plans refused for their way on", "refused_plans"))
     for label, key in counts:
         lines.append(f"| {label} | " + " | ".join(str(results[n].get(key, 0)) for n in names) + " |")
@@ -590,8 +596,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"picture: {out / 'fig7.png'}")
         return 0
     results = table2(args.trips, args.seed, args.camera_scale, args.out, args.only, args.reflex_rule, args.scenario)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "table2.json").write_text(json.dumps(results, indent=2, default=float))
     print(format_table(results))
     print(f"picture: {args.out / 'paths.png'}")
     return 0
