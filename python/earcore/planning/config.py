@@ -48,8 +48,13 @@ class PlanningConfig:
     #: The obstacle's speed towards the robot is the tracked one, at least
     #: `ssm_human_speed` (m/s; the standard's 1.6 for people nobody tracks makes the arm
     #: stand still within ~0.2 m of a hand); `ssm_uncertainty` (m) is added to the
-    #: separation for what the map misses (C + Z_d + Z_r of the standard).
+    #: separation for what the map misses (C + Z_d + Z_r of the standard). It runs in the
+    #: reflex layer: with the predictive planner and `reflexes` on.
     ssm: bool = True
+    #: With `ssm` and the prediction rule, a plan brakes to a protective stop on its path
+    #: when its motion would meet a predicted course if it reacted this much (s) after
+    #: the next frame, but not if it braked now (cheaper than the reflex it forestalls).
+    stop_lookahead: float = 0.2
     ssm_human_speed: float = 0.0
     ssm_uncertainty: float = 0.02
     #: v in Eq. 2: the obstacle's velocity relative to the robot's closest point (true),
@@ -106,6 +111,7 @@ class PlanningConfig:
         non_negative(self.escape_time, f"{where}.escape_time")
         non_negative(self.ssm_human_speed, f"{where}.ssm_human_speed")
         non_negative(self.ssm_uncertainty, f"{where}.ssm_uncertainty")
+        non_negative(self.stop_lookahead, f"{where}.stop_lookahead")
         fraction(self.backtrack_fraction, f"{where}.backtrack_fraction")
         positive(self.move_away_distance, f"{where}.move_away_distance")
         non_negative(self.min_separation, f"{where}.min_separation")

@@ -473,8 +473,10 @@ class Executive:
         obstacle's predicted course meeting the robot's committed motion, were it to
         react one frame later (at the speed scale `free` that separation monitoring
         allows; `_committed`). Under the prediction rule with separation monitoring, a
-        plan that can still brake clear of every course when it brakes now stops
-        instead ("stop", a protective stop); otherwise the reflex fires ("predicted").
+        plan whose motion would meet a course if it reacted one frame and
+        `stop_lookahead` later, but that brakes clear of every course when it brakes
+        now, stops instead ("stop", a protective stop); otherwise the reflex fires
+        ("predicted").
         An approaching obstacle within `min_separation` fires under either ("close").
         None: neither."""
         if close:
@@ -485,13 +487,13 @@ class Executive:
         if not tracks:
             return None
         committed, horizon = self._committed(q, free, REACTION_TIME)
-        if not self._meets(tracks, committed, horizon):
-            return None
+        late = self._meets(tracks, committed, horizon)
         if self.config.ssm and self.motion is not None and self.motion.kind == "plan":
-            halting, horizon = self._committed(q, self.speed_scale, 0.0)
-            if not self._meets(tracks, halting, horizon):
+            # A stop is cheap: it is taken `stop_lookahead` earlier than a reflex would be.
+            early = late or self._meets(tracks, *self._committed(q, free, REACTION_TIME + self.config.stop_lookahead))
+            if early and not self._meets(tracks, *self._committed(q, self.speed_scale, 0.0)):
                 return "stop"
-        return "predicted"
+        return "predicted" if late else None
 
     def _meets(self, tracks, committed: np.ndarray, horizon: float) -> bool:
         """Whether any track's predicted course meets the `committed` joint states."""
