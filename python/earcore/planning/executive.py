@@ -28,6 +28,7 @@ from earcore.planning.reflex import (
     plan_recovery,
     plan_reflex,
     predicted_contact,
+    predicted_course,
 )
 from earcore.planning.separation import ssm_speed_limit
 from earcore.planning.trajectory import StopThenMove, Trajectory, Transfer, braking, path_length, time_parameterize, transfer
@@ -176,6 +177,10 @@ class Executive:
         self.speed_scale = 1.0
         self.ssm_cpu: list[float] = []
         self.ssm_slowed_frames = 0
+        #: Whether this frame's reflex layer made a protective stop, and the predicted
+        #: courses (voxel centres) that made it.
+        self._halted = False
+        self._courses = np.zeros((0, 3))
         #: (time, scale) whenever the wanted scale changed, for the pictures and reports.
         self.ssm_log: list[tuple[float, float]] = []
         self._last_replan = 0.0
@@ -354,6 +359,8 @@ class Executive:
             return report
         remaining = self.remaining_way()
         blocked = remaining is not None and len(remaining) > 1 and not self.planner.rrt.path_is_valid(remaining)
+        # A protective stop re-plans at once, around the courses that halted it.
+        blocked = blocked or (self._halted and self.motion is not None and self.motion.kind == "plan")
         if self.config.mode == "reactive":
             if blocked:
                 self.motion = None  # stop; re-plan once stopped
@@ -414,6 +421,7 @@ class Executive:
         # A running reflex is not restarted, except a backtrack the obstacle still
         # closes in on: then it becomes a move away.
         backtracking = self.motion is not None and self.motion.kind == "backtrack"
+        self._halted = False
         cpu = time.thread_time()
         free = self.ssm_scale(q)
         self.ssm_cpu.append(time.thread_time() - cpu)
@@ -423,6 +431,12 @@ class Executive:
                 self.trip.protective_stops += 1
                 self.log.protective_stops.append(cell.time)
             self._set_ssm_target(0.0)
+            # This frame's re-plan keeps clear of the courses too (grown by a voxel: the
+            # keep-out's margin is on the robot, the prediction's on the obstacle).
+            self.planner.rrt.set_keep_out(
+                self.grown_robot, np.vstack([self.tracker.last_dynamic, self._courses]), self.tree.resolution
+            )
+            self._halted = True
             return report, False
         if rule is not None and (not in_reflex or (close and backtracking)):
             # The static scene (index cached) plus this frame's moving voxels
@@ -490,8 +504,13 @@ class Executive:
         late = self._meets(tracks, committed, horizon)
         if self.config.ssm and self.motion is not None and self.motion.kind == "plan":
             # A stop is cheap: it is taken `stop_lookahead` earlier than a reflex would be.
-            early = late or self._meets(tracks, *self._committed(q, free, REACTION_TIME + self.config.stop_lookahead))
+            ahead, horizon = self._committed(q, free, REACTION_TIME + self.config.stop_lookahead)
+            early = late or self._meets(tracks, ahead, horizon)
             if early and not self._meets(tracks, *self._committed(q, self.speed_scale, 0.0)):
+                # what the re-plan from the stop keeps clear of (`on_frame`)
+                self._courses = np.vstack([
+                    predicted_course(t.voxels, t.own_velocity, horizon, self.tree.resolution, grow=True) for t in tracks
+                ])
                 return "stop"
         return "predicted" if late else None
 

@@ -354,16 +354,26 @@ def _velocity_weights(times: list[float]) -> tuple[list[float] | None, list[floa
     return slope, [r0 + r1 * x + r2 * x * x for x in t]
 
 
-def predicted_course(voxels: np.ndarray, velocity: np.ndarray, horizon: float, voxel_size: float, *, step: float = 1 / 30) -> np.ndarray:
+def predicted_course(
+    voxels: np.ndarray, velocity: np.ndarray, horizon: float, voxel_size: float, *, step: float = 1 / 30, grow: bool = False
+) -> np.ndarray:
     """The voxels an obstacle sweeps when its `voxels` (centres) are carried on at
     `velocity` (m/s) for `horizon` seconds, every `step`: centres on the grid of
-    `voxel_size` (consecutive steps overlap), (M, 3)."""
+    `voxel_size` (consecutive steps overlap), (M, 3); with `grow`, with every voxel's 26
+    neighbours added."""
     voxels = np.asarray(voxels, dtype=np.float64).reshape(-1, 3)
     if not len(voxels):
         return voxels
     times = np.arange(0.0, horizon + step / 2, step)
     swept = (voxels[None, :, :] + times[:, None, None] * np.asarray(velocity, dtype=np.float64)[None, None, :]).reshape(-1, 3)
-    return (np.unique(np.floor(swept / voxel_size), axis=0) + 0.5) * voxel_size
+    cells = np.unique(np.floor(swept / voxel_size), axis=0)
+    if grow:
+        cells = np.unique((cells[:, None, :] + _NEIGHBOURS[None]).reshape(-1, 3), axis=0)
+    return (cells + 0.5) * voxel_size
+
+
+#: A voxel's offset to itself and its 26 neighbours, in voxels.
+_NEIGHBOURS = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)], dtype=np.float64)
 
 
 def predicted_contact(

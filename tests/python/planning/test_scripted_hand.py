@@ -5,10 +5,11 @@ clearance between the robot and the hand's cube.
 - a hand passing 20 cm beside the moving tool, moving with it, fires no reflex and
   does not slow the arm (nothing approaches: separation monitoring has nothing to do;
   the prediction rule reads the hand's course from the tracker's steadier slopes);
-- a hand heading for the tool's way at 1 m/s is met by a reflex or a stop in time;
-- an arm moving towards a still hand slows so that the protective separation of
-  ISO/TS 15066 (`separation.protective_separation`, the standard's formula at the arm's
-  true speed and stopping time) holds at every frame.
+- a hand heading for the tool's way at 1 m/s is met by a reflex or a stop in time,
+  where without the reflex layer it touches the arm.
+
+The scale separation monitoring asks for is tested against the standard's formula in
+`test_separation_monitoring.py`.
 """
 
 from __future__ import annotations
@@ -104,7 +105,7 @@ def test_a_hand_heading_for_the_tool_is_met_in_time(ur5, free_trip):
 
     executive, _, closest = run_with_hand(ur5, heading, duration + 3.0)
     assert closest > 0.0, "no contact"
-    assert executive.log.reflexes or executive.ssm_slowed_frames > 0
+    assert executive.log.reflexes or executive.log.protective_stops
     # The reference: without the reflex layer (and the separation monitoring it runs)
     # the same hand touches the arm.
     _, _, unguarded = run_with_hand(ur5, heading, duration + 3.0, reflexes=False)

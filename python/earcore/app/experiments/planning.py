@@ -312,7 +312,7 @@ def draw_paths(png: Path, watched: dict[str, WatchedExecutive], results: dict, s
         ax.plot(0, 0, "ks", ms=6)
         r = results[name]
         ax.set_title(f"{name}: {r['execution_time'][0]:.1f} s/trip, {r['reflexes']} reflexes,\n"
-                     f"{r['collisions']} contacts, {r['stops']} stops", fontsize=9)
+                     f"{r.get('protective_stops', 0)} protective stops, {r['stops']} stops, {r['collisions']} contacts", fontsize=9)
         ax.set_xlim(extent[0], extent[1])
         ax.set_ylim(extent[2], extent[3])
         ax.set_aspect("equal")
