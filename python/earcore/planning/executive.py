@@ -181,6 +181,9 @@ class Executive:
         #: courses (voxel centres) that made it.
         self._halted = False
         self._courses = np.zeros((0, 3))
+        self._halting_tracks: list = []
+        #: Whether the last frame made a protective stop (stops are counted per episode).
+        self._stopping = False
         #: (time, scale) whenever the wanted scale changed, for the pictures and reports.
         self.ssm_log: list[tuple[float, float]] = []
         self._last_replan = 0.0
@@ -229,12 +232,21 @@ class Executive:
         if not (rejoined and self.planner.rrt.path_is_valid(way)):
             self.log.refused_plans.append({"time": self.cell.time, "rejoined": rejoined})
             return False
+        previous, scale = self.motion, self.speed_scale
         self.motion = _Motion(trajectory, self.cell.time, "plan")
         # Its timing starts from the arm's real speed: it runs at full scale, slowed from
         # there by what separation monitoring asks for it.
         self.speed_scale = 1.0
+        if self._halted:
+            # Out of a protective stop only onto a motion the predicted courses do not meet
+            # (the keep-out leaves out what is near the arm's start and goal).
+            free = self.ssm_scale(self.cell.q)
+            if self._meets(self._halting_tracks, *self._committed(self.cell.q, free, REACTION_TIME + self.config.stop_lookahead)):
+                self.motion, self.speed_scale = previous, scale
+                return False
+            self._halted = False
         if self.reflexes_on:
-            self._set_ssm_target(self.ssm_scale(self.cell.q))
+            self.ssm_target = self.ssm_scale(self.cell.q)
         return True
 
     def remaining_way(self) -> np.ndarray | None:
@@ -359,8 +371,9 @@ class Executive:
             return report
         remaining = self.remaining_way()
         blocked = remaining is not None and len(remaining) > 1 and not self.planner.rrt.path_is_valid(remaining)
-        # A protective stop re-plans at once, around the courses that halted it.
-        blocked = blocked or (self._halted and self.motion is not None and self.motion.kind == "plan")
+        # A protective stop re-plans at once, around the courses that halted it; without a
+        # plan clear of them it holds on its path (`start_plan`).
+        halted = self._halted and self.motion is not None and self.motion.kind == "plan"
         if self.config.mode == "reactive":
             if blocked:
                 self.motion = None  # stop; re-plan once stopped
@@ -372,7 +385,7 @@ class Executive:
             return report
         # Predictive: re-plan when blocked, when idle, or periodically when the danger
         # map offers a clearly cheaper path.
-        if self.replan_due(blocked):
+        if self.replan_due(blocked or halted):
             self._last_replan = cell.time
             if blocked:
                 self.trip.stops += 1
@@ -381,8 +394,8 @@ class Executive:
                 if blocked and self.motion is not None and self.motion.kind == "plan":
                     self.motion = None  # (a recovery `_plan` may have started stays)
                 return report
-            if blocked or self.motion is None:
-                if not self.start_plan(choice.path):
+            if blocked or halted or self.motion is None:
+                if not self.start_plan(choice.path) and not (halted and not blocked):
                     self.motion = None  # stop: the arm brakes, and the next frame plans from where it is
             else:
                 # Both costed along the way the arm would take; a refused switch keeps
@@ -426,10 +439,12 @@ class Executive:
         free = self.ssm_scale(q)
         self.ssm_cpu.append(time.thread_time() - cpu)
         rule = self._fires(report, q, close, free)
-        if rule == "stop":
-            if self.ssm_target > 0 and self.trip is not None:
-                self.trip.protective_stops += 1
-                self.log.protective_stops.append(cell.time)
+        stopping = rule == "stop"
+        if stopping and not self._stopping and self.trip is not None:
+            self.trip.protective_stops += 1
+            self.log.protective_stops.append(cell.time)
+        self._stopping = stopping
+        if stopping:
             self._set_ssm_target(0.0)
             # This frame's re-plan keeps clear of the courses too (grown by a voxel: the
             # keep-out's margin is on the robot, the prediction's on the obstacle).
@@ -477,6 +492,7 @@ class Executive:
         return report, False
 
     def _set_ssm_target(self, target: float) -> None:
+        """This frame's speed scale from separation monitoring (logged, counted)."""
         if target != self.ssm_target:
             self.ssm_log.append((self.cell.time, target))
         self.ssm_target = target
@@ -511,6 +527,7 @@ class Executive:
                 self._courses = np.vstack([
                     predicted_course(t.voxels, t.own_velocity, horizon, self.tree.resolution, grow=True) for t in tracks
                 ])
+                self._halting_tracks = tracks
                 return "stop"
         return "predicted" if late else None
 
