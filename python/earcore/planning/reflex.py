@@ -89,17 +89,20 @@ class ObstacleTrack:
         self.lead_slope, self.lead_velocity = _velocities(self.lead_history)
 
     def course_velocity(self) -> np.ndarray:
-        """The velocity the obstacle's course is predicted with: as `approach_velocity`,
-        from the least-squares slopes of the centroid and the lead only. The
-        acceleration fit that Eq. 2 takes when faster reads a hand passing at 0.6 m/s
-        anywhere up to 1.2 m/s and 60° off its course (5 cm voxels at 15 Hz); the
-        slopes lag a hand that speeds up by 1-1.5 frames instead, which the prediction
-        margin covers."""
+        """The velocity the obstacle's course is predicted with: the direction of the
+        least-squares slopes (of the lead where it runs ahead, as `approach_velocity`
+        chooses), at the speed of `approach_velocity`, the faster of the slope and the
+        newest-frame fit. The fit's direction is noisy (a hand passing at 0.6 m/s read
+        anywhere up to 60° off its course, 5 cm voxels at 15 Hz); the slopes' speed lags
+        a hand that speeds up by 1-1.5 frames (a 1.5 m/s reach read 0.5 m/s with
+        0.5 m to go, and touched the arm)."""
         v, lead = self.velocity, self.lead_slope
         speed, lead_speed = math.hypot(*v), math.hypot(*lead)
         if lead_speed > speed > 0 and float(v @ lead) >= 0.7 * speed * lead_speed:
-            return lead * min(1.0, LEAD_SPEED_CAP * speed / lead_speed)
-        return v
+            v, speed = lead, lead_speed
+        if speed <= 0:
+            return v
+        return v * (max(speed, math.hypot(*self.approach_velocity())) / speed)
 
     def approach_velocity(self) -> np.ndarray:
         """The velocity Eq. 2 uses: the centroid's, or the lead's where the lead runs
