@@ -422,7 +422,8 @@ class Executive:
         return blocked or self.motion is None or due
 
     def _reflex_layer(self, cell, q: np.ndarray) -> tuple[RiskReport, bool]:
-        """Track the obstacles, rate the risk (Eq. 2) and fire a reflex if it is due;
+        """Track the obstacles, rate the risk (Eq. 2), set the speed scale of separation
+        monitoring, and make a protective stop or fire a reflex if one is due (`_fires`);
         returns the frame's report and whether a reflex fired."""
         t0, cpu0 = time.perf_counter(), time.thread_time()
         tcp_speed = self._tool_speed()
