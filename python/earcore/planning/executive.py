@@ -184,8 +184,6 @@ class Executive:
         self._halting_tracks: list = []
         #: Whether the last frame made a protective stop (stops are counted per episode).
         self._stopping = False
-        #: (time, scale) whenever the wanted scale changed, for the pictures and reports.
-        self.ssm_log: list[tuple[float, float]] = []
         self._last_replan = 0.0
         self._in_contact = False
         #: The map as it was at the end of the warm-up (the static scene), for reflexes.
@@ -493,9 +491,7 @@ class Executive:
         return report, False
 
     def _set_ssm_target(self, target: float) -> None:
-        """This frame's speed scale from separation monitoring (logged, counted)."""
-        if target != self.ssm_target:
-            self.ssm_log.append((self.cell.time, target))
+        """This frame's speed scale from separation monitoring (frames below 1 counted)."""
         self.ssm_target = target
         self.ssm_slowed_frames += target < 1.0
 

@@ -162,6 +162,10 @@ class RiskReport:
         return self.risk >= threshold or (self.approaching and self.clearance < min_separation)
 
 
+#: A voxel's offset to itself and its 26 neighbours, in voxels.
+_NEIGHBOURS = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)], dtype=np.float64)
+
+
 class ObstacleTracker:
     """Tracks clusters of current-obstacle voxels and rates their risk (Eq. 2)."""
 
@@ -207,8 +211,7 @@ class ObstacleTracker:
         """Add voxels (e.g. the current obstacles during a warm-up without people) to
         the static scene, grown by one voxel in every direction for sensor noise."""
         centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-        offsets = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)]) * self.resolution
-        grown = (centres[:, None, :] + offsets[None]).reshape(-1, 3)
+        grown = (centres[:, None, :] + _NEIGHBOURS[None] * self.resolution).reshape(-1, 3)
         self._static = np.union1d(self._static, self._keys(grown))
 
     def dynamic_voxels(self, centres: np.ndarray) -> np.ndarray:
@@ -374,9 +377,6 @@ def predicted_course(
         cells = np.unique((cells[:, None, :] + _NEIGHBOURS[None]).reshape(-1, 3), axis=0)
     return (cells + 0.5) * voxel_size
 
-
-#: A voxel's offset to itself and its 26 neighbours, in voxels.
-_NEIGHBOURS = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)], dtype=np.float64)
 
 
 def predicted_contact(
