@@ -1,5 +1,6 @@
 """Type stubs of the compiled extension (checked against it by mypy's stubtest)."""
 
+from collections.abc import Sequence
 from os import PathLike
 from typing import Any, Literal, TypedDict, final, overload
 
@@ -227,6 +228,35 @@ class PlaneTarget:
     def __len__(self) -> int: ...
 
 @final
+class Rasterizer:
+    def __new__(cls, meshes: Sequence[tuple[_ArrayLike, _ArrayLike, _ArrayLike, int]]) -> Rasterizer: ...
+    def __len__(self) -> int: ...
+    def render(
+        self,
+        camera_from_mesh: _F64,
+        hidden: Sequence[bool],
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        width: int,
+        height: int,
+        near: float,
+        far: float,
+        light: tuple[float, float, float],
+        ambient: float,
+        diffuse: float,
+        background: tuple[int, int, int],
+    ) -> tuple[npt.NDArray[np.uint8], _F64, npt.NDArray[np.int64]]: ...
+
+@final
+class PixelMap:
+    def __new__(cls, source_width: int, source_height: int, u: _F64, v: _F64) -> PixelMap: ...
+    def bilinear(self, image: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]: ...
+    def nearest(self, image: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]: ...
+    def depth(self, depth: _F64, edge: float) -> _F64: ...
+
+@final
 class IcpResult:
     @property
     def transform(self) -> _F64: ...
@@ -286,6 +316,7 @@ def render_lidar_scan(
     noise_sigma: float = 0.015,
     seed: int = 0,
 ) -> _F64: ...
+def incidence_cosines(depth: _F64, fx: float, fy: float) -> _F64: ...
 def depth_to_points_raw(
     depth: _ArrayLike,
     fx: float,

@@ -10,7 +10,10 @@ import numpy.typing as npt
 
 from earcore import _earcore
 
-__all__ = ["box_voxel_centres", "cluster_points", "voxel_codes", "crop", "depth_to_points", "estimate_normals", "remove_statistical_outliers", "voxel_downsample"]
+__all__ = [
+    "box_voxel_centres", "cluster_points", "voxel_codes", "crop", "depth_to_points", "estimate_normals", "incidence_angles",
+    "remove_statistical_outliers", "voxel_downsample",
+]
 
 
 def _real(a: npt.ArrayLike, name: str) -> np.ndarray:
@@ -126,6 +129,18 @@ def cluster_points(points, cell: float) -> np.ndarray:
     or touching cells of size `cell` (26 neighbours) sharing one. On a map's voxel
     centres with `cell` = the resolution, these are the connected obstacles."""
     return _earcore.cluster_points(points, cell).astype(np.int64)
+
+
+def incidence_angles(depth: npt.ArrayLike, fx: float, fy: float) -> np.ndarray:
+    """Angle (rad) between each pixel's viewing ray and the surface normal estimated
+    from the depth image's gradients (central differences, one-sided at the border, as
+    `np.gradient`), for a pinhole with its principal point at the image's centre; NaN
+    where the pixel or a neighbour has no depth (≤ 0). `depth` is (H, W), both ≥ 2."""
+    z = np.asarray(depth, dtype=np.float64)
+    if z.ndim != 2:
+        raise ValueError(f"depth must be an (H, W) image, got shape {z.shape}")
+    # The core gives cosines; numpy's arccos is vectorised (libm's is not).
+    return np.arccos(_earcore.incidence_cosines(np.ascontiguousarray(z), float(fx), float(fy)))
 
 
 def voxel_codes(points, resolution: float) -> np.ndarray:

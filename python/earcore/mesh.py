@@ -247,3 +247,41 @@ def frustum(top_radius: float, bottom_radius: float, depth: float, segments: int
     caps = [np.c_[np.full(segments, centre_top), ring, nxt], np.c_[np.full(segments, centre_bottom), nxt + segments, ring + segments]]
     triangles = np.concatenate([*caps, _wall(ring, ring + segments, outward=True)])
     return Mesh(vertices.astype(np.float64), triangles.astype(np.int64))
+
+
+def box(half_extents: Sequence[float] | np.ndarray) -> Mesh:
+    """The closed box of `half_extents` (3,) centred at the origin, twelve triangles."""
+    h = np.asarray(half_extents, dtype=np.float64)
+    if h.shape != (3,) or not (h > 0).all():
+        raise ValueError(f"box: half_extents must be three positive numbers, got {half_extents}")
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64) * h
+    # Corner index = 4 x + 2 y + z over {0, 1}; each face as two outward triangles.
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    triangles = np.array([t for a, b, c, d in faces for t in ((a, b, c), (a, c, d))], dtype=np.int64)
+    return Mesh(corners, triangles)
+
+
+def capsule(radius: float, length: float, segments: int = 24) -> Mesh:
+    """The closed capsule along z: a cylinder of `length` between two hemispheres of
+    `radius`, centred at the origin (`length` 0: a sphere). `segments` around."""
+    if radius <= 0 or length < 0 or segments < 3:
+        raise ValueError(f"capsule: radius must be positive, length >= 0 and segments >= 3, got {radius}, {length}, {segments}")
+    rings = max(2, segments // 4)
+    # Latitude rings from the top pole to the bottom one, the upper hemisphere lifted.
+    angles = np.linspace(0.0, np.pi / 2, rings + 1)
+    top = [(radius * np.sin(a), radius * np.cos(a) + length / 2) for a in angles[1:]]
+    bottom = [(r, -z) for r, z in reversed(top)]
+    profile = top + bottom if length > 0 else top + bottom[1:]
+    around = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    ring_points = [np.c_[r * np.cos(around), r * np.sin(around), np.full(segments, z)] for r, z in profile]
+    vertices = np.concatenate([[[0.0, 0.0, radius + length / 2]], *ring_points, [[0.0, 0.0, -radius - length / 2]]])
+    ring = np.arange(segments)
+    nxt = np.roll(ring, -1)
+    last = len(vertices) - 1
+    triangles = [np.c_[np.zeros(segments, np.int64), 1 + ring, 1 + nxt]]
+    for k in range(len(profile) - 1):
+        upper, lower = 1 + k * segments, 1 + (k + 1) * segments
+        triangles.append(_wall(upper + ring, lower + ring, outward=True))
+    base = 1 + (len(profile) - 1) * segments
+    triangles.append(np.c_[np.full(segments, last), base + nxt, base + ring])
+    return Mesh(vertices, np.concatenate(triangles).astype(np.int64))

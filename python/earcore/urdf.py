@@ -19,7 +19,7 @@ import numpy as np
 from earcore.errors import UrdfError
 from earcore.transforms import axis_angle_matrix, rotation_xyz
 
-__all__ = ["UrdfError", "UrdfJoint", "UrdfRobot", "collision_as_visual", "parse_urdf", "read_mesh_vertices"]
+__all__ = ["UrdfError", "UrdfJoint", "UrdfRobot", "collision_as_visual", "parse_urdf", "read_mesh", "read_mesh_vertices"]
 
 
 @dataclass(frozen=True)
@@ -143,6 +143,14 @@ def collision_as_visual(path: str | Path, out: str | Path) -> Path:
 def read_mesh_vertices(path: Path) -> np.ndarray:
     """Vertices (N, 3) of an STL (binary or ASCII), OBJ or COLLADA (.dae) mesh, in
     metres for COLLADA (its <unit>) and in the file's units otherwise."""
+    return read_mesh(path)[0]
+
+
+def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (N, 3), triangles (M, 3) indices) of an STL (binary or ASCII), OBJ or
+    COLLADA (.dae) mesh, in metres for COLLADA (its <unit>) and in the file's units
+    otherwise. Polygons are split into fans; STL's triangles keep their own corners."""
+    path = Path(path)
     suffix = path.suffix.lower()
     try:
         data = path.read_bytes()
@@ -150,17 +158,24 @@ def read_mesh_vertices(path: Path) -> np.ndarray:
         raise UrdfError(f"cannot read mesh {path}: {exc}") from exc
     if suffix == ".stl":
         vertices = _stl_vertices(data, path)
+        triangles = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
     elif suffix == ".obj":
-        vertices = _obj_vertices(data, path)
+        vertices, triangles = _obj_mesh(data, path)
     elif suffix == ".dae":
-        vertices = _collada_vertices(data, path)
+        vertices, triangles = _collada_mesh(data, path)
     else:
         raise UrdfError(f"mesh {path.name}: unsupported format {suffix!r} (STL, OBJ and COLLADA are read)")
     if len(vertices) == 0:
         raise UrdfError(f"mesh {path} has no vertices")
     if not np.isfinite(vertices).all():
         raise UrdfError(f"mesh {path} has non-finite vertices")
-    return vertices
+    if len(triangles) and (triangles.min() < 0 or triangles.max() >= len(vertices)):
+        raise UrdfError(f"mesh {path}: a face names a vertex that does not exist")
+    return vertices, triangles
+
+
+def _fan(polygon: list[int]) -> list[tuple[int, int, int]]:
+    return [(polygon[0], polygon[k], polygon[k + 1]) for k in range(1, len(polygon) - 1)]
 
 
 def _stl_vertices(data: bytes, path: Path) -> np.ndarray:
@@ -180,23 +195,32 @@ def _stl_vertices(data: bytes, path: Path) -> np.ndarray:
         raise UrdfError(f"mesh {path}: malformed ASCII STL vertex") from None
 
 
-def _obj_vertices(data: bytes, path: Path) -> np.ndarray:
-    rows = []
+def _obj_mesh(data: bytes, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    rows: list[list[str]] = []
+    faces: list[tuple[int, int, int]] = []
     for line in data.decode("utf-8", errors="replace").splitlines():
         if line.startswith("v "):
             parts = line.split()
             if len(parts) < 4:
                 raise UrdfError(f"mesh {path}: malformed vertex line {line!r}")
             rows.append(parts[1:4])
+        elif line.startswith("f "):
+            try:
+                # "f 1 2 3", "f 1/1 2/2 3/3", "f 1//1 ..."; negative: from the end so far.
+                corners = [int(c.split("/")[0]) for c in line.split()[1:]]
+            except ValueError:
+                raise UrdfError(f"mesh {path}: malformed face line {line!r}") from None
+            faces.extend(_fan([c - 1 if c > 0 else len(rows) + c for c in corners]))
     try:
-        return np.array(rows, dtype=np.float64).reshape(-1, 3)
+        vertices = np.array(rows, dtype=np.float64).reshape(-1, 3)
     except ValueError:
         raise UrdfError(f"mesh {path}: malformed OBJ vertex") from None
+    return vertices, np.array(faces, dtype=np.int64).reshape(-1, 3)
 
 
-def _collada_vertices(data: bytes, path: Path) -> np.ndarray:
-    """Positions of every geometry instanced in the visual scene, placed by the node
-    transforms (matrix / translate / rotate / scale) and scaled to metres."""
+def _collada_mesh(data: bytes, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and faces of every geometry instanced in the visual scene, placed by
+    the node transforms (matrix / translate / rotate / scale) and scaled to metres."""
     try:
         root = ET.fromstring(data)
     except ET.ParseError as exc:
@@ -208,18 +232,51 @@ def _collada_vertices(data: bytes, path: Path) -> np.ndarray:
     meter = float(unit.get("meter", "1")) if unit is not None else 1.0
     by_id = {e.get("id"): e for e in root.iter() if e.get("id")}
 
-    def positions(geometry: ET.Element) -> np.ndarray:
-        clouds = []
-        for vertices in geometry.iter("vertices"):
-            for inp in vertices.findall("input"):
-                if inp.get("semantic") != "POSITION":
+    def floats(element: ET.Element | None, what: str) -> np.ndarray:
+        if element is None or not (element.text or "").strip():
+            raise UrdfError(f"mesh {path}: {what} is empty")
+        return np.array(str(element.text).split(), dtype=np.float64)
+
+    def geometry_mesh(geometry: ET.Element) -> tuple[np.ndarray, np.ndarray]:
+        clouds, faces, count = [], [], 0
+        for mesh in geometry.iter("mesh"):
+            starts: dict[str, int] = {}
+            for vertices in mesh.findall("vertices"):
+                for inp in vertices.findall("input"):
+                    if inp.get("semantic") != "POSITION":
+                        continue
+                    source = by_id.get((inp.get("source") or "").lstrip("#"))
+                    array = source.find("float_array") if source is not None else None
+                    cloud = floats(array, "a POSITION source").reshape(-1, 3)
+                    starts[vertices.get("id") or ""] = count
+                    clouds.append(cloud)
+                    count += len(cloud)
+            for primitive in (*mesh.findall("triangles"), *mesh.findall("polylist"), *mesh.findall("polygons")):
+                inputs = primitive.findall("input")
+                stride = 1 + max((int(i.get("offset", "0")) for i in inputs), default=0)
+                vertex = next((i for i in inputs if i.get("semantic") == "VERTEX"), None)
+                if vertex is None:
                     continue
-                source = by_id.get((inp.get("source") or "").lstrip("#"))
-                array = source.find("float_array") if source is not None else None
-                if array is None or not (array.text or "").strip():
-                    raise UrdfError(f"mesh {path}: a POSITION source has no float_array")
-                clouds.append(np.array(str(array.text).split(), dtype=np.float64).reshape(-1, 3))
-        return np.concatenate(clouds) if clouds else np.empty((0, 3))
+                start = starts.get((vertex.get("source") or "").lstrip("#"), 0)
+                offset = int(vertex.get("offset", "0"))
+                lists = primitive.findall("p")
+                if primitive.tag == "polylist":
+                    sizes = floats(primitive.find("vcount"), "a polylist's vcount").astype(int).tolist()
+                else:
+                    sizes = None
+                for p in lists:
+                    index = floats(p, "a primitive's p").astype(np.int64)[offset::stride] + start
+                    if primitive.tag == "triangles":
+                        faces.append(index[: len(index) // 3 * 3].reshape(-1, 3))
+                    elif sizes is not None:
+                        at = 0
+                        for n in sizes:
+                            faces.append(np.array(_fan(index[at : at + n].tolist()), dtype=np.int64).reshape(-1, 3))
+                            at += n
+                    else:
+                        faces.append(np.array(_fan(index.tolist()), dtype=np.int64).reshape(-1, 3))
+        positions = np.concatenate(clouds) if clouds else np.empty((0, 3))
+        return positions, np.concatenate(faces) if faces else np.empty((0, 3), np.int64)
 
     def local(node: ET.Element) -> np.ndarray:
         m = np.eye(4)
@@ -238,28 +295,35 @@ def _collada_vertices(data: bytes, path: Path) -> np.ndarray:
             m = m @ t
         return m
 
-    out = []
+    out: list[tuple[np.ndarray, np.ndarray]] = []
 
     def walk(node: ET.Element, parent: np.ndarray) -> None:
         m = parent @ local(node)
         for inst in node.findall("instance_geometry"):
             geometry = by_id.get((inst.get("url") or "").lstrip("#"))
             if geometry is not None:
-                v = positions(geometry)
-                out.append(v @ m[:3, :3].T + m[:3, 3])
+                v, f = geometry_mesh(geometry)
+                out.append((v @ m[:3, :3].T + m[:3, 3], f))
         for child in node.findall("node"):
             walk(child, m)
 
-    scenes = list(root.iter("visual_scene"))
-    for scene in scenes:
-        for node in scene.findall("node"):
-            walk(node, np.eye(4))
-    if not scenes:  # no scene: take every geometry as is
-        out = [positions(g) for g in root.iter("geometry")]
     try:
-        return np.concatenate(out) * meter if out else np.empty((0, 3))
+        scenes = list(root.iter("visual_scene"))
+        for scene in scenes:
+            for node in scene.findall("node"):
+                walk(node, np.eye(4))
+        if not scenes:  # no scene: take every geometry as is
+            out = [geometry_mesh(g) for g in root.iter("geometry")]
     except ValueError:
-        raise UrdfError(f"mesh {path}: malformed COLLADA positions") from None
+        raise UrdfError(f"mesh {path}: malformed COLLADA positions or faces") from None
+    vertices, faces, count = [], [], 0
+    for v, f in out:
+        vertices.append(v)
+        faces.append(f + count)
+        count += len(v)
+    if not vertices:
+        return np.empty((0, 3)), np.empty((0, 3), np.int64)
+    return np.concatenate(vertices) * meter, np.concatenate(faces)
 
 
 def _sizes(text: str | None, n: int, what: str) -> tuple[float, ...]:

@@ -23,7 +23,7 @@ __all__ = ["CalibrationErrors", "calibration_cell", "calibration_cell_config", "
 def calibration_cell_config(seed: int = 0, camera_scale: float = 1.0) -> CellConfig:
     """Paper I's cell: the robot, no person, the three calibration cameras, anti-aliased
     renders (2×2 samples per pixel)."""
-    config = CellConfig(seed=seed, cameras=calibration_cameras(), camera_scale=camera_scale, supersample=2)
+    config = CellConfig(seed=seed, cameras=calibration_cameras(), camera_scale=camera_scale, supersample=2, renderer="pybullet")
     config.person = replace(config.person, enabled=False)
     return config
 

@@ -165,7 +165,7 @@ def run(
             if getattr(executive, "finished", False) or (trips is not None and len(executive.trips) >= trips):
                 break
         t0 = time.perf_counter()
-        for frame in cell.capture():
+        for frame in cell.capture(before=next_map_frame):
             pending[frame.camera] = frame  # a faster camera's newest frame wins
         render_s += time.perf_counter() - t0
         if not pending or cell.time + 1e-9 < next_map_frame:

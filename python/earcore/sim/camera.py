@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from earcore.interfaces import Camera, Frame
+from earcore.render import PixelMap
 from earcore.sim.sensors import SensorModel
 
 __all__ = ["Camera", "Frame", "SimulatedCamera", "opengl_projection", "opengl_view"]
@@ -41,10 +42,10 @@ def opengl_view(base_from_camera: np.ndarray) -> list[float]:
 
 
 class _Lens:
-    """Renders a distorted camera with pybullet's pinhole renderer: a pinhole image
-    wide enough to cover the distorted field of view is rendered, then each output
-    pixel samples it where its (undistorted) ray lands. The rays come from the same
-    Brown-Conrady inversion the depth back-projection uses."""
+    """Renders a distorted camera with a pinhole renderer: a pinhole image wide enough
+    to cover the distorted field of view is rendered, then each output pixel samples
+    it where its (undistorted) ray lands (`earcore.render.PixelMap`). The rays come
+    from the same Brown-Conrady inversion the depth back-projection uses."""
 
     def __init__(self, K: np.ndarray, distortion, width: int, height: int) -> None:
         from earcore.cloud import depth_to_points
@@ -53,7 +54,7 @@ class _Lens:
         self.width, self.height = width, height
         fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
         self.render_K = K.copy()
-        self.map: tuple[np.ndarray, np.ndarray] | None = None
+        self.pixels: PixelMap | None = None
         if not self.distortion.any():
             return
         rays, pixels = depth_to_points(
@@ -65,63 +66,29 @@ class _Lens:
         # Shrink the render's focal length until every ray falls inside it (with a margin).
         spread = max(np.abs(x).max() * fx / cx, np.abs(y).max() * fy / cy, 1.0) * 1.02
         self.render_K = np.array([[fx / spread, 0, cx], [0, fy / spread, cy], [0, 0, 1.0]])
-        self.map = ((fx / spread * x + cx).reshape(height, width), (fy / spread * y + cy).reshape(height, width))
-        self._prepare()
-
-    def _prepare(self) -> None:
-        """The map's sample indices and weights, computed once (every frame reuses them)."""
-        assert self.map is not None
-        u = np.clip(np.rint(self.map[0]).astype(np.intp), 0, self.width - 1)
-        v = np.clip(np.rint(self.map[1]).astype(np.intp), 0, self.height - 1)
-        self._nearest = (v * self.width + u).ravel()
-        u = np.clip(self.map[0], 0, self.width - 1.001)
-        v = np.clip(self.map[1], 0, self.height - 1.001)
-        u0, v0 = np.floor(u).astype(np.intp), np.floor(v).astype(np.intp)
-        corner = (v0 * self.width + u0).ravel()
-        #: Flat indices of each pixel's four neighbours (top-left, top-right, bottom-left,
-        #: bottom-right) and the fractions across them.
-        self._quad = np.stack([corner, corner + 1, corner + self.width, corner + self.width + 1])
-        self._fu, self._fv = (u - u0).ravel(), (v - v0).ravel()
+        u = (fx / spread * x + cx).reshape(height, width)
+        v = (fy / spread * y + cy).reshape(height, width)
+        self.pixels = PixelMap(width, height, u, v)
 
     def nearest(self, image: np.ndarray) -> np.ndarray:
-        if self.map is None:
-            return image
-        flat = image.reshape(self.height * self.width, *image.shape[2:])
-        return flat[self._nearest].reshape(image.shape)
+        return image if self.pixels is None else self.pixels.nearest(image)
 
     def bilinear(self, image: np.ndarray) -> np.ndarray:
-        if self.map is None:
-            return image
-        img = image.reshape(self.height * self.width, -1).astype(np.float64)
-        a, b, c, d = (img[i] for i in self._quad)
-        fu, fv = self._fu[:, None], self._fv[:, None]
-        top = a * (1 - fu) + b * fu
-        bottom = c * (1 - fu) + d * fu
-        out = top * (1 - fv) + bottom * fv
-        return np.clip(np.rint(out), 0, 255).astype(image.dtype).reshape(image.shape)
+        return image if self.pixels is None else self.pixels.bilinear(image)
 
     def depth(self, z: np.ndarray, edge: float = 0.02) -> np.ndarray:
         """Depth along each distorted pixel's ray: inverse depth interpolated bilinearly
         (1/z is affine across a plane's image, so planes stay exact) where the four
         neighbours are one surface; the nearest pixel's depth at edges and holes."""
-        if self.map is None:
-            return z
-        quad = z.ravel()[self._quad]
-        lo, hi = quad.min(0), quad.max(0)
-        smooth = (lo > 0) & (hi - lo < edge)
-        inv = 1.0 / np.where(quad > 0, quad, 1.0)
-        fu, fv = self._fu, self._fv
-        w = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv])
-        interpolated = 1.0 / (w * inv).sum(0)
-        return np.where(smooth, interpolated, z.ravel()[self._nearest]).reshape(z.shape)
+        return z if self.pixels is None else self.pixels.depth(z, edge)
 
 
-def _downsample(rgba: np.ndarray, z: np.ndarray, body: np.ndarray, s: int, edge: float = 0.02):
+def _downsample(rgb: np.ndarray, z: np.ndarray, body: np.ndarray, s: int, edge: float = 0.02):
     """s×s blocks to one pixel: colour averaged (anti-aliasing); depth as the mean of
     1/z (exact for a plane: 1/z is affine across its image) where the block is one
     surface, else the sample nearest the block's centre, as are the labels."""
     h, w = z.shape[0] // s, z.shape[1] // s
-    colour = rgba[..., :3].reshape(h, s, w, s, 3).astype(np.float64).mean(axis=(1, 3))
+    colour = rgb.reshape(h, s, w, s, 3).astype(np.float64).mean(axis=(1, 3))
     blocks = z.reshape(h, s, w, s)
     centre = blocks[:, s // 2, :, s // 2]
     smooth = (blocks.min(axis=(1, 3)) > 0) & (np.ptp(blocks, axis=(1, 3)) < edge)
@@ -133,7 +100,9 @@ def _downsample(rgba: np.ndarray, z: np.ndarray, body: np.ndarray, s: int, edge:
 
 class SimulatedCamera:
     """A camera in the pybullet cell: renders colour, true depth and segmentation with
-    the tiny renderer, then applies its sensor's noise model.
+    pybullet's tiny renderer, or with the core's rasterizer when given the cell's
+    `scene` (`earcore.sim.raster.CellScene`: the same geometry, untextured, several
+    times faster), then applies its sensor's noise model.
 
     `mount` is None for a fixed camera or a (body id, link index, link_from_camera)
     triple for one carried by the robot (e.g. on the end-effector)."""
@@ -150,6 +119,7 @@ class SimulatedCamera:
         world_from_base: np.ndarray | None = None,
         supersample: int = 1,
         lighting: dict | None = None,
+        scene=None,
     ) -> None:
         if supersample < 1:
             raise ValueError(f"supersample must be >= 1, got {supersample}")
@@ -160,6 +130,7 @@ class SimulatedCamera:
         #: pybullet's light settings for the tiny renderer (lightDirection,
         #: lightAmbientCoeff, ...); None: its defaults.
         self.lighting = dict(lighting or {})
+        self.scene = scene
         self.name = name
         self.sensor = sensor
         self._pose = np.asarray(base_from_camera, dtype=np.float64)
@@ -168,22 +139,28 @@ class SimulatedCamera:
         self.world_from_base = np.eye(4) if world_from_base is None else world_from_base
         self._near, self._far = 0.05, sensor.far + 1.0
         self._lens = _Lens(sensor.intrinsics, sensor.distortion, sensor.width, sensor.height)
+        self._render_K = self._supersampled(self._lens.render_K)
         self._projection = self._projection_for(self._lens.render_K, sensor.width, sensor.height)
         self._colour_lens: _Lens | None = None
         if sensor.colour is not None:
             c = sensor.colour
             self._colour_lens = _Lens(c.intrinsics, c.distortion, c.width, c.height)
+            self._colour_render_K = self._supersampled(self._colour_lens.render_K)
             self._colour_projection = self._projection_for(self._colour_lens.render_K, c.width, c.height)
 
-    def _projection_for(self, K: np.ndarray, width: int, height: int) -> list[float]:
-        """The render's projection; with supersampling, s× the pixels, each output pixel
+    def _supersampled(self, K: np.ndarray) -> np.ndarray:
+        """The render's pinhole; with supersampling, s× the pixels, each output pixel
         (u, v) covering render pixels s·u … s·u + s − 1 (centre s·u + (s − 1)/2)."""
         s = self.supersample
         hi = K.copy()
         hi[:2] *= s
         hi[0, 2] = s * K[0, 2] + (s - 1) / 2
         hi[1, 2] = s * K[1, 2] + (s - 1) / 2
-        return opengl_projection(hi, s * width, s * height, self._near, self._far)
+        return hi
+
+    def _projection_for(self, K: np.ndarray, width: int, height: int) -> list[float]:
+        s = self.supersample
+        return opengl_projection(self._supersampled(K), s * width, s * height, self._near, self._far)
     @property
     def base_from_camera(self) -> np.ndarray:
         """True pose (ground truth; the perception loop uses calibrated poses)."""
@@ -197,24 +174,29 @@ class SimulatedCamera:
         world_from_link[:3, 3] = state[4]
         return np.linalg.inv(self.world_from_base) @ world_from_link @ link_from_camera
 
-    def _render(self, base_from_camera: np.ndarray, width: int, height: int, projection: list[float], lens: _Lens):
-        p = self.client
+    def _render(self, base_from_camera: np.ndarray, width: int, height: int, projection: list[float], K: np.ndarray, lens: _Lens):
         s = self.supersample
         world_from_camera = self.world_from_base @ base_from_camera
-        _, _, rgba, depth_buffer, seg = p.getCameraImage(
-            s * width, s * height, opengl_view(world_from_camera), projection, renderer=p.ER_TINY_RENDERER, **self.lighting
-        )
-        rgba = np.reshape(np.asarray(rgba, dtype=np.uint8), (s * height, s * width, 4))
-        buf = np.reshape(np.asarray(depth_buffer, dtype=np.float64), (s * height, s * width))
-        n, f = self._near, self._far
-        z = f * n / (f - (f - n) * buf)
-        z = np.where(buf < 1.0, z, 0.0)
-        seg = np.reshape(np.asarray(seg, dtype=np.int64), (s * height, s * width))
-        body = np.where(seg >= 0, seg & ((1 << 24) - 1), -1)
+        if self.scene is not None:
+            rgb, z, body = self.scene.render(
+                world_from_camera, K, s * width, s * height, self._near, self._far, self.lighting.get("lightDirection")
+            )
+        else:
+            p = self.client
+            _, _, rgba, depth_buffer, seg = p.getCameraImage(
+                s * width, s * height, opengl_view(world_from_camera), projection, renderer=p.ER_TINY_RENDERER, **self.lighting
+            )
+            rgb = np.reshape(np.asarray(rgba, dtype=np.uint8), (s * height, s * width, 4))[..., :3]
+            buf = np.reshape(np.asarray(depth_buffer, dtype=np.float64), (s * height, s * width))
+            n, f = self._near, self._far
+            z = f * n / (f - (f - n) * buf)
+            z = np.where(buf < 1.0, z, 0.0)
+            seg = np.reshape(np.asarray(seg, dtype=np.int64), (s * height, s * width))
+            body = np.where(seg >= 0, seg & ((1 << 24) - 1), -1)
         if s > 1:
-            rgba, z, body = _downsample(rgba, z, body, s)
+            rgb, z, body = _downsample(rgb, z, body, s)
         # Through the lens: depth and labels are never blended across edges.
-        return lens.bilinear(rgba[..., :3]), lens.depth(z), lens.nearest(body)
+        return lens.bilinear(rgb), lens.depth(z), lens.nearest(body)
 
     def place(self, base_from_camera: np.ndarray) -> None:
         """Move a fixed camera (someone bumped it, or it stands off its nominal place)."""
@@ -226,7 +208,7 @@ class SimulatedCamera:
         """The depth camera's view through its lens: image (H, W, 3; the IR image of
         a real sensor, in colour here), true metric depth (H, W; 0 where nothing within
         range) and segmentation (H, W; body id, -1 background)."""
-        return self._render(self.base_from_camera, self.sensor.width, self.sensor.height, self._projection, self._lens)
+        return self._render(self.base_from_camera, self.sensor.width, self.sensor.height, self._projection, self._render_K, self._lens)
 
     def render_colour(self) -> np.ndarray:
         """The colour camera's image (its own resolution, lens and pose beside the depth
@@ -235,7 +217,7 @@ class SimulatedCamera:
             return self.render_true()[0]
         c = self.sensor.colour
         pose = self.base_from_camera @ c.depth_from_colour
-        return self._render(pose, c.width, c.height, self._colour_projection, self._colour_lens)[0]
+        return self._render(pose, c.width, c.height, self._colour_projection, self._colour_render_K, self._colour_lens)[0]
 
     def capture(self, time: float) -> Frame:
         colour, z, body = self.render_true()

@@ -17,6 +17,7 @@ from earcore.sim.camera import SimulatedCamera
 from earcore.sim.config import CellConfig
 from earcore.sim.controller import JointTrajectoryController
 from earcore.sim.person import HumanArm, Reach
+from earcore.sim.raster import CellScene
 from earcore.sim.sensors import SENSORS
 from earcore.sim.tools import visual_shape
 from earcore.transforms import look_at, quaternion
@@ -121,6 +122,8 @@ class SimulatedCell:
         self._qd = np.zeros_like(self.q)
         self._commanded: np.ndarray | None = None
         self._apply_joints()
+        #: The world as the core's rasterizer draws it (renderer "raster"), shared by the cameras.
+        self.scene = CellScene(p) if config.renderer == "raster" and config.cameras else None
         self.cameras = [self._make_camera(c) for c in config.cameras]
         self._next_capture = {c.name: 0.0 for c in self.cameras}
         self.person = self._make_person(config) if config.person.enabled else None
@@ -195,7 +198,9 @@ class SimulatedCell:
             sensor = replace(sensor, colour=sensor.colour.scaled(self.config.colour_scale))
         rng = np.random.default_rng([self.config.seed, len(c.name), sum(map(ord, c.name))])
         if c.mount == "world":
-            return SimulatedCamera(self.p, c.name, sensor, look_at(c.position, c.target), rng=rng, supersample=self.config.supersample)
+            return SimulatedCamera(
+                self.p, c.name, sensor, look_at(c.position, c.target), rng=rng, supersample=self.config.supersample, scene=self.scene
+            )
         if c.mount == "end_effector":
             link_from_camera = np.eye(4)
             link_from_camera[:3, 3] = c.position
@@ -207,6 +212,7 @@ class SimulatedCell:
                 rng=rng,
                 mount=(self.robot_id, self._tool_link(), link_from_camera),
                 supersample=self.config.supersample,
+                scene=self.scene,
             )
         raise ValueError(f"camera {c.name!r}: mount must be 'world' or 'end_effector', got {c.mount!r}")
 
@@ -231,6 +237,8 @@ class SimulatedCell:
         """Mount a tool (`earcore.sim.tools.Checkerboard`, `ObstaclePlate`) rigidly on the
         flange (the tool link) at `flange_from_tool`; returns its pybullet body."""
         shape, texture = visual_shape(tool, self.p)
+        if texture >= 0 and self.scene is not None:
+            raise ValueError(f"{type(tool).__name__} is textured and the cell's renderer is 'raster', which draws no textures: use renderer='pybullet'")
         body = self.p.createMultiBody(0, -1, shape, [0, 0, -10])
         if texture >= 0:
             self.p.changeVisualShape(body, -1, textureUniqueId=texture)
@@ -291,13 +299,18 @@ class SimulatedCell:
         if self.person is not None:
             self.person.set_time(self.time)
 
-    def capture(self) -> list[Frame]:
-        """Frames of the cameras due at the current time (each at its own rate)."""
+    def capture(self, before: float | None = None) -> list[Frame]:
+        """Frames of the cameras due at the current time (each at its own rate). With
+        `before` (when the frames are next read), a camera whose next frame falls due
+        by then is not rendered now, unless the read is now: its frame would be
+        replaced unread (a 30 Hz camera feeding a 15 Hz map)."""
         frames = []
         for cam, conf in zip(self.cameras, self.config.cameras):
             if self.time + 1e-9 >= self._next_capture[cam.name]:
-                frames.append(cam.capture(self.time))
                 self._next_capture[cam.name] += 1.0 / conf.rate_hz
+                if before is not None and self.time + 1e-9 < before and self._next_capture[cam.name] <= before + 1e-9:
+                    continue
+                frames.append(cam.capture(self.time))
         return frames
 
     # --- ground truth ---------------------------------------------------------

@@ -156,6 +156,11 @@ class CellConfig:
     #: (the experiments use them). The panda's collision meshes are convex hulls (2-4 cm
     #: off); the iiwa's are its visual meshes (no gain).
     robot_meshes: str = "visual"
+    #: What draws the cameras' images: "raster", the core's rasterizer (exact geometry,
+    #: Lambert-shaded colours, no textures; a 512×424 frame of the cell in under 10 ms),
+    #: or "pybullet", its tiny renderer (textures, e.g. the calibration board; 5-10×
+    #: slower). Depth and labels agree between the two within a pixel at edges.
+    renderer: str = "raster"
     person: PersonConfig = field(default_factory=PersonConfig)
     #: Joint speed and acceleration limits as fractions of the maximum (Table I).
     speed_fraction: float = 0.5
@@ -195,6 +200,7 @@ class CellConfig:
         if self.supersample > 8:
             raise ConfigError(f"{where}.supersample must be at most 8 (8×8 samples per pixel), got {self.supersample!r}")
         one_of(self.robot_meshes, ("visual", "collision"), f"{where}.robot_meshes")
+        one_of(self.renderer, ("raster", "pybullet"), f"{where}.renderer")
         self.person.validate(f"{where}.person")
         fraction(self.speed_fraction, f"{where}.speed_fraction", zero=False)
         fraction(self.acceleration_fraction, f"{where}.acceleration_fraction", zero=False)

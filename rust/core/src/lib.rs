@@ -21,6 +21,7 @@ mod error;
 pub mod floor;
 pub mod geometry;
 pub mod octree;
+pub mod render;
 pub mod robot;
 pub mod synthetic;
 pub mod threads;

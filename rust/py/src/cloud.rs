@@ -321,3 +321,24 @@ fn matrix4_to_array<'py>(
         py,
     )
 }
+
+/// Cosine of the angle between each pixel's ray and the surface normal from the depth
+/// image's gradients (H, W), NaN where undefined.
+#[pyfunction]
+pub fn incidence_cosines<'py>(
+    py: Python<'py>,
+    depth: PyReadonlyArray2<'py, f64>,
+    fx: f64,
+    fy: f64,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let (h, w) = (depth.shape()[0], depth.shape()[1]);
+    let values: Vec<f64> = match depth.as_slice() {
+        Ok(s) => s.to_vec(),
+        Err(_) => depth.as_array().iter().copied().collect(),
+    };
+    let out = py
+        .detach(|| cloud::incidence_cosines(&values, w, h, fx, fy))
+        .py()?;
+    let image = numpy::ndarray::Array2::from_shape_vec((h, w), out).expect("one angle per pixel");
+    Ok(numpy::IntoPyArray::into_pyarray(image, py))
+}

@@ -7,6 +7,7 @@ mod follower;
 mod icp;
 mod interrupt;
 mod octree;
+mod render;
 mod robot;
 mod surface;
 mod synthetic;
@@ -91,6 +92,8 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<follower::PyFollower>()?;
     m.add_function(wrap_pyfunction!(robot::fit_body, m)?)?;
     m.add_class::<icp::PyPlaneTarget>()?;
+    m.add_class::<render::PyRasterizer>()?;
+    m.add_class::<render::PyPixelMap>()?;
     m.add_class::<icp::PyIcpResult>()?;
     m.add("EarcoreError", py.get_type::<errors::EarcoreError>())?;
     m.add("OutOfMapError", py.get_type::<errors::OutOfMapError>())?;
@@ -114,6 +117,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(synthetic::robot_cell_voxels, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_lidar_scan, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::depth_to_points_raw, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::incidence_cosines, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::crop_raw, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::statistical_outlier_indices, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::voxel_downsample_raw, m)?)?;

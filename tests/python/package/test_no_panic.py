@@ -56,12 +56,12 @@ KINDS = {
          "tolerance", "std_ratio", "max_correspondence_distance", "translation_tolerance", "rotation_tolerance",
          "huber_delta", "prob_hit", "prob_miss", "clamping_min", "clamping_max", "occupancy_threshold",
          "danger_alpha", "similar", "beam_spacing", "max_leaf_size", "vertical_fov_deg", "noise_sigma",
-         "index_margin"],
+         "index_margin", "near", "far", "ambient", "diffuse", "edge"],
         "float",
     ),
     **dict.fromkeys(
         ["depth", "k", "repeat", "link", "iterations", "seed", "rings", "azimuth_steps", "width", "height",
-         "max_iterations", "n", "position_memory"],
+         "max_iterations", "n", "position_memory", "source_width", "source_height"],
         "int",
     ),
     **dict.fromkeys(
@@ -87,11 +87,22 @@ KINDS = {
     "joints": "robot_part",
     "bodies": "robot_part",
     "name": "name",
+    "meshes": "meshes",
+    "camera_from_mesh": "mesh_poses",
+    "hidden": "flags",
+    "light": "vec3",
+    "background": "rgb_bytes",
+    "u": "image2d",
+    "v": "image2d",
 }
 
 #: Parameters whose meaning depends on the callable.
 OVERRIDES = {
     ("depth_to_points_raw", "depth"): "depth_image",
+    ("incidence_cosines", "depth"): "depth_image",
+    ("PixelMap.depth", "depth"): "depth_image",
+    ("PixelMap.bilinear", "image"): "image_u8",
+    ("PixelMap.nearest", "image"): "labels",
     ("OcTree.read", "path"): "file",
     ("OcTree.read_binary", "path"): "file",
     ("OcTree.write", "path"): "file",
@@ -285,6 +296,22 @@ class Generator:
             return self.file()
         if kind == "name":
             return self.pick([None, "r", "é" * 3])
+        if kind == "meshes":
+            vertices = rng.normal(0.0, 1.0, (self.pick([0, 3, 8]), 3)) + [0.0, 0.0, 3.0]
+            triangles = rng.integers(0, max(len(vertices), 1), (self.pick([0, 1, 12]), 3))
+            return [(vertices, triangles, (0.5, 0.5, 0.5), int(rng.integers(-1, 9))) for _ in range(self.pick([0, 1, 2]))]
+        if kind == "mesh_poses":
+            return np.tile(np.eye(4), (self.pick([0, 1, 2]), 1, 1))
+        if kind == "flags":
+            return [bool(b) for b in rng.integers(0, 2, self.pick([0, 1, 2]))]
+        if kind == "rgb_bytes":
+            return self.pick([(0, 0, 0), (255, 255, 255), (256, 0, 0), (-1, 0, 0), (1, 2)])
+        if kind == "image2d":
+            return rng.uniform(-2.0, 10.0, (self.pick([0, 1, 4]), self.pick([0, 1, 4])))
+        if kind == "image_u8":
+            return rng.integers(0, 256, (self.pick([0, 4, 8]), self.pick([0, 4, 8]), self.pick([1, 3]))).astype(np.uint8)
+        if kind == "labels":
+            return rng.integers(-1, 9, (self.pick([0, 4, 8]), self.pick([0, 4, 8])))
         raise AssertionError(f"no generator for kind {kind!r}")
 
     def tree(self):
@@ -403,6 +430,8 @@ def run_child(cases, verbose=False):
         target = {"OcTree": gen.tree, "SurfaceMap": lambda: _surface(ec, rng),
                   "PlaneTarget": lambda: ec.PlaneTarget(rng.normal(0, 1, (9, 3)), rng.normal(0, 1, (9, 3))),
                   "Follower": lambda: ec.Follower(np.ones(6), np.ones(6), 2.0),
+                  "Rasterizer": lambda: ec.Rasterizer([(np.eye(3) + [0.0, 0.0, 2.0], [[0, 1, 2]], (1.0, 0.5, 0.0), 3)]),
+                  "PixelMap": lambda: ec.PixelMap(4, 4, rng.uniform(-1, 5, (3, 5)), rng.uniform(-1, 5, (3, 5))),
                   "RobotModel": lambda: robot}.get(owner or "", lambda: None)()
         text = f"{qualname}({', '.join(f'{k}={describe(v)}' for k, v in args.items())})"
         print(json.dumps({"case": i, "call": text}), flush=True)

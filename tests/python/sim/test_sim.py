@@ -123,7 +123,7 @@ def test_incidence_angles_of_a_tilted_plane_are_exact():
     """Differences between back-projected neighbours of a plane lie in the plane, so
     the estimated normal is the plane's and the angle to each pixel's ray is analytic
     (border pixels included); a hole makes its neighbours NaN."""
-    from earcore.sim.sensors import incidence_angles
+    from earcore.cloud import incidence_angles
 
     w, h, f = 64, 48, 50.0
     normal = np.array([0.3, -0.5, -1.0])

@@ -265,3 +265,136 @@ mod tests {
         }
     }
 }
+
+/// The cosine of the angle between each pixel's viewing ray and the surface normal estimated
+/// from the depth image of a pinhole camera with focal lengths `fx`, `fy` and its
+/// principal point at the image's centre. The normal is the cross product of the
+/// back-projected points' gradients along the row and the column (central
+/// differences, one-sided at the border); NaN where the pixel or a neighbour the
+/// differences read has no depth (≤ 0), or the surface is degenerate. `depth` is
+/// row-major, `width` × `height` (both ≥ 2).
+pub fn incidence_cosines(
+    depth: &[f64],
+    width: usize,
+    height: usize,
+    fx: f64,
+    fy: f64,
+) -> Result<Vec<f64>> {
+    if width < 2 || height < 2 || depth.len() != width * height {
+        return Err(Error::InvalidArgument(format!(
+            "incidence angles need a depth image of at least 2×2 pixels with width × height values, got {width}×{height} and {}",
+            depth.len()
+        )));
+    }
+    if !(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "focal lengths must be positive, got fx={fx} fy={fy}"
+        )));
+    }
+    let (cx, cy) = ((width - 1) as f64 / 2.0, (height - 1) as f64 / 2.0);
+    // Back-projected once: NaN where there is no depth, so every difference that
+    // reads such a pixel is NaN too.
+    let points: Vec<[f64; 3]> = depth
+        .iter()
+        .enumerate()
+        .map(|(i, &z)| {
+            let z = if z > 0.0 { z } else { f64::NAN };
+            [
+                z * ((i % width) as f64 - cx) / fx,
+                z * ((i / width) as f64 - cy) / fy,
+                z,
+            ]
+        })
+        .collect();
+    // np.gradient's differences: central inside, one-sided at the two ends.
+    let diff = |lo: usize, hi: usize, step: f64| {
+        let (a, b) = (points[lo], points[hi]);
+        [
+            (b[0] - a[0]) / step,
+            (b[1] - a[1]) / step,
+            (b[2] - a[2]) / step,
+        ]
+    };
+    let mut out = Vec::with_capacity(depth.len());
+    for r in 0..height {
+        let row = r * width;
+        let (up, down, vstep) = match r {
+            0 => (row, row + width, 1.0),
+            r if r == height - 1 => (row - width, row, 1.0),
+            _ => (row - width, row + width, 2.0),
+        };
+        for c in 0..width {
+            let i = row + c;
+            let p = points[i];
+            if p[2].is_nan() {
+                out.push(f64::NAN);
+                continue;
+            }
+            let du = match c {
+                0 => diff(i, i + 1, 1.0),
+                c if c == width - 1 => diff(i - 1, i, 1.0),
+                _ => diff(i - 1, i + 1, 2.0),
+            };
+            let dv = diff(up + c, down + c, vstep);
+            let n = [
+                du[1] * dv[2] - du[2] * dv[1],
+                du[2] * dv[0] - du[0] * dv[2],
+                du[0] * dv[1] - du[1] * dv[0],
+            ];
+            let norm2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+            let range2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+            let cos = (n[0] * p[0] + n[1] * p[1] + n[2] * p[2]).abs() / (norm2 * range2).sqrt();
+            out.push(if norm2 > 0.0 && cos.is_finite() {
+                cos.min(1.0)
+            } else {
+                f64::NAN
+            });
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod incidence_tests {
+    use super::incidence_cosines;
+
+    #[test]
+    fn a_tilted_plane_gives_the_angle_between_ray_and_normal() {
+        // The plane z = 2 + 0.5 x (normal (-0.5, 0, 1)) seen by a pinhole: depth per
+        // pixel from the ray (x, y, 1) t, t = 2 / (1 - 0.5 x).
+        let (w, h, f) = (9, 7, 10.0);
+        let (cx, cy) = (4.0, 3.0);
+        let depth: Vec<f64> = (0..w * h)
+            .map(|i| {
+                let x = ((i % w) as f64 - cx) / f;
+                2.0 / (1.0 - 0.5 * x)
+            })
+            .collect();
+        let angles: Vec<f64> = incidence_cosines(&depth, w, h, f, f)
+            .unwrap()
+            .iter()
+            .map(|c| c.acos())
+            .collect();
+        let normal = [-0.5, 0.0, 1.0];
+        let nn = (0.25f64 + 1.0).sqrt();
+        for (i, a) in angles.iter().enumerate() {
+            let ray = [((i % w) as f64 - cx) / f, ((i / w) as f64 - cy) / f, 1.0];
+            let rn = (ray[0] * ray[0] + ray[1] * ray[1] + 1.0f64).sqrt();
+            let expected = ((ray[0] * normal[0] + ray[2] * normal[2]).abs() / (rn * nn)).acos();
+            assert!((a - expected).abs() < 1e-9, "pixel {i}: {a} vs {expected}");
+        }
+    }
+
+    #[test]
+    fn holes_give_nan_around_them() {
+        let mut depth = vec![1.0; 16];
+        depth[5] = 0.0;
+        let angles = incidence_cosines(&depth, 4, 4, 5.0, 5.0).unwrap();
+        // The hole, its row neighbours and its column neighbours read it.
+        for i in [5, 4, 6, 1, 9] {
+            assert!(angles[i].is_nan(), "pixel {i}");
+        }
+        assert!(angles[15].is_finite());
+        assert!(incidence_cosines(&depth, 1, 16, 5.0, 5.0).is_err());
+    }
+}

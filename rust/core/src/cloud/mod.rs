@@ -14,7 +14,7 @@ mod voxel_grid;
 
 pub use clusters::cluster_points;
 pub use crop::{crop_box, crop_sphere};
-pub use depth::{depth_to_points, BrownConrady, DepthFrame, Intrinsics};
+pub use depth::{depth_to_points, incidence_cosines, BrownConrady, DepthFrame, Intrinsics};
 pub use icp::{
     icp_point_to_plane, icp_point_to_plane_interruptible, IcpParams, IcpResult, IcpTarget,
     PlaneTarget, SurfaceCursor,
