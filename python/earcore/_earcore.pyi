@@ -39,6 +39,9 @@ __all__ = [
     "icp_point_to_plane_raw",
     "RobotModel",
     "Follower",
+    "Rasterizer",
+    "PixelMap",
+    "incidence_cosines",
     "fit_body",
     "robot_cell_voxels",
 ]

@@ -45,6 +45,11 @@ class RunConfig:
         self.perception.validate("perception")
         self.planning.validate("planning")
         self.pose.validate("pose", [c.name for c in self.cell.cameras])
+        if self.pose.camera and self.cell.renderer != "pybullet":
+            raise ConfigError(
+                f"pose.camera needs cell.renderer = \"pybullet\" (the pose networks learned the tiny renderer's "
+                f"textured, shaded look; the rasterizer draws none of it), got {self.cell.renderer!r}"
+            )
         return self
 
 

@@ -84,8 +84,11 @@ class CellScene:
             key = (body, link)
             if key not in frames:
                 if link < 0:
-                    # The base's visual frame is given relative to its inertial frame.
-                    frames[key] = _pose(p, *p.getBasePositionAndOrientation(body))
+                    # pybullet places the base by its inertial frame; visuals hang off
+                    # the link frame, the inertial frame's local offset away.
+                    position, orientation = p.getBasePositionAndOrientation(body)
+                    info = p.getDynamicsInfo(body, -1)
+                    frames[key] = _pose(p, position, orientation) @ np.linalg.inv(_pose(p, info[3], info[4]))
                 else:
                     state = p.getLinkState(body, link, computeForwardKinematics=True)
                     frames[key] = _pose(p, state[4], state[5])

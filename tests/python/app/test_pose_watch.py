@@ -48,6 +48,7 @@ def test_truth_is_where_pybullet_puts_the_joints(robot):
 def test_main_job_reports_pose_estimates_and_draws_them(tmp_path):
     _, weights = exported(tmp_path, "multi")
     config = small_run_config(1.0)
+    config.cell.renderer = "pybullet"
     config.pose.camera = "kinect_v2_left"
     config.pose.weights = str(weights)
     config.pose.rate_hz = 2.0
@@ -65,3 +66,12 @@ def test_a_pose_camera_outside_the_cell_is_refused():
     config.pose.camera = "nowhere"
     with pytest.raises(ConfigError, match="nowhere.*kinect_v2_left"):
         config.validate()
+
+
+def test_a_pose_camera_needs_pybullets_renderer():
+    config = small_run_config(1.0)
+    config.pose.camera = "kinect_v2_left"
+    with pytest.raises(ConfigError, match='renderer = "pybullet"'):
+        config.validate()
+    config.cell.renderer = "pybullet"
+    config.validate()
