@@ -49,7 +49,7 @@ def main() -> None:
         return median_of(
             lambda: earcore.icp_point_to_plane(source, surface, guess, max_iterations=iterations,
                                                max_correspondence_distance=0.05,
-                                               translation_tolerance=0.0, rotation_tolerance=0.0),
+                                               translation_tolerance=0.0, rotation_tolerance=0.0, sigma_tolerance=0.0),
             args.repeats,
         )[0]
 

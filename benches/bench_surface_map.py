@@ -103,7 +103,7 @@ def icp_per_iteration(boxes: np.ndarray, repeats: int) -> None:
         earcore.icp_point_to_plane(
             scan, surface, guess, max_iterations=iterations, huber_delta=SETTINGS.huber_delta,
             max_correspondence_distance=SETTINGS.max_correspondence_distance,
-            translation_tolerance=0.0, rotation_tolerance=0.0,
+            translation_tolerance=0.0, rotation_tolerance=0.0, sigma_tolerance=0.0,
         )
 
     one, eleven = median_seconds(lambda: run(1), repeats), median_seconds(lambda: run(11), repeats)

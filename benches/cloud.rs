@@ -123,6 +123,7 @@ fn icp(c: &mut Criterion) {
         max_correspondence_distance: 0.2,
         translation_tolerance: 0.0,
         rotation_tolerance: 0.0,
+        sigma_tolerance: 0.0,
         huber_delta: Some(0.03),
     };
     let mut group = c.benchmark_group("icp_point_to_plane");

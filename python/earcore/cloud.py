@@ -140,7 +140,7 @@ def incidence_angles(depth: npt.ArrayLike, fx: float, fy: float) -> np.ndarray:
     if z.ndim != 2:
         raise ValueError(f"depth must be an (H, W) image, got shape {z.shape}")
     # The core gives cosines; numpy's arccos is vectorised (libm's is not).
-    return np.arccos(_earcore.incidence_cosines(np.ascontiguousarray(z), float(fx), float(fy)))
+    return np.arccos(_earcore.incidence_cosines(np.ascontiguousarray(z, dtype=np.float64), float(fx), float(fy)))
 
 
 def voxel_codes(points, resolution: float) -> np.ndarray:

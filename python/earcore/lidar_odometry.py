@@ -94,6 +94,7 @@ class LidarOdometry:
                     huber_delta=s.huber_delta,
                     translation_tolerance=s.tolerance,
                     rotation_tolerance=s.tolerance,
+                    sigma_tolerance=0.0,
                 )
             self.degenerate_scans += sum(issubclass(w.category, DegenerateAlignmentWarning) for w in caught)
             self.registration_seconds.append(time.perf_counter() - start)

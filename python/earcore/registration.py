@@ -33,8 +33,9 @@ def icp_point_to_plane(
     *,
     max_iterations: int = 50,
     max_correspondence_distance: float = 0.2,
-    translation_tolerance: float = 1e-7,
-    rotation_tolerance: float = 1e-7,
+    translation_tolerance: float = 0.0,
+    rotation_tolerance: float = 0.0,
+    sigma_tolerance: float = 0.1,
     huber_delta: float | None = None,
 ) -> IcpResult:
     """Align `source` points (N, 3) to `target`: a `PlaneTarget` (build it once and
@@ -43,6 +44,14 @@ def icp_point_to_plane(
     nodes larger than `max_correspondence_distance` are not paired), from `initial` (4×4
     `target_from_source`, identity by default). Gauss-Newton on the small-angle pose,
     re-orthonormalised every step; `huber_delta` (metres) turns on a Huber kernel.
+
+    It stops after `max_iterations`, or at the first step shorter than `sigma_tolerance`
+    standard deviations of the pose estimate (the step's Mahalanobis length under the
+    covariance σ²·H⁻¹ of the fit, σ² the pairs' residual variance: a step the data
+    cannot tell from noise), or at the first step that moves less than
+    `translation_tolerance` metres and turns less than `rotation_tolerance` radians
+    (small_gicp's `translation_epsilon` / `rotation_epsilon`, Open3D's step criteria).
+    Either test is off at 0.
 
     Returns an `IcpResult` (transform, rmse, fitness, iterations, converged,
     degenerate, conditioning); warns with `DegenerateAlignmentWarning` when the
@@ -66,6 +75,7 @@ def icp_point_to_plane(
         max_correspondence_distance=max_correspondence_distance,
         translation_tolerance=translation_tolerance,
         rotation_tolerance=rotation_tolerance,
+        sigma_tolerance=sigma_tolerance,
         huber_delta=huber_delta,
     )
     if result.degenerate:

@@ -96,6 +96,9 @@ class PixelMap:
 
     def nearest(self, labels: np.ndarray) -> np.ndarray:
         """Integer labels (h, w), each output pixel the nearest sample's."""
+        labels = np.asarray(labels)
+        if labels.dtype.kind not in "iu" or (labels.dtype.kind == "u" and labels.dtype.itemsize == 8):
+            raise TypeError(f"nearest resamples integer labels that fit int64, got {labels.dtype}")
         return self._core.nearest(np.ascontiguousarray(labels, dtype=np.int64))
 
     def depth(self, depth: np.ndarray, edge: float = 0.02) -> np.ndarray:

@@ -332,12 +332,13 @@ pub fn incidence_cosines<'py>(
     fy: f64,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let (h, w) = (depth.shape()[0], depth.shape()[1]);
-    let values: Vec<f64> = match depth.as_slice() {
-        Ok(s) => s.to_vec(),
-        Err(_) => depth.as_array().iter().copied().collect(),
-    };
+    // Borrowed: the Python layer makes the image contiguous, and copying here could
+    // meet a broadcast array of any size.
+    let values = depth.as_slice().map_err(|_| {
+        pyo3::exceptions::PyTypeError::new_err("depth must be a C-contiguous array")
+    })?;
     let out = py
-        .detach(|| cloud::incidence_cosines(&values, w, h, fx, fy))
+        .detach(|| cloud::incidence_cosines(values, w, h, fx, fy))
         .py()?;
     let image = numpy::ndarray::Array2::from_shape_vec((h, w), out).expect("one angle per pixel");
     Ok(numpy::IntoPyArray::into_pyarray(image, py))

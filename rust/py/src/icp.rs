@@ -82,7 +82,7 @@ fn to_py(py: Python<'_>, r: IcpResult) -> PyResult<PyIcpResult> {
 /// identity if None). Ctrl-C stops it between iterations (KeyboardInterrupt).
 #[pyfunction]
 #[pyo3(signature = (source, target, initial=None, *, max_iterations=50, max_correspondence_distance=0.2,
-                    translation_tolerance=1e-7, rotation_tolerance=1e-7, huber_delta=None))]
+                    translation_tolerance=0.0, rotation_tolerance=0.0, sigma_tolerance=0.1, huber_delta=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn icp_point_to_plane_raw(
     py: Python<'_>,
@@ -93,6 +93,7 @@ pub fn icp_point_to_plane_raw(
     max_correspondence_distance: f64,
     translation_tolerance: f64,
     rotation_tolerance: f64,
+    sigma_tolerance: f64,
     huber_delta: Option<f64>,
 ) -> PyResult<PyIcpResult> {
     let src = points(source, "source")?;
@@ -106,6 +107,7 @@ pub fn icp_point_to_plane_raw(
         max_correspondence_distance,
         translation_tolerance,
         rotation_tolerance,
+        sigma_tolerance,
         huber_delta,
     };
     let result = if let Ok(t) = target.cast::<PyPlaneTarget>() {

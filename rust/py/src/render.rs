@@ -162,6 +162,20 @@ fn triangle_indices(obj: &Bound<'_, PyAny>, k: usize) -> PyResult<Vec<[u32; 3]>>
 pub struct PyPixelMap {
     inner: render::PixelMap,
     shape: (usize, usize),
+    /// (width, height) of the images it reads.
+    source: (usize, usize),
+}
+
+impl PyPixelMap {
+    fn check_shape(&self, shape: &[usize]) -> PyResult<()> {
+        if shape[0] != self.source.1 || shape[1] != self.source.0 {
+            return Err(PyValueError::new_err(format!(
+                "the map reads {}×{} images (height, width = {}, {}), got shape {:?}",
+                self.source.0, self.source.1, self.source.1, self.source.0, shape
+            )));
+        }
+        Ok(())
+    }
 }
 
 #[pymethods]
@@ -183,13 +197,11 @@ impl PyPixelMap {
             )));
         }
         let shape = (u.shape()[0], u.shape()[1]);
-        let (u, v) = (
-            u.as_array().iter().copied().collect::<Vec<_>>(),
-            v.as_array().iter().copied().collect::<Vec<_>>(),
-        );
+        let (u, v) = (contiguous_slice(&u, "u")?, contiguous_slice(&v, "v")?);
         Ok(Self {
-            inner: render::PixelMap::new((source_width, source_height), &u, &v).py()?,
+            inner: render::PixelMap::new((source_width, source_height), u, v).py()?,
             shape,
+            source: (source_width, source_height),
         })
     }
 
@@ -200,11 +212,10 @@ impl PyPixelMap {
         image: PyReadonlyArray3<'py, u8>,
     ) -> PyResult<Bound<'py, PyArray3<u8>>> {
         let channels = image.shape()[2];
-        let data = contiguous(image.as_slice().ok(), || {
-            image.as_array().iter().copied().collect()
-        });
+        self.check_shape(image.shape())?;
+        let data = contiguous_slice(&image, "image")?;
         let out = py
-            .detach(|| render::remap_bilinear(&data, channels, &self.inner))
+            .detach(|| render::remap_bilinear(data, channels, &self.inner))
             .py()?;
         Ok(
             Array3::from_shape_vec((self.shape.0, self.shape.1, channels), out)
@@ -219,11 +230,10 @@ impl PyPixelMap {
         py: Python<'py>,
         image: PyReadonlyArray2<'py, i64>,
     ) -> PyResult<Bound<'py, PyArray2<i64>>> {
-        let data = contiguous(image.as_slice().ok(), || {
-            image.as_array().iter().copied().collect()
-        });
+        self.check_shape(image.shape())?;
+        let data = contiguous_slice(&image, "image")?;
         let out = py
-            .detach(|| render::remap_nearest(&data, &self.inner))
+            .detach(|| render::remap_nearest(data, &self.inner))
             .py()?;
         Ok(Array2::from_shape_vec(self.shape, out)
             .expect("the map's size")
@@ -237,11 +247,10 @@ impl PyPixelMap {
         depth: PyReadonlyArray2<'py, f64>,
         edge: f64,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let data = contiguous(depth.as_slice().ok(), || {
-            depth.as_array().iter().copied().collect()
-        });
+        self.check_shape(depth.shape())?;
+        let data = contiguous_slice(&depth, "depth")?;
         let out = py
-            .detach(|| render::remap_depth(&data, &self.inner, edge))
+            .detach(|| render::remap_depth(data, &self.inner, edge))
             .py()?;
         Ok(Array2::from_shape_vec(self.shape, out)
             .expect("the map's size")
@@ -249,13 +258,13 @@ impl PyPixelMap {
     }
 }
 
-/// A contiguous array's values borrowed, anything else copied in order.
-fn contiguous<'a, T: Clone>(
-    slice: Option<&'a [T]>,
-    copy: impl FnOnce() -> Vec<T>,
-) -> std::borrow::Cow<'a, [T]> {
-    match slice {
-        Some(s) => std::borrow::Cow::Borrowed(s),
-        None => std::borrow::Cow::Owned(copy()),
-    }
+/// A C-contiguous array's values, borrowed (the Python layer makes arrays contiguous:
+/// copying here could meet a broadcast array of any size).
+fn contiguous_slice<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(
+    array: &'a numpy::PyReadonlyArray<'_, T, D>,
+    name: &str,
+) -> PyResult<&'a [T]> {
+    array.as_slice().map_err(|_| {
+        pyo3::exceptions::PyTypeError::new_err(format!("{name} must be a C-contiguous array"))
+    })
 }

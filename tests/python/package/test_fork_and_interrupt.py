@@ -171,7 +171,7 @@ LONG_CALLS = {
         target = earcore.PlaneTarget(corner, np.repeat(np.eye(3), 900, axis=0))
         source = np.repeat(corner, 20, axis=0) + np.random.default_rng(2).normal(0, 0.003, (54_000, 3))
         call = lambda: earcore.icp_point_to_plane(
-            source, target, max_iterations=10**12, translation_tolerance=0.0, rotation_tolerance=0.0)
+            source, target, max_iterations=10**12, sigma_tolerance=0.0)
         """,
     "ICP against a SurfaceMap with a huge iteration cap": """
         surface = earcore.SurfaceMap(0.02)
@@ -180,7 +180,7 @@ LONG_CALLS = {
         before = surface.nodes()
         source = np.repeat(corner, 20, axis=0) + np.random.default_rng(2).normal(0, 0.003, (54_000, 3))
         call = lambda: earcore.icp_point_to_plane(
-            source, surface, max_iterations=10**12, translation_tolerance=0.0, rotation_tolerance=0.0)
+            source, surface, max_iterations=10**12, sigma_tolerance=0.0)
         """,
     "RANSAC with a huge iteration cap": """
         src = np.random.default_rng(3).uniform(-1, 1, (50_000, 3))

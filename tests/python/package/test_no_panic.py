@@ -53,7 +53,7 @@ KINDS = {
     **dict.fromkeys(
         ["resolution", "max_range", "value", "delta", "dt", "size", "margin", "padding", "cell", "voxel_size",
          "radius", "threshold", "fx", "fy", "cx", "cy", "depth_scale", "min_depth", "max_depth", "floor_z", "gain",
-         "tolerance", "std_ratio", "max_correspondence_distance", "translation_tolerance", "rotation_tolerance",
+         "tolerance", "std_ratio", "max_correspondence_distance", "translation_tolerance", "rotation_tolerance", "sigma_tolerance",
          "huber_delta", "prob_hit", "prob_miss", "clamping_min", "clamping_max", "occupancy_threshold",
          "danger_alpha", "similar", "beam_spacing", "max_leaf_size", "vertical_fov_deg", "noise_sigma",
          "index_margin", "near", "far", "ambient", "diffuse", "edge"],
@@ -188,7 +188,7 @@ class Generator:
     def mutate_array(self, a):
         """The valid array `a`, changed in one hostile way (or returned as it is)."""
         rng = self.rng
-        how = int(rng.integers(24))
+        how = int(rng.integers(25))
         a = np.asarray(a)
         if how == 0:
             return a.astype(self.pick([np.bool_, np.int8, np.int16, np.int32, np.int64, np.uint8, np.uint64,
@@ -243,6 +243,9 @@ class Generator:
             return self.bad_scalar()
         if how == 21 and a.ndim:
             return np.swapaxes(np.atleast_2d(a), 0, -1)
+        if how == 23 and a.ndim == 2:
+            # A broadcast view: tiny in memory, enormous if copied.
+            return np.broadcast_to(np.zeros(1, a.dtype), (2**21, 2**21))
         if how == 22 and a.size:
             return a.astype(np.float64) * self.pick([1e300, 1e-300, -1e10, 1e10])
         return a
@@ -309,7 +312,7 @@ class Generator:
         if kind == "image2d":
             return rng.uniform(-2.0, 10.0, (self.pick([0, 1, 4]), self.pick([0, 1, 4])))
         if kind == "image_u8":
-            return rng.integers(0, 256, (self.pick([0, 4, 8]), self.pick([0, 4, 8]), self.pick([1, 3]))).astype(np.uint8)
+            return rng.integers(0, 256, (self.pick([0, 4, 8]), self.pick([0, 4, 8]), self.pick([0, 1, 3]))).astype(np.uint8)
         if kind == "labels":
             return rng.integers(-1, 9, (self.pick([0, 4, 8]), self.pick([0, 4, 8])))
         raise AssertionError(f"no generator for kind {kind!r}")

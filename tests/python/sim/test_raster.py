@@ -149,9 +149,7 @@ def test_the_rasterized_cell_matches_pybullets_renderer(robot):
     its depth within a millimetre wherever both see the same body."""
     from earcore.sim.camera import opengl_view
     from earcore.sim.cell import SimulatedCell
-    from earcore.sim.config import CellConfig
-
-    from earcore.sim.config import CameraConfig, default_cameras
+    from earcore.sim.config import CameraConfig, CellConfig, default_cameras
 
     close = CameraConfig("close", "f200", (0.6, 0.35, 0.35), (0.0, 0.0, 0.15))  # the base and lower links, up close
     cell = SimulatedCell(CellConfig(robot=robot, camera_scale=0.5, seed=2, cameras=[*default_cameras(), close]))

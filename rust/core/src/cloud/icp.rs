@@ -16,8 +16,14 @@ pub struct IcpParams {
     pub max_correspondence_distance: f64,
     /// Stop when a step moves less than this (metres) ...
     pub translation_tolerance: f64,
-    /// ... and turns less than this (radians).
+    /// ... and turns less than this (radians): small_gicp's and Open3D's step
+    /// epsilons (0 turns this test off).
     pub rotation_tolerance: f64,
+    /// Stop when a step is shorter than this many standard deviations of the pose
+    /// estimate: its Mahalanobis length under the covariance σ²·H⁻¹, σ² the pairs'
+    /// residual variance and H the normal equations' matrix. A step the data cannot
+    /// tell from noise changes nothing a user can measure (0 turns this test off).
+    pub sigma_tolerance: f64,
     /// Huber kernel width in metres (`None`: plain least squares).
     pub huber_delta: Option<f64>,
 }
@@ -47,6 +53,7 @@ impl IcpParams {
         for (what, v) in [
             ("translation_tolerance", self.translation_tolerance),
             ("rotation_tolerance", self.rotation_tolerance),
+            ("sigma_tolerance", self.sigma_tolerance),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return fail(what, v);
@@ -66,8 +73,9 @@ impl Default for IcpParams {
         IcpParams {
             max_iterations: 50,
             max_correspondence_distance: 0.2,
-            translation_tolerance: 1e-7,
-            rotation_tolerance: 1e-7,
+            translation_tolerance: 0.0,
+            rotation_tolerance: 0.0,
+            sigma_tolerance: 0.1,
             huber_delta: None,
         }
     }
@@ -84,7 +92,8 @@ pub struct IcpResult {
     pub fitness: f64,
     /// Gauss-Newton steps taken.
     pub iterations: usize,
-    /// A step fell below both tolerances before `max_iterations`.
+    /// A step fell below both step tolerances, or below `sigma_tolerance`, before
+    /// `max_iterations`.
     pub converged: bool,
     /// The pairs cannot fix all six degrees of freedom (e.g. a single plane).
     pub degenerate: bool,
@@ -107,20 +116,84 @@ pub trait IcpTarget: Sync {
         cursor: &mut Self::Cursor,
         index: usize,
     ) -> Option<([f64; 3], [f64; 3])>;
+
+    /// Whether ICP should first align a subset of a large source (cheap pairs far from
+    /// the answer matter less for a target whose lookups cost the same anywhere).
+    fn coarse_to_fine(&self) -> bool {
+        true
+    }
 }
 
-impl IcpTarget for PlaneTarget {
-    type Cursor = ();
+/// Per source point, what its last nearest-neighbour search found: where the point
+/// was, its nearest target point (`u32::MAX`: none within the search's reach) and the
+/// distances to it and to every other target point (a lower bound).
+#[derive(Clone, Copy)]
+pub struct PlaneMemo {
+    at: [f64; 3],
+    nearest: u32,
+    first: f64,
+    others: f64,
+}
 
+/// How far beyond the correspondence distance a search looks (as a fraction of it),
+/// so that a point with nothing in reach keeps knowing so while it moves that much.
+const SEARCH_SLACK: f64 = 0.25;
+
+impl IcpTarget for PlaneTarget {
+    type Cursor = Vec<PlaneMemo>;
+
+    /// The nearest target point within `max_distance`, exactly as a fresh search finds
+    /// it. A point that moved less than half the gap between its nearest and
+    /// second-nearest target points since its last search keeps that nearest (no other
+    /// point can have overtaken it), and one that had nothing within reach keeps
+    /// having none while it moves less than the search's slack: once ICP settles,
+    /// most iterations search for almost no point.
     fn pair(
         &self,
         p: [f64; 3],
         max_distance: f64,
-        _: &mut (),
-        _: usize,
+        memo: &mut Vec<PlaneMemo>,
+        index: usize,
     ) -> Option<([f64; 3], [f64; 3])> {
-        let (_, j) = self.tree.nearest_within(p, max_distance * max_distance)?;
-        Some((self.tree.points()[j as usize], self.normals[j as usize]))
+        let points = self.tree.points();
+        let found = |j: u32| Some((points[j as usize], self.normals[j as usize]));
+        if let Some(m) = memo.get(index).filter(|m| m.at[0].is_finite()) {
+            let moved = crate::geometry::distance_squared(&p, &m.at).sqrt();
+            // A margin far above rounding, far below any gap that matters.
+            let margin = 1e-9 * (1.0 + m.others);
+            if m.nearest == u32::MAX {
+                if m.others - moved > max_distance + margin {
+                    return None;
+                }
+            } else if 2.0 * moved + margin < m.others - m.first {
+                let j = m.nearest;
+                let d = crate::geometry::distance_squared(&p, &points[j as usize]);
+                return if d <= max_distance * max_distance {
+                    found(j)
+                } else {
+                    None
+                };
+            }
+        }
+        let reach = max_distance * (1.0 + SEARCH_SLACK);
+        let (nearest, others) = self.tree.nearest_two_within(p, reach * reach);
+        let m = PlaneMemo {
+            at: p,
+            nearest: nearest.map_or(u32::MAX, |(_, j)| j),
+            first: nearest.map_or(reach, |(d, _)| d.sqrt()),
+            others: others.sqrt(),
+        };
+        if index >= memo.len() {
+            let unset = PlaneMemo {
+                at: [f64::NAN; 3],
+                ..m
+            };
+            memo.resize(index + 1, unset);
+        }
+        memo[index] = m;
+        nearest
+            .filter(|&(d, _)| d <= max_distance * max_distance)
+            .and_then(|(_, j)| found(j))
     }
 }
 
@@ -143,6 +216,11 @@ struct PairMemo {
 
 impl IcpTarget for crate::octree::SurfaceMap {
     type Cursor = SurfaceCursor;
+
+    /// A descent costs about the same near the answer and far from it.
+    fn coarse_to_fine(&self) -> bool {
+        false
+    }
 
     /// NOctoSLAM's descent (resumed below the node shared with the previous point);
     /// the depth of the node found bounds the distance: a node larger than
@@ -310,7 +388,6 @@ pub fn icp_point_to_plane_interruptible(
         .max(1e-9);
     let order = crate::geometry::morton_order(source);
     let source: Vec<[f64; 3]> = order.iter().map(|&i| source[i as usize]).collect();
-    let source = source.as_slice();
     let mut transform = *initial;
     let mut result = IcpResult {
         transform,
@@ -321,13 +398,96 @@ pub fn icp_point_to_plane_interruptible(
         degenerate: false,
         conditioning: 0.0,
     };
+    // Coarse to fine: with many source points, a spread subset (a stride through the
+    // Morton order) first, until its steps are within a standard deviation of what it
+    // can resolve, with at most half the iterations; then every point from there.
+    // Far from the answer each iteration costs most (every pair searched afresh, far
+    // away), so those iterations run on few points.
+    if target.coarse_to_fine() && source.len() >= 2 * COARSE_POINTS && params.max_iterations > 1 {
+        let coarse: Vec<[f64; 3]> = source
+            .iter()
+            .step_by(source.len() / COARSE_POINTS)
+            .copied()
+            .collect();
+        let coarse_params = IcpParams {
+            max_iterations: params.max_iterations / 2,
+            translation_tolerance: 0.0,
+            rotation_tolerance: 0.0,
+            sigma_tolerance: 1.0,
+            ..params
+        };
+        let mut trial = result;
+        let mut at = transform;
+        match iterate(
+            &coarse,
+            target,
+            &mut at,
+            coarse_params,
+            radius,
+            &mut trial,
+            interrupt,
+        ) {
+            Ok(false) => return Ok(None),
+            // Too few of the subset's points paired: every point decides.
+            Err(_) => {}
+            Ok(true) => {
+                transform = at;
+                result.iterations = trial.iterations;
+            }
+        }
+    }
+    let fine_params = IcpParams {
+        max_iterations: params
+            .max_iterations
+            .saturating_sub(result.iterations)
+            .max(1),
+        ..params
+    };
+    let coarse_iterations = result.iterations;
+    if !iterate(
+        &source,
+        target,
+        &mut transform,
+        fine_params,
+        radius,
+        &mut result,
+        interrupt,
+    )? {
+        return Ok(None);
+    }
+    result.iterations += coarse_iterations;
+    // Re-orthonormalise the accumulated rotation (products drift by rounding).
+    let rotation = Rotation3::from_matrix(&transform.fixed_view::<3, 3>(0, 0).into_owned());
+    transform
+        .fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(rotation.matrix());
+    result.transform = transform;
+    Ok(Some(result))
+}
+
+/// Source points of the coarse stage (when the source has at least twice as many).
+const COARSE_POINTS: usize = 4096;
+
+/// Gauss-Newton steps on `source` (Morton-ordered) from `transform` until `params` say
+/// stop, recording the last step's statistics in `result` (`iterations` counts this
+/// call's steps); `Ok(false)` when `interrupt` asked to stop.
+fn iterate<T: IcpTarget>(
+    source: &[[f64; 3]],
+    target: &T,
+    transform: &mut Matrix4<f64>,
+    params: IcpParams,
+    radius: f64,
+    result: &mut IcpResult,
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Result<bool> {
     // One cursor per run of source points, kept across iterations.
-    let runs: Vec<(usize, std::sync::Mutex<_>)> = (0..source.len())
+    let runs: Vec<(usize, std::sync::Mutex<T::Cursor>)> = (0..source.len())
         .step_by(RUN)
         .map(|start| (start, std::sync::Mutex::new(Default::default())))
         .collect();
+    result.converged = false;
     for iteration in 1..=params.max_iterations {
-        let system = normal_equations(source, target, &transform, params, &runs);
+        let system = normal_equations(source, target, transform, params, &runs);
         result.iterations = iteration;
         result.fitness = system.pairs as f64 / source.len() as f64;
         result.rmse = if system.pairs > 0 {
@@ -364,23 +524,22 @@ pub fn icp_point_to_plane_interruptible(
         let delta_t = Vector3::new(step[3], step[4], step[5]);
         let delta =
             Translation3::from(delta_t).to_homogeneous() * Rotation3::new(omega).to_homogeneous();
-        transform = delta * transform;
-        if omega.norm() < params.rotation_tolerance && delta_t.norm() < params.translation_tolerance
-        {
+        *transform = delta * *transform;
+        // δᵀHδ = −δᵀg for the undamped step; the residual variance floored at (1 nm)²
+        // so that noise-free data still converges.
+        let variance = (system.squared / (system.pairs - 6).max(1) as f64).max(1e-18);
+        let sigmas = (-step.dot(&system.g)).max(0.0) / variance;
+        let small_step = omega.norm() < params.rotation_tolerance
+            && delta_t.norm() < params.translation_tolerance;
+        if small_step || sigmas < params.sigma_tolerance * params.sigma_tolerance {
             result.converged = true;
             break;
         }
         if interrupt() {
-            return Ok(None);
+            return Ok(false);
         }
     }
-    // Re-orthonormalise the accumulated rotation (products drift by rounding).
-    let rotation = Rotation3::from_matrix(&transform.fixed_view::<3, 3>(0, 0).into_owned());
-    transform
-        .fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(rotation.matrix());
-    result.transform = transform;
-    Ok(Some(result))
+    Ok(true)
 }
 
 /// Source points per parallel run (and cursor).
@@ -501,8 +660,7 @@ mod tests {
         initial[(2, 3)] = -0.01;
         let params = IcpParams {
             max_iterations: 15,
-            translation_tolerance: 0.0,
-            rotation_tolerance: 0.0,
+            sigma_tolerance: 0.0,
             ..IcpParams::default()
         };
         let kept = icp_point_to_plane(&source, &map, &initial, params).unwrap();
@@ -512,6 +670,63 @@ mod tests {
         assert_eq!(kept.fitness, fresh.fitness);
         assert!(kept.transform[(0, 3)].abs() < 1e-3, "{}", kept.transform);
     }
+    /// A fresh nearest-neighbour search for every point, every iteration.
+    struct FreshSearches<'a>(&'a PlaneTarget);
+
+    impl IcpTarget for FreshSearches<'_> {
+        type Cursor = ();
+
+        fn pair(
+            &self,
+            p: [f64; 3],
+            max_distance: f64,
+            _: &mut (),
+            _: usize,
+        ) -> Option<([f64; 3], [f64; 3])> {
+            let (_, j) = self.0.tree.nearest_within(p, max_distance * max_distance)?;
+            Some((self.0.tree.points()[j as usize], self.0.normals[j as usize]))
+        }
+    }
+
+    /// Keeping a point's nearest neighbour while it provably stays the nearest changes
+    /// nothing: the same transforms, bit for bit, for near and far correspondence
+    /// distances, small and large offsets, with points that have no pair.
+    #[test]
+    fn kept_nearest_neighbours_equal_fresh_searches() {
+        let mut rng = Rng::new(9);
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        for _ in 0..3000 {
+            let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
+            points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
+            normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        }
+        let target = PlaneTarget::new(&points, &normals).unwrap();
+        // Half of the source overlaps the target, half lies 0.3-0.8 m beyond it.
+        let mut source: Vec<[f64; 3]> = points.iter().step_by(3).take(3000).copied().collect();
+        source.extend((0..3000).map(|_| {
+            [
+                rng.uniform(1.3, 1.8),
+                rng.uniform(0.0, 1.0),
+                rng.uniform(0.0, 1.0),
+            ]
+        }));
+        for (offset, radius) in [(0.02, 0.05), (0.1, 0.2), (0.1, 1.0)] {
+            let mut initial = Matrix4::identity();
+            initial[(0, 3)] = offset;
+            initial[(1, 3)] = -offset / 2.0;
+            let params = IcpParams {
+                max_iterations: 30,
+                max_correspondence_distance: radius,
+                sigma_tolerance: 0.0,
+                ..IcpParams::default()
+            };
+            let kept = icp_point_to_plane(&source, &target, &initial, params).unwrap();
+            let fresh =
+                icp_point_to_plane(&source, &FreshSearches(&target), &initial, params).unwrap();
+            assert_eq!(kept, fresh, "offset {offset}, radius {radius}");
+        }
+    }
+
     /// An interrupt is asked after every iteration and stops the alignment there;
     /// one that never asks to stop changes nothing.
     #[test]
@@ -527,8 +742,7 @@ mod tests {
         let source: Vec<[f64; 3]> = points.iter().map(|p| [p[0] + 0.02, p[1], p[2]]).collect();
         let params = IcpParams {
             max_iterations: 1_000_000_000,
-            translation_tolerance: 0.0,
-            rotation_tolerance: 0.0,
+            sigma_tolerance: 0.0,
             ..IcpParams::default()
         };
         let initial = Matrix4::identity();

@@ -170,6 +170,63 @@ impl KdTree {
         (best.1 != u32::MAX).then_some(best)
     }
 
+    /// The nearest point within squared distance `limit` (inclusive) of `q` as
+    /// (squared distance, index), and a lower bound on every other point's squared
+    /// distance: the second nearest's when it lies within `limit`, else `limit`. What
+    /// tells, after `q` moved a little, whether the nearest can have changed.
+    pub fn nearest_two_within(&self, q: [f64; 3], limit: f64) -> (Option<(f64, u32)>, f64) {
+        if self.nodes.is_empty() {
+            return (None, limit);
+        }
+        let (mut best, mut second) = ((limit, u32::MAX), limit);
+        let mut stack = [(0u32, 0.0f64); 64];
+        let mut len = 1;
+        while len > 0 {
+            len -= 1;
+            let (node, bound) = stack[len];
+            if bound > second {
+                continue;
+            }
+            match self.nodes[node as usize] {
+                Node::Leaf { start, end } => {
+                    let (start, end) = (start as usize, end as usize);
+                    for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
+                        let d = distance_squared(p, &q);
+                        if d < best.0 || (d == best.0 && i < best.1) {
+                            if best.1 != u32::MAX {
+                                second = second.min(best.0);
+                            }
+                            best = (d, i);
+                        } else if d < second {
+                            second = d;
+                        }
+                    }
+                }
+                Node::Split {
+                    axis,
+                    value,
+                    left,
+                    right,
+                } => {
+                    let diff = q[axis as usize] - value;
+                    let (near, far) = if diff < 0.0 {
+                        (left, right)
+                    } else {
+                        (right, left)
+                    };
+                    let far_bound = bound.max(diff * diff);
+                    if far_bound <= second {
+                        stack[len] = (far, far_bound);
+                        len += 1;
+                    }
+                    stack[len] = (near, bound);
+                    len += 1;
+                }
+            }
+        }
+        ((best.1 != u32::MAX).then_some(best), second)
+    }
+
     /// The `k` nearest points to `q` as (squared distance, index), nearest first
     /// (ties by index), leaving out the point with index `exclude` (a query point's
     /// own entry). O(k log k) beyond the points visited, for any k.
@@ -322,6 +379,40 @@ mod tests {
                 let expected = brute.filter(|&(d2, _)| d2 <= limit);
                 assert_eq!(tree.nearest_within(q, limit), expected, "{q:?} {limit}");
             }
+        }
+    }
+
+    #[test]
+    fn nearest_two_equals_brute_force() {
+        let mut rng = crate::synthetic::Rng::new(11);
+        let points: Vec<[f64; 3]> = (0..700)
+            .map(|_| {
+                [
+                    rng.uniform(-1.0, 1.0),
+                    rng.uniform(-1.0, 1.0),
+                    rng.uniform(-0.2, 0.2),
+                ]
+            })
+            .collect();
+        let tree = KdTree::new(&points);
+        for _ in 0..400 {
+            let q = [
+                rng.uniform(-1.3, 1.3),
+                rng.uniform(-1.3, 1.3),
+                rng.uniform(-0.5, 0.5),
+            ];
+            let limit = rng.uniform(0.0, 0.2);
+            let mut all: Vec<(f64, u32)> = points
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (distance_squared(p, &q), i as u32))
+                .filter(|&(d, _)| d <= limit)
+                .collect();
+            all.sort_by(|a, b| a.partial_cmp(b).unwrap());
+            let (nearest, second) = tree.nearest_two_within(q, limit);
+            assert_eq!(nearest, all.first().copied());
+            assert_eq!(nearest, tree.nearest_within(q, limit));
+            assert_eq!(second, all.get(1).map_or(limit, |s| s.0));
         }
     }
 

@@ -72,6 +72,11 @@ impl PixelMap {
     }
 
     fn check(&self, len: usize, channels: usize) -> Result<()> {
+        if channels == 0 {
+            return Err(Error::InvalidArgument(
+                "an image needs at least one channel".into(),
+            ));
+        }
         let expected = self.source.0 * self.source.1 * channels;
         if len != expected {
             return Err(Error::InvalidArgument(format!(
@@ -136,7 +141,9 @@ pub fn remap_depth(depth: &[f64], map: &PixelMap, edge: f64) -> Result<Vec<f64>>
         let z = q.map(|k| depth[k]);
         let lo = z.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        out.push(if lo > 0.0 && hi - lo < edge {
+        // NaN counts as no return (min / max would skip it).
+        let valid = z.iter().all(|v| *v > 0.0);
+        out.push(if valid && hi - lo < edge {
             1.0 / (0..4).map(|k| wts[k] / z[k]).sum::<f64>()
         } else {
             depth[map.nearest[i] as usize]
