@@ -285,7 +285,7 @@ def icp_point_to_plane_raw(
     max_correspondence_distance: float = 0.2,
     translation_tolerance: float = 0.0,
     rotation_tolerance: float = 0.0,
-    sigma_tolerance: float = 0.1,
+    sigma_tolerance: float = 1.0,
     huber_delta: float | None = None,
 ) -> IcpResult: ...
 def set_num_threads(n: int) -> None: ...

@@ -35,7 +35,7 @@ def icp_point_to_plane(
     max_correspondence_distance: float = 0.2,
     translation_tolerance: float = 0.0,
     rotation_tolerance: float = 0.0,
-    sigma_tolerance: float = 0.1,
+    sigma_tolerance: float = 1.0,
     huber_delta: float | None = None,
 ) -> IcpResult:
     """Align `source` points (N, 3) to `target`: a `PlaneTarget` (build it once and

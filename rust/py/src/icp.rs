@@ -82,7 +82,7 @@ fn to_py(py: Python<'_>, r: IcpResult) -> PyResult<PyIcpResult> {
 /// identity if None). Ctrl-C stops it between iterations (KeyboardInterrupt).
 #[pyfunction]
 #[pyo3(signature = (source, target, initial=None, *, max_iterations=50, max_correspondence_distance=0.2,
-                    translation_tolerance=0.0, rotation_tolerance=0.0, sigma_tolerance=0.1, huber_delta=None))]
+                    translation_tolerance=0.0, rotation_tolerance=0.0, sigma_tolerance=1.0, huber_delta=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn icp_point_to_plane_raw(
     py: Python<'_>,

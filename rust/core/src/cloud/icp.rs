@@ -75,7 +75,7 @@ impl Default for IcpParams {
             max_correspondence_distance: 0.2,
             translation_tolerance: 0.0,
             rotation_tolerance: 0.0,
-            sigma_tolerance: 0.1,
+            sigma_tolerance: 1.0,
             huber_delta: None,
         }
     }
@@ -124,76 +124,106 @@ pub trait IcpTarget: Sync {
     }
 }
 
-/// Per source point, what its last nearest-neighbour search found: where the point
-/// was, its nearest target point (`u32::MAX`: none within the search's reach) and the
-/// distances to it and to every other target point (a lower bound).
+/// Per source point, what its last search found: where the point was, its
+/// [`CANDIDATES`] nearest target points within the search's reach and the distance
+/// beyond which every other target point lay.
 #[derive(Clone, Copy)]
 pub struct PlaneMemo {
     at: [f64; 3],
-    nearest: u32,
-    first: f64,
-    others: f64,
+    candidates: [u32; CANDIDATES],
+    count: u8,
+    beyond: f64,
 }
+
+/// Target points remembered per source point.
+const CANDIDATES: usize = 8;
 
 /// How far beyond the correspondence distance a search looks (as a fraction of it),
 /// so that a point with nothing in reach keeps knowing so while it moves that much.
 const SEARCH_SLACK: f64 = 0.25;
 
+/// A [`PlaneTarget`] lookup's state: per source point what its last search found, and
+/// the search's scratch space.
+#[derive(Default)]
+pub struct PlaneCursor {
+    memo: Vec<PlaneMemo>,
+    scratch: Vec<(f64, u32)>,
+}
+
 impl IcpTarget for PlaneTarget {
-    type Cursor = Vec<PlaneMemo>;
+    type Cursor = PlaneCursor;
 
     /// The nearest target point within `max_distance`, exactly as a fresh search finds
-    /// it. A point that moved less than half the gap between its nearest and
-    /// second-nearest target points since its last search keeps that nearest (no other
-    /// point can have overtaken it), and one that had nothing within reach keeps
-    /// having none while it moves less than the search's slack: once ICP settles,
-    /// most iterations search for almost no point.
+    /// it. A point remembers its nearest few target points; while it has moved less
+    /// than the gap between the nearest of them and every other target point, the
+    /// nearest is among them (or nothing lies within reach), and no search is needed:
+    /// once ICP settles, most iterations search for almost no point.
     fn pair(
         &self,
         p: [f64; 3],
         max_distance: f64,
-        memo: &mut Vec<PlaneMemo>,
+        cursor: &mut PlaneCursor,
         index: usize,
     ) -> Option<([f64; 3], [f64; 3])> {
         let points = self.tree.points();
-        let found = |j: u32| Some((points[j as usize], self.normals[j as usize]));
-        if let Some(m) = memo.get(index).filter(|m| m.at[0].is_finite()) {
+        let limit = max_distance * max_distance;
+        let found = |(d, j): (f64, u32)| {
+            (d <= limit).then(|| (points[j as usize], self.normals[j as usize]))
+        };
+        let known = cursor.memo.get(index).filter(|m| m.at[0].is_finite());
+        if let Some(m) = known {
             let moved = crate::geometry::distance_squared(&p, &m.at).sqrt();
+            // Ties go to the lower index, as in a fresh search.
+            let best =
+                m.candidates[..m.count as usize]
+                    .iter()
+                    .fold((f64::INFINITY, u32::MAX), |b, &j| {
+                        let d = crate::geometry::distance_squared(&p, &points[j as usize]);
+                        if d < b.0 || (d == b.0 && j < b.1) {
+                            (d, j)
+                        } else {
+                            b
+                        }
+                    });
+            let others = m.beyond - moved;
             // A margin far above rounding, far below any gap that matters.
-            let margin = 1e-9 * (1.0 + m.others);
-            if m.nearest == u32::MAX {
-                if m.others - moved > max_distance + margin {
-                    return None;
-                }
-            } else if 2.0 * moved + margin < m.others - m.first {
-                let j = m.nearest;
-                let d = crate::geometry::distance_squared(&p, &points[j as usize]);
-                return if d <= max_distance * max_distance {
-                    found(j)
-                } else {
-                    None
-                };
+            let margin = 1e-9 * (1.0 + m.beyond.min(1e6));
+            if best.0.sqrt() + margin < others {
+                return found(best);
+            }
+            if best.0 > limit && others > max_distance + margin {
+                return None;
             }
         }
         let reach = max_distance * (1.0 + SEARCH_SLACK);
-        let (nearest, others) = self.tree.nearest_two_within(p, reach * reach);
-        let m = PlaneMemo {
+        // Two candidates at first (the cheapest search that can prove a nearest); a point
+        // whose two did not last, typically far from the target where distances
+        // crowd together, gets all of them.
+        let k = if known.is_some() { CANDIDATES } else { 2 };
+        self.tree
+            .knn_within(p, k, reach * reach, &mut cursor.scratch);
+        let mut m = PlaneMemo {
             at: p,
-            nearest: nearest.map_or(u32::MAX, |(_, j)| j),
-            first: nearest.map_or(reach, |(d, _)| d.sqrt()),
-            others: others.sqrt(),
+            candidates: [0; CANDIDATES],
+            count: cursor.scratch.len() as u8,
+            beyond: if cursor.scratch.len() == k {
+                cursor.scratch[k - 1].0.sqrt()
+            } else {
+                reach
+            },
         };
-        if index >= memo.len() {
+        for (slot, &(_, j)) in m.candidates.iter_mut().zip(&cursor.scratch) {
+            *slot = j;
+        }
+        if index >= cursor.memo.len() {
             let unset = PlaneMemo {
                 at: [f64::NAN; 3],
                 ..m
             };
-            memo.resize(index + 1, unset);
+            cursor.memo.resize(index + 1, unset);
         }
-        memo[index] = m;
-        nearest
-            .filter(|&(d, _)| d <= max_distance * max_distance)
-            .and_then(|(_, j)| found(j))
+        cursor.memo[index] = m;
+        cursor.scratch.first().copied().and_then(found)
     }
 }
 

@@ -170,63 +170,6 @@ impl KdTree {
         (best.1 != u32::MAX).then_some(best)
     }
 
-    /// The nearest point within squared distance `limit` (inclusive) of `q` as
-    /// (squared distance, index), and a lower bound on every other point's squared
-    /// distance: the second nearest's when it lies within `limit`, else `limit`. What
-    /// tells, after `q` moved a little, whether the nearest can have changed.
-    pub fn nearest_two_within(&self, q: [f64; 3], limit: f64) -> (Option<(f64, u32)>, f64) {
-        if self.nodes.is_empty() {
-            return (None, limit);
-        }
-        let (mut best, mut second) = ((limit, u32::MAX), limit);
-        let mut stack = [(0u32, 0.0f64); 64];
-        let mut len = 1;
-        while len > 0 {
-            len -= 1;
-            let (node, bound) = stack[len];
-            if bound > second {
-                continue;
-            }
-            match self.nodes[node as usize] {
-                Node::Leaf { start, end } => {
-                    let (start, end) = (start as usize, end as usize);
-                    for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
-                        let d = distance_squared(p, &q);
-                        if d < best.0 || (d == best.0 && i < best.1) {
-                            if best.1 != u32::MAX {
-                                second = second.min(best.0);
-                            }
-                            best = (d, i);
-                        } else if d < second {
-                            second = d;
-                        }
-                    }
-                }
-                Node::Split {
-                    axis,
-                    value,
-                    left,
-                    right,
-                } => {
-                    let diff = q[axis as usize] - value;
-                    let (near, far) = if diff < 0.0 {
-                        (left, right)
-                    } else {
-                        (right, left)
-                    };
-                    let far_bound = bound.max(diff * diff);
-                    if far_bound <= second {
-                        stack[len] = (far, far_bound);
-                        len += 1;
-                    }
-                    stack[len] = (near, bound);
-                    len += 1;
-                }
-            }
-        }
-        ((best.1 != u32::MAX).then_some(best), second)
-    }
-
     /// The `k` nearest points to `q` as (squared distance, index), nearest first
     /// (ties by index), leaving out the point with index `exclude` (a query point's
     /// own entry). O(k log k) beyond the points visited, for any k.
@@ -251,6 +194,16 @@ impl KdTree {
     /// Depth-first search for the `k` nearest to `q`, gathering them in `best`: the
     /// far side of a split is visited while it can hold a point nearer than the
     /// worst kept.
+    /// The up to `k` nearest points within squared distance `limit` (inclusive) of
+    /// `q`, as [`Self::knn`] gives them (nearest first, ties by index).
+    pub fn knn_within(&self, q: [f64; 3], k: usize, limit: f64, out: &mut Vec<(f64, u32)>) {
+        out.clear();
+        if k == 0 || self.nodes.is_empty() {
+            return;
+        }
+        self.search(0, q, k, None, &mut Bounded { kept: out, limit });
+    }
+
     fn search<C: Candidates>(
         &self,
         node: u32,
@@ -325,6 +278,24 @@ impl Candidates for Vec<(f64, u32)> {
 /// For large k: a max-heap of (distance bits, index), where an insertion costs
 /// O(log k) instead of shifting up to k entries (which made k near N quadratic per
 /// query). Squared distances are never negative, so their bits order as the numbers do.
+/// The sorted array, taking only points within `limit` and pruning by it until full.
+struct Bounded<'a> {
+    kept: &'a mut Vec<(f64, u32)>,
+    limit: f64,
+}
+
+impl Candidates for Bounded<'_> {
+    fn offer(&mut self, d: f64, i: u32, k: usize) {
+        if d <= self.limit {
+            self.kept.offer(d, i, k);
+        }
+    }
+
+    fn worst(&self, k: usize) -> Option<f64> {
+        Some(self.kept.worst(k).unwrap_or(self.limit))
+    }
+}
+
 impl Candidates for std::collections::BinaryHeap<(u64, u32)> {
     fn offer(&mut self, d: f64, i: u32, k: usize) {
         let entry = (d.to_bits(), i);
@@ -383,7 +354,7 @@ mod tests {
     }
 
     #[test]
-    fn nearest_two_equals_brute_force() {
+    fn knn_within_equals_brute_force() {
         let mut rng = crate::synthetic::Rng::new(11);
         let points: Vec<[f64; 3]> = (0..700)
             .map(|_| {
@@ -395,6 +366,7 @@ mod tests {
             })
             .collect();
         let tree = KdTree::new(&points);
+        let mut out = Vec::new();
         for _ in 0..400 {
             let q = [
                 rng.uniform(-1.3, 1.3),
@@ -409,10 +381,9 @@ mod tests {
                 .filter(|&(d, _)| d <= limit)
                 .collect();
             all.sort_by(|a, b| a.partial_cmp(b).unwrap());
-            let (nearest, second) = tree.nearest_two_within(q, limit);
-            assert_eq!(nearest, all.first().copied());
-            assert_eq!(nearest, tree.nearest_within(q, limit));
-            assert_eq!(second, all.get(1).map_or(limit, |s| s.0));
+            all.truncate(8);
+            tree.knn_within(q, 8, limit, &mut out);
+            assert_eq!(out, all);
         }
     }
 
