@@ -138,10 +138,10 @@ class Peers:
         extra = {}
         if settings:
             # The step epsilons as earcore's (its sigma test off).
-            extra = dict(max_iterations=settings["max_iterations"], rotation_epsilon=settings["rotation_tolerance"],
-                         translation_epsilon=settings["translation_tolerance"])
-        r = self.sg.align(self.sg_target, sg_source, self.sg_tree, registration_type=kind, max_correspondence_distance=radius,
-                          num_threads=1, **extra)
+            extra = dict(
+                max_iterations=settings["max_iterations"], rotation_epsilon=settings["rotation_tolerance"], translation_epsilon=settings["translation_tolerance"]
+            )
+        r = self.sg.align(self.sg_target, sg_source, self.sg_tree, registration_type=kind, max_correspondence_distance=radius, num_threads=1, **extra)
         return r.T_target_source, r.iterations
 
 
@@ -154,8 +154,10 @@ def main() -> None:
     earcore.set_num_threads(1)
     cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), "?")
     print(f"# whole point-to-plane alignments, one thread; {cpu}, {os.cpu_count()} cores\n")
-    print("| scene | target | source | offset | radius | earcore matched ms (it, mm/°) | small_gicp PLANE_ICP matched ms (it, mm/°) | ratio | "
-          "earcore default ms (it, mm/°) | small_gicp default ms (it, mm/°) | ratio | small_gicp GICP matched ms |")
+    print(
+        "| scene | target | source | offset | radius | earcore matched ms (it, mm/°) | small_gicp PLANE_ICP matched ms (it, mm/°) | ratio | "
+        "earcore default ms (it, mm/°) | small_gicp default ms (it, mm/°) | ratio | small_gicp GICP matched ms |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     worst = {"matched": np.inf, "default": np.inf}
     for scene in args.scenes.split(","):
@@ -190,9 +192,12 @@ def main() -> None:
                 ratio_m, ratio_d = cells[1][0] / cells[0][0], cells[3][0] / cells[2][0]
                 worst["matched"] = min(worst["matched"], ratio_m)
                 worst["default"] = min(worst["default"], ratio_d)
-                print(f"| {scene} | {len(target) // 1000}k | {len(source) // 1000}k | {metres * 100:.0f} cm/{degrees:.0f}° | {radius} | "
-                      f"{fmt(cells[0])} | {fmt(cells[1])} | {ratio_m:.2f}× | {fmt(cells[2])} | {fmt(cells[3])} | {ratio_d:.2f}× | "
-                      f"{1e3 * cells[4][0]:.1f} ({cells[4][1]}, {cells[4][2]:.2f}/{cells[4][3]:.3f}) |", flush=True)
+                print(
+                    f"| {scene} | {len(target) // 1000}k | {len(source) // 1000}k | {metres * 100:.0f} cm/{degrees:.0f}° | {radius} | "
+                    f"{fmt(cells[0])} | {fmt(cells[1])} | {ratio_m:.2f}× | {fmt(cells[2])} | {fmt(cells[3])} | {ratio_d:.2f}× | "
+                    f"{1e3 * cells[4][0]:.1f} ({cells[4][1]}, {cells[4][2]:.2f}/{cells[4][3]:.3f}) |",
+                    flush=True,
+                )
     print(f"\nworst ratio small_gicp / earcore: matched {worst['matched']:.2f}×, defaults {worst['default']:.2f}×")
 
 

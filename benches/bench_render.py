@@ -103,8 +103,11 @@ def main() -> None:
             diffs.append(np.abs(zr - zt)[same])
         d = np.concatenate(diffs)
         a, b = np.mean(t_tiny), np.mean(t_raster)
-        print(f"| {name} | {len(cell.cameras)} | {1e3 * a:.1f} | {1e3 * b:.1f} | {a / b:.1f}× | {100 * min(agree):.2f} % (worst camera) | "
-              f"{1e3 * np.median(d):.3f} / {1e3 * np.percentile(d, 99):.2f} |", flush=True)
+        print(
+            f"| {name} | {len(cell.cameras)} | {1e3 * a:.1f} | {1e3 * b:.1f} | {a / b:.1f}× | {100 * min(agree):.2f} % (worst camera) | "
+            f"{1e3 * np.median(d):.3f} / {1e3 * np.percentile(d, 99):.2f} |",
+            flush=True,
+        )
         cell.close()
 
 

@@ -69,8 +69,20 @@ class Rasterizer:
             raise ValueError(f"K must be 3×3, got {K.shape}")
         light = light or Light()
         return self._core.render(
-            poses, flags.tolist(), K[0, 0], K[1, 1], K[0, 2], K[1, 2], int(width), int(height), float(near), float(far),
-            tuple(light.direction), light.ambient, light.diffuse, (int(background[0]), int(background[1]), int(background[2])),
+            poses,
+            flags.tolist(),
+            K[0, 0],
+            K[1, 1],
+            K[0, 2],
+            K[1, 2],
+            int(width),
+            int(height),
+            float(near),
+            float(far),
+            tuple(light.direction),
+            light.ambient,
+            light.diffuse,
+            (int(background[0]), int(background[1]), int(background[2])),
         )
 
 

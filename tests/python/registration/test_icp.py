@@ -143,3 +143,67 @@ def test_multi_camera_fine_alignment():
         dt, dr = errors(est, truth)
         assert start[1] > 2.9
         assert dt <= 0.003 and dr <= 0.2, (dt, dr, start)
+
+
+def pose_covariance(source, target_points, target_normals, transform, radius):
+    """σ²·H⁻¹ of the point-to-plane fit at `transform`, from the pairs recomputed with
+    scipy's k-d tree (independent of the core): J = [p' × n, n], σ² the residuals'
+    variance."""
+    from scipy.spatial import cKDTree
+
+    moved = source @ transform[:3, :3].T + transform[:3, 3]
+    d, j = cKDTree(target_points).query(moved, distance_upper_bound=radius)
+    keep = np.isfinite(d)
+    p, q, n = moved[keep], target_points[j[keep]], target_normals[j[keep]]
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    r = np.einsum("ij,ij->i", p - q, n)
+    jac = np.hstack([np.cross(p, n), n])
+    sigma2 = r @ r / (len(r) - 6)
+    return sigma2 * np.linalg.inv(jac.T @ jac)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_default_stop_is_within_a_standard_deviation_of_the_converged_pose(scene, seed):
+    """The default rule stops at the first step shorter than one standard deviation of
+    the estimate: the result lies within a few of them of where ICP ends when run to
+    the end, in fewer iterations. Noisy source, both the coarse-to-fine path (many
+    points) and the plain one (few)."""
+    pytest.importorskip("scipy")
+    pts, normals = scene
+    rng = np.random.default_rng(seed)
+    truth = pose(rng.normal(size=3), rng.uniform(3, 8), rng.uniform(-0.06, 0.06, 3))
+    for count in (3000, 12000):
+        base = pts[rng.choice(len(pts), min(count, len(pts)), replace=False)]
+        source = (base - truth[:3, 3]) @ truth[:3, :3] + rng.normal(0, 0.003, base.shape)
+        target = earcore.PlaneTarget(pts, normals)
+        default = earcore.icp_point_to_plane(source, target, max_correspondence_distance=0.3, max_iterations=200)
+        full = earcore.icp_point_to_plane(source, target, max_correspondence_distance=0.3, max_iterations=200, sigma_tolerance=0.0)
+        assert default.converged and default.iterations < full.iterations
+        cov = pose_covariance(source, pts, normals, full.transform, 0.3)
+        # The difference as a small-angle step (ω, t) applied on the left, in σ units.
+        d = default.transform @ np.linalg.inv(full.transform)
+        omega = np.array([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]]) / 2
+        step = np.concatenate([omega, d[:3, 3]])
+        mahalanobis = float(np.sqrt(step @ np.linalg.solve(cov, step)))
+        assert mahalanobis < 3.0, (count, mahalanobis)
+        assert errors(default.transform, truth)[0] < 0.005
+
+
+def test_step_tolerances_are_small_gicps_epsilons(scene):
+    """translation_tolerance / rotation_tolerance stop at the first step below both (as
+    small_gicp's and Open3D's epsilons): loose ones stop early and far, tight ones later
+    and close; with every test off it runs to max_iterations."""
+    pts, normals = scene
+    truth = pose([0.3, -1, 0.5], 6.0, [0.04, 0.03, -0.05])
+    source = (pts[::2] - truth[:3, 3]) @ truth[:3, :3]
+    source = source + np.random.default_rng(4).normal(0, 0.004, source.shape)
+    target = earcore.PlaneTarget(pts, normals)
+    off = dict(sigma_tolerance=0.0, max_correspondence_distance=0.3)
+    loose = earcore.icp_point_to_plane(source, target, translation_tolerance=5e-3, rotation_tolerance=5e-3, **off)
+    tight = earcore.icp_point_to_plane(source, target, translation_tolerance=1e-6, rotation_tolerance=1e-6, **off)
+    never = earcore.icp_point_to_plane(source, target, max_iterations=60, **off)
+    assert loose.converged and tight.converged and loose.iterations < tight.iterations
+    assert not never.converged and never.iterations == 60
+    # Tight ends where running on ends; loose stops short of it.
+    assert errors(tight.transform, never.transform)[0] < 1e-5
+    assert errors(loose.transform, never.transform)[0] > errors(tight.transform, never.transform)[0]

@@ -53,8 +53,12 @@ def test_a_box_in_any_pose_has_the_ray_cast_depth(seed):
     inside = truth > 0
     # Pixels whose ray grazes an edge may fall either side; everything else agrees.
     edge = np.zeros_like(inside)
-    edge[1:-1, 1:-1] = (inside[1:-1, 1:-1] != inside[:-2, 1:-1]) | (inside[1:-1, 1:-1] != inside[2:, 1:-1]) | (
-        inside[1:-1, 1:-1] != inside[1:-1, :-2]) | (inside[1:-1, 1:-1] != inside[1:-1, 2:])
+    edge[1:-1, 1:-1] = (
+        (inside[1:-1, 1:-1] != inside[:-2, 1:-1])
+        | (inside[1:-1, 1:-1] != inside[2:, 1:-1])
+        | (inside[1:-1, 1:-1] != inside[1:-1, :-2])
+        | (inside[1:-1, 1:-1] != inside[1:-1, 2:])
+    )
     firm = ~edge
     assert inside.sum() > 100
     assert np.array_equal(label[firm] == 5, inside[firm]) and (label[~inside & firm] == -1).all()
@@ -203,9 +207,14 @@ def test_a_camera_is_not_rendered_when_its_frame_would_be_replaced_unread():
     from earcore.sim.cell import SimulatedCell
     from earcore.sim.config import CameraConfig, CellConfig
 
-    config = CellConfig(cameras=[CameraConfig("fast", "f200", (1.0, 0.5, 0.8), (0.3, 0.0, 0.2), rate_hz=30.0),
-                                 CameraConfig("slow", "kinect_v1", (1.2, -0.5, 1.0), (0.3, 0.0, 0.2), rate_hz=15.0)],
-                        camera_scale=0.25, time_step=1 / 30)
+    config = CellConfig(
+        cameras=[
+            CameraConfig("fast", "f200", (1.0, 0.5, 0.8), (0.3, 0.0, 0.2), rate_hz=30.0),
+            CameraConfig("slow", "kinect_v1", (1.2, -0.5, 1.0), (0.3, 0.0, 0.2), rate_hz=15.0),
+        ],
+        camera_scale=0.25,
+        time_step=1 / 30,
+    )
     cell = SimulatedCell(config)
     try:
         consumer, rendered, reads, everything = 0.0, [], [], []
