@@ -375,7 +375,8 @@ def describe(v):
     if isinstance(v, np.ndarray):
         flags = "".join(f for f, on in [("C", v.flags.c_contiguous), ("F", v.flags.f_contiguous),
                                         ("A", v.flags.aligned), ("W", v.flags.writeable)] if on)
-        head = np.ravel(v)[:3].tolist() if v.dtype != object else "objects"
+        # `flat` reads the first values without a copy (a broadcast view may be vast).
+        head = [v.flat[i] for i in range(min(3, v.size))] if v.dtype != object else "objects"
         return f"{type(v).__name__}({v.dtype}, {v.shape}, flags={flags}, strides={v.strides}, head={head})"
     if isinstance(v, list) and len(v) > 4:
         return f"list(len={len(v)})"
