@@ -95,7 +95,7 @@ def main() -> None:
 
         def ours(tgt):
             r = earcore.icp_point_to_plane(moved, tgt, np.eye(4), max_correspondence_distance=0.05,
-                                           translation_tolerance=1e-5, rotation_tolerance=1e-5)
+                                           translation_tolerance=1e-5, rotation_tolerance=1e-5, sigma_tolerance=0.0)
             return r.transform, r.iterations
 
         def sg(kind):

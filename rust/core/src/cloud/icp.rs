@@ -186,8 +186,13 @@ impl IcpTarget for PlaneTarget {
                         }
                     });
             let others = m.beyond - moved;
-            // A margin far above rounding, far below any gap that matters.
-            let margin = 1e-9 * (1.0 + m.beyond.min(1e6));
+            // A margin far above rounding (which grows with the coordinates' size), far
+            // below any gap that matters.
+            let size = p
+                .iter()
+                .chain(&m.at)
+                .fold(m.beyond.min(f64::MAX), |a, v| a.max(v.abs()));
+            let margin = 1e-9 * (1.0 + m.beyond.min(1e6)) + 1e-12 * size;
             if best.0.sqrt() + margin < others {
                 return found(best);
             }
@@ -458,12 +463,13 @@ pub fn icp_point_to_plane_interruptible(
             interrupt,
         ) {
             Ok(false) => return Ok(None),
-            // Too few of the subset's points paired: every point decides.
+            // Too few of the subset's points paired to decide anything: every point does.
             Err(_) => {}
-            Ok(true) => {
+            Ok(true) if trial.fitness * coarse.len() as f64 >= COARSE_MIN_PAIRS as f64 => {
                 transform = at;
                 result.iterations = trial.iterations;
             }
+            Ok(true) => {}
         }
     }
     let fine_params = IcpParams {
@@ -497,6 +503,9 @@ pub fn icp_point_to_plane_interruptible(
 
 /// Source points of the coarse stage (when the source has at least twice as many).
 const COARSE_POINTS: usize = 4096;
+
+/// Pairs the coarse stage must end with for its pose to be kept (fewer fit noise).
+const COARSE_MIN_PAIRS: usize = 256;
 
 /// Gauss-Newton steps on `source` (Morton-ordered) from `transform` until `params` say
 /// stop, recording the last step's statistics in `result` (`iterations` counts this
@@ -555,12 +564,15 @@ fn iterate<T: IcpTarget>(
         let delta =
             Translation3::from(delta_t).to_homogeneous() * Rotation3::new(omega).to_homogeneous();
         *transform = delta * *transform;
-        // δᵀHδ = −δᵀg for the undamped step; the residual variance floored at (1 nm)²
-        // so that noise-free data still converges.
-        let variance = (system.squared / (system.pairs - 6).max(1) as f64).max(1e-18);
+        // δᵀHδ = −δᵀg for the undamped step; the residual variance weighted as H and g
+        // are (a Huber kernel's), floored at (1 nm)² so that noise-free data converges.
+        let variance = (system.weighted / (system.pairs - 6).max(1) as f64).max(1e-18);
         let sigmas = (-step.dot(&system.g)).max(0.0) / variance;
-        let small_step = omega.norm() < params.rotation_tolerance
-            && delta_t.norm() < params.translation_tolerance;
+        // The step test with the tolerances given; a zero one is not part of it.
+        let (tt, rt) = (params.translation_tolerance, params.rotation_tolerance);
+        let small_step = (tt > 0.0 || rt > 0.0)
+            && (tt == 0.0 || delta_t.norm() < tt)
+            && (rt == 0.0 || omega.norm() < rt);
         if small_step || sigmas < params.sigma_tolerance * params.sigma_tolerance {
             result.converged = true;
             break;
@@ -579,6 +591,8 @@ struct NormalEquations {
     h: Matrix6<f64>,
     g: Vector6<f64>,
     squared: f64,
+    /// Σ w r²: the residual variance's numerator under the kernel's weights, as H and g.
+    weighted: f64,
     pairs: usize,
 }
 
@@ -598,6 +612,7 @@ fn normal_equations<T: IcpTarget>(
             h: Matrix6::zeros(),
             g: Vector6::zeros(),
             squared: 0.0,
+            weighted: 0.0,
             pairs: 0,
         };
         // Each run's cursor is locked by one thread only: never contended.
@@ -624,6 +639,7 @@ fn normal_equations<T: IcpTarget>(
             acc.h += jac * jac.transpose() * weight;
             acc.g += jac * (residual * weight);
             acc.squared += residual * residual;
+            acc.weighted += weight * residual * residual;
             acc.pairs += 1;
         }
         acc
@@ -633,12 +649,14 @@ fn normal_equations<T: IcpTarget>(
             h: Matrix6::zeros(),
             g: Vector6::zeros(),
             squared: 0.0,
+            weighted: 0.0,
             pairs: 0,
         },
         |a, b| NormalEquations {
             h: a.h + b.h,
             g: a.g + b.g,
             squared: a.squared + b.squared,
+            weighted: a.weighted + b.weighted,
             pairs: a.pairs + b.pairs,
         },
     )
@@ -731,8 +749,17 @@ mod tests {
             normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
         }
         let target = PlaneTarget::new(&points, &normals).unwrap();
-        // Half of the source overlaps the target, half lies 0.3-0.8 m beyond it.
+        // Half of the source overlaps the target, half lies 0.3-0.8 m beyond it, and a
+        // few hover 4-7 cm over the floor: they start out of the smallest reach (the
+        // offset lifts them) and come into it.
         let mut source: Vec<[f64; 3]> = points.iter().step_by(3).take(3000).copied().collect();
+        source.extend((0..500).map(|_| {
+            [
+                rng.uniform(0.1, 0.9),
+                rng.uniform(0.1, 0.9),
+                rng.uniform(0.045, 0.056),
+            ]
+        }));
         source.extend((0..3000).map(|_| {
             [
                 rng.uniform(1.3, 1.8),
@@ -744,6 +771,7 @@ mod tests {
             let mut initial = Matrix4::identity();
             initial[(0, 3)] = offset;
             initial[(1, 3)] = -offset / 2.0;
+            initial[(2, 3)] = offset;
             let params = IcpParams {
                 max_iterations: 30,
                 max_correspondence_distance: radius,

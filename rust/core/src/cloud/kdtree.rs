@@ -191,9 +191,6 @@ impl KdTree {
         );
     }
 
-    /// Depth-first search for the `k` nearest to `q`, gathering them in `best`: the
-    /// far side of a split is visited while it can hold a point nearer than the
-    /// worst kept.
     /// The up to `k` nearest points within squared distance `limit` (inclusive) of
     /// `q`, as [`Self::knn`] gives them (nearest first, ties by index).
     pub fn knn_within(&self, q: [f64; 3], k: usize, limit: f64, out: &mut Vec<(f64, u32)>) {
@@ -204,6 +201,9 @@ impl KdTree {
         self.search(0, q, k, None, &mut Bounded { kept: out, limit });
     }
 
+    /// Depth-first search for the `k` nearest to `q`, gathering them in `best`: the
+    /// far side of a split is visited while it can hold a point nearer than the
+    /// worst kept.
     fn search<C: Candidates>(
         &self,
         node: u32,
@@ -275,9 +275,6 @@ impl Candidates for Vec<(f64, u32)> {
     }
 }
 
-/// For large k: a max-heap of (distance bits, index), where an insertion costs
-/// O(log k) instead of shifting up to k entries (which made k near N quadratic per
-/// query). Squared distances are never negative, so their bits order as the numbers do.
 /// The sorted array, taking only points within `limit` and pruning by it until full.
 struct Bounded<'a> {
     kept: &'a mut Vec<(f64, u32)>,
@@ -296,6 +293,9 @@ impl Candidates for Bounded<'_> {
     }
 }
 
+/// For large k: a max-heap of (distance bits, index), where an insertion costs
+/// O(log k) instead of shifting up to k entries (which made k near N quadratic per
+/// query). Squared distances are never negative, so their bits order as the numbers do.
 impl Candidates for std::collections::BinaryHeap<(u64, u32)> {
     fn offer(&mut self, d: f64, i: u32, k: usize) {
         let entry = (d.to_bits(), i);
