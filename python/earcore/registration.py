@@ -51,7 +51,8 @@ def icp_point_to_plane(
     cannot tell from noise), or at the first step that moves less than
     `translation_tolerance` metres and turns less than `rotation_tolerance` radians
     (small_gicp's `translation_epsilon` / `rotation_epsilon`, Open3D's step criteria).
-    Either test is off at 0.
+    `sigma_tolerance=0` turns the first test off; a zero step tolerance is left out of the
+    second (both zero: no step test).
 
     Returns an `IcpResult` (transform, rmse, fitness, iterations, converged,
     degenerate, conditioning); warns with `DegenerateAlignmentWarning` when the
