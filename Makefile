@@ -97,6 +97,7 @@ bench-python: develop ## only the side-by-side comparisons (vs pyoctomap, python
 	$(PY) benches/bench_preprocess.py
 	$(PY) benches/bench_icp_iteration.py
 	$(PY) benches/bench_icp_vs_peers.py
+	$(PY) benches/bench_icp_matrix.py
 	$(PY) benches/bench_surface_map.py
 	$(PY) benches/bench_render.py
 
