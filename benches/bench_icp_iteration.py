@@ -24,7 +24,7 @@ import earcore
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_perception import base_points, load_frames  # noqa: E402
-from bench_vs_octomap import median_time as median_of  # noqa: E402
+from timing import median_time as median_of  # noqa: E402
 
 
 def main() -> None:

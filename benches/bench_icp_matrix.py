@@ -29,7 +29,6 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import sys  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -39,6 +38,7 @@ from earcore.synthetic import handheld_trajectory, lidar_room, look_at, random_s
 from earcore.transforms import axis_angle_matrix  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
+from timing import median_time  # noqa: E402
 
 MATCHED = dict(max_iterations=50, translation_tolerance=1e-5, rotation_tolerance=1e-5, sigma_tolerance=0.0)
 
@@ -104,15 +104,6 @@ def offset(rng, metres, degrees):
 def error(transform):
     cos = np.clip((np.trace(transform[:3, :3]) - 1) / 2, -1.0, 1.0)
     return 1e3 * float(np.linalg.norm(transform[:3, 3])), float(np.degrees(np.arccos(cos)))
-
-
-def timed(fn, repeats):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times)), out
 
 
 class Peers:
@@ -182,7 +173,7 @@ def main() -> None:
                     ("gicp", lambda: peers.small_gicp(source, radius, "GICP", MATCHED)),
                 ]:
                     try:
-                        seconds, (transform, iterations) = timed(fn, args.repeats)
+                        seconds, (transform, iterations) = median_time(fn, args.repeats)
                         mm, deg = error(np.asarray(transform) @ np.linalg.inv(answer))
                         cells.append((seconds, iterations, mm, deg))
                     except Exception as exc:  # noqa: BLE001 - a refusal is a result

@@ -37,7 +37,7 @@ import earcore  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_perception import base_points, load_frames  # noqa: E402
-from bench_vs_octomap import median_time  # noqa: E402
+from timing import median_time  # noqa: E402
 
 
 def error(transform: np.ndarray) -> tuple[float, float]:

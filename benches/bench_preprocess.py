@@ -28,7 +28,7 @@ import earcore
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_perception import base_points, load_frames  # noqa: E402
-from bench_vs_octomap import median_time  # noqa: E402
+from timing import median_time  # noqa: E402
 
 
 def earcore_stages(points: np.ndarray, repeats: int) -> dict[str, float]:

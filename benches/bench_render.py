@@ -17,13 +17,13 @@ elevation 15-60°).
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
 from earcore.sim.camera import opengl_view
 from earcore.sim.cell import SimulatedCell
 from earcore.sim.config import CameraConfig, CellConfig, calibration_cameras, default_cameras
+from timing import median_time
 
 
 def random_cameras(seed: int) -> list[CameraConfig]:
@@ -67,15 +67,6 @@ def raster(cell, cam):
     return depth, label
 
 
-def timed(fn, repeats):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times)), out
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=5)
@@ -94,8 +85,8 @@ def main() -> None:
         t_tiny, t_raster, agree, diffs = [], [], [], []
         for cam in cell.cameras:
             raster(cell, cam)  # the meshes are read on the first draw
-            a, (zt, lt) = timed(lambda: tiny(cell, cam), args.repeats)
-            b, (zr, lr) = timed(lambda: raster(cell, cam), args.repeats)
+            a, (zt, lt) = median_time(lambda: tiny(cell, cam), args.repeats)
+            b, (zr, lr) = median_time(lambda: raster(cell, cam), args.repeats)
             t_tiny.append(a)
             t_raster.append(b)
             agree.append((lt == lr).mean())

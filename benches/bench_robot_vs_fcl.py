@@ -20,23 +20,12 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
-import time
 
 import numpy as np
 
 import earcore
 import earcore.robots
-
-
-def median_time(fn, repeats: int) -> tuple[float, object]:
-    fn()
-    times, result = [], None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times), result
+from timing import median_time
 
 
 def fcl_objects(model, q):
