@@ -332,14 +332,10 @@ pub fn incidence_cosines<'py>(
     fy: f64,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let (h, w) = (depth.shape()[0], depth.shape()[1]);
-    // Borrowed: the Python layer makes the image contiguous, and copying here could
-    // meet a broadcast array of any size.
-    let values = depth.as_slice().map_err(|_| {
-        pyo3::exceptions::PyTypeError::new_err("depth must be a C-contiguous array")
-    })?;
+    let values = crate::convert::contiguous_slice(&depth, "depth")?;
     let out = py
         .detach(|| cloud::incidence_cosines(values, w, h, fx, fy))
         .py()?;
-    let image = numpy::ndarray::Array2::from_shape_vec((h, w), out).expect("one angle per pixel");
+    let image = crate::convert::shaped(numpy::ndarray::Array2::from_shape_vec((h, w), out))?;
     Ok(numpy::IntoPyArray::into_pyarray(image, py))
 }

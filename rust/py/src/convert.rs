@@ -266,3 +266,22 @@ pub fn configurations(
     let values: PyReadonlyArray1<f64> = flat.extract()?;
     Ok((values.as_array().to_vec(), k, single))
 }
+
+/// A C-contiguous array's values, borrowed (the Python layer makes arrays contiguous:
+/// copying here could meet a broadcast array of any size).
+pub fn contiguous_slice<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(
+    array: &'a numpy::PyReadonlyArray<'_, T, D>,
+    name: &str,
+) -> PyResult<&'a [T]> {
+    array.as_slice().map_err(|_| {
+        pyo3::exceptions::PyTypeError::new_err(format!("{name} must be a C-contiguous array"))
+    })
+}
+
+/// A core result's values laid out as an array; the sizes agree by construction, and
+/// should they not, a `ValueError` rather than a panic.
+pub fn shaped<A>(array: Result<A, numpy::ndarray::ShapeError>) -> PyResult<A> {
+    array.map_err(|e| {
+        PyValueError::new_err(format!("internal error: a result of the wrong size ({e})"))
+    })
+}

@@ -9,7 +9,7 @@ use numpy::{
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use crate::convert::{numbers, points};
+use crate::convert::{contiguous_slice, numbers, points, shaped};
 use crate::errors::IntoPyResult;
 
 /// (rgb (H, W, 3) uint8, depth (H, W) float64, label (H, W) int64).
@@ -120,9 +120,9 @@ impl PyRasterizer {
         let out = py
             .detach(|| self.inner.render(&poses, &camera, &light, background))
             .py()?;
-        let rgb = Array3::from_shape_vec((height, width, 3), out.rgb).expect("the render's size");
-        let depth = Array2::from_shape_vec((height, width), out.depth).expect("the render's size");
-        let label = Array2::from_shape_vec((height, width), out.label).expect("the render's size");
+        let rgb = shaped(Array3::from_shape_vec((height, width, 3), out.rgb))?;
+        let depth = shaped(Array2::from_shape_vec((height, width), out.depth))?;
+        let label = shaped(Array2::from_shape_vec((height, width), out.label))?;
         Ok((
             rgb.into_pyarray(py),
             depth.into_pyarray(py),
@@ -217,11 +217,11 @@ impl PyPixelMap {
         let out = py
             .detach(|| render::remap_bilinear(data, channels, &self.inner))
             .py()?;
-        Ok(
-            Array3::from_shape_vec((self.shape.0, self.shape.1, channels), out)
-                .expect("the map's size")
-                .into_pyarray(py),
-        )
+        Ok(shaped(Array3::from_shape_vec(
+            (self.shape.0, self.shape.1, channels),
+            out,
+        ))?
+        .into_pyarray(py))
     }
 
     /// Nearest-sample resampling of an (h, w) int64 image.
@@ -235,9 +235,7 @@ impl PyPixelMap {
         let out = py
             .detach(|| render::remap_nearest(data, &self.inner))
             .py()?;
-        Ok(Array2::from_shape_vec(self.shape, out)
-            .expect("the map's size")
-            .into_pyarray(py))
+        Ok(shaped(Array2::from_shape_vec(self.shape, out))?.into_pyarray(py))
     }
 
     /// Depth resampling of an (h, w) float64 image (0 = no return).
@@ -252,19 +250,6 @@ impl PyPixelMap {
         let out = py
             .detach(|| render::remap_depth(data, &self.inner, edge))
             .py()?;
-        Ok(Array2::from_shape_vec(self.shape, out)
-            .expect("the map's size")
-            .into_pyarray(py))
+        Ok(shaped(Array2::from_shape_vec(self.shape, out))?.into_pyarray(py))
     }
-}
-
-/// A C-contiguous array's values, borrowed (the Python layer makes arrays contiguous:
-/// copying here could meet a broadcast array of any size).
-fn contiguous_slice<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(
-    array: &'a numpy::PyReadonlyArray<'_, T, D>,
-    name: &str,
-) -> PyResult<&'a [T]> {
-    array.as_slice().map_err(|_| {
-        pyo3::exceptions::PyTypeError::new_err(format!("{name} must be a C-contiguous array"))
-    })
 }

@@ -5,6 +5,7 @@
 use std::sync::{Arc, Mutex, OnceLock};
 
 use crate::error::{Error, Result};
+use crate::geometry::{cross, dot};
 use crate::na::Matrix4;
 
 /// Pinhole intrinsics in pixels.
@@ -336,14 +337,9 @@ pub fn incidence_cosines(
                 _ => diff(i - 1, i + 1, 2.0),
             };
             let dv = diff(up + c, down + c, vstep);
-            let n = [
-                du[1] * dv[2] - du[2] * dv[1],
-                du[2] * dv[0] - du[0] * dv[2],
-                du[0] * dv[1] - du[1] * dv[0],
-            ];
-            let norm2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
-            let range2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
-            let cos = (n[0] * p[0] + n[1] * p[1] + n[2] * p[2]).abs() / (norm2 * range2).sqrt();
+            let n = cross(&du, &dv);
+            let norm2 = dot(&n, &n);
+            let cos = dot(&n, &p).abs() / (norm2 * dot(&p, &p)).sqrt();
             out.push(if norm2 > 0.0 && cos.is_finite() {
                 cos.min(1.0)
             } else {

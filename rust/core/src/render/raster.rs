@@ -3,6 +3,7 @@
 //! inverse depth is interpolated linearly in the image (which is exact for a plane
 //! seen in perspective), so depth is the surface's own along each pixel's ray.
 
+use crate::geometry::{cross, dot, sub};
 use crate::{Error, Result};
 
 /// The largest image drawn (64 Mpx: about 2 GB of buffers while drawing).
@@ -236,12 +237,12 @@ impl Rasterizer {
                 if in_front && !camera.covers_a_pixel(&[projected[a], projected[b], projected[c]]) {
                     continue;
                 }
-                let normal = cross(sub(tri[1], tri[0]), sub(tri[2], tri[0]));
-                let len = dot(normal, normal).sqrt();
+                let normal = cross(&sub(&tri[1], &tri[0]), &sub(&tri[2], &tri[0]));
+                let len = dot(&normal, &normal).sqrt();
                 if len.is_nan() || len <= 0.0 {
                     continue;
                 }
-                let cosine = (dot(normal, towards_light) / len).abs();
+                let cosine = (dot(&normal, &towards_light) / len).abs();
                 let gain = (light.ambient + light.diffuse * cosine).clamp(0.0, 1.0);
                 let colour = mesh
                     .rgb
@@ -395,22 +396,6 @@ impl Frame<'_> {
             label: self.label,
         }
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 #[cfg(test)]

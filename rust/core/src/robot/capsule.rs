@@ -1,7 +1,7 @@
 //! Capsules (a segment swept by a sphere) and the exact distance queries the robot
 //! bodies need: point–segment, segment–box (axis-aligned voxel) and segment–segment.
 
-use crate::geometry::distance_squared;
+use crate::geometry::{distance_squared, dot, sub};
 use crate::robot::chain::Frame;
 
 /// The segment `a`–`b` swept by a sphere of `radius` (in the frame it is given in).
@@ -75,16 +75,6 @@ pub fn lerp(a: &[f64; 3], b: &[f64; 3], t: f64) -> [f64; 3] {
         a[1] + t * (b[1] - a[1]),
         a[2] + t * (b[2] - a[2]),
     ]
-}
-
-#[inline]
-fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-#[inline]
-fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// Parameter of the point of segment `a`–`b` closest to `p`.
