@@ -107,21 +107,25 @@ for resolution in (0.05, 0.02):
 """
 
 
-def _cpu_has_avx2() -> bool:
+def _cpu_flags() -> set[str]:
     try:
         with open("/proc/cpuinfo") as f:
-            return " avx2" in f.read()
+            return {flag for line in f if line.startswith("flags") for flag in line.split(":", 1)[1].split()}
     except OSError:
-        return False
+        return set()
 
 
-@pytest.mark.skipif(not _cpu_has_avx2(), reason="the batched ray walk needs AVX2 (x86-64 Linux)")
+@pytest.mark.skipif("avx2" not in _cpu_flags(), reason="the batched ray walk needs AVX2 (x86-64 Linux)")
 def test_scalar_walk_fallback_builds_the_same_maps(tmp_path):
-    """The batched (AVX2) ray walk and the scalar walk CPUs without AVX2 use agree byte
-    for byte; `EARCORE_NO_AVX2` forces the scalar walk (read once per process)."""
+    """The batched ray walks (AVX-512 where the CPU has it, AVX2) and the scalar walk
+    CPUs without AVX2 use agree byte for byte; `EARCORE_NO_AVX512` forces the AVX2
+    walk, `EARCORE_NO_AVX2` the scalar one (read once per process)."""
     tests = os.path.dirname(os.path.dirname(os.path.dirname(__file__)))  # where reference.py is
-    plain = {k: v for k, v in os.environ.items() if k != "EARCORE_NO_AVX2"}
-    for name, extra in (("batched", {}), ("scalar", {"EARCORE_NO_AVX2": "1"})):
+    plain = {k: v for k, v in os.environ.items() if k not in ("EARCORE_NO_AVX2", "EARCORE_NO_AVX512")}
+    walks = [("batched", {}), ("scalar", {"EARCORE_NO_AVX2": "1"})]
+    if "avx512f" in _cpu_flags():
+        walks.append(("avx2", {"EARCORE_NO_AVX512": "1"}))
+    for name, extra in walks:
         (tmp_path / name).mkdir()
         env = {**plain, **extra}
         subprocess.run(
@@ -129,8 +133,9 @@ def test_scalar_walk_fallback_builds_the_same_maps(tmp_path):
         )
     files = sorted(p.name for p in (tmp_path / "batched").iterdir())
     assert len(files) == 8
-    for f in files:
-        assert (tmp_path / "batched" / f).read_bytes() == (tmp_path / "scalar" / f).read_bytes(), f
+    for name, _ in walks[1:]:
+        for f in files:
+            assert (tmp_path / "batched" / f).read_bytes() == (tmp_path / name / f).read_bytes(), (name, f)
 
 
 def test_update_node_matches_octomap(octomap, tmp_path):

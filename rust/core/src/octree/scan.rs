@@ -70,7 +70,7 @@ impl OcTree {
             points
         };
         let volume = self.trace(&rays, origin, max_range, hits);
-        let mut updates: Vec<KeyUpdate> = Vec::new();
+        let mut updates: Vec<KeyUpdate> = Vec::with_capacity(volume.marked_bound());
         let mut hits = Vec::new();
         let (hit, miss) = (self.lo.hit, self.lo.miss);
         volume.for_each_sorted(|code, is_hit| {
@@ -212,10 +212,11 @@ fn key_bounds(
 ) -> (OcTreeKey, OcTreeKey) {
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
+    // Comparisons, not `f32::min`: the points are finite, and this form vectorises.
     for p in points.iter().chain(std::iter::once(&origin)) {
         for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
+            lo[a] = if p[a] < lo[a] { p[a] } else { lo[a] };
+            hi[a] = if p[a] > hi[a] { p[a] } else { hi[a] };
         }
     }
     // Points were validated, so both corners map to keys; clamp the widened box.
@@ -248,28 +249,36 @@ fn trace_part(
     scratch: &mut TraceScratch,
 ) {
     let TraceScratch { ends, end_keys } = scratch;
-    ends.clear();
+    // Rays beyond `max_range` end there and mark no hit; within it they end at their
+    // point (the common case needs no copy).
+    let cut = |p: Point3f| match max_range {
+        Some(r) if norm(sub(p, origin)) > r => {
+            Some(point_at(origin, normalized(sub(p, origin)), r as f32))
+        }
+        _ => None,
+    };
+    let ends: &[Point3f] = match max_range {
+        None => points,
+        Some(_) => {
+            ends.clear();
+            ends.extend(points.iter().map(|&p| cut(p).unwrap_or(p)));
+            ends
+        }
+    };
     end_keys.clear();
-    for &p in points {
-        let within = match max_range {
-            None => true,
-            Some(r) => norm(sub(p, origin)) <= r,
-        };
-        let (end, key) = if within {
-            // The scan was checked: every point has a key.
-            let key = conv.coord_to_key_checked(p);
-            if let (true, Some(k)) = (hits, key) {
-                volume.mark_occupied(k);
-            }
-            (p, key)
-        } else {
-            // Cut at max_range: free cells only, no hit.
-            let r = max_range.unwrap_or(f64::INFINITY);
-            let end = point_at(origin, normalized(sub(p, origin)), r as f32);
-            (end, conv.coord_to_key_checked(end))
-        };
-        ends.push(end);
-        end_keys.push(key);
+    match max_range {
+        // The scan was checked: every point has a key.
+        None => end_keys.extend(ends.iter().map(|&p| Some(conv.key_of_checked_point(p)))),
+        Some(_) => end_keys.extend(ends.iter().map(|&p| conv.coord_to_key_checked(p))),
+    }
+    if hits {
+        let within = |i: usize| max_range.is_none() || cut(points[i]).is_none();
+        volume.mark_all_occupied(
+            end_keys
+                .iter()
+                .enumerate()
+                .filter_map(|(i, k)| k.filter(|_| within(i))),
+        );
     }
     // The batched walk takes the rays it can; the scalar walk does the rest. Rays with
     // a cell outside the dense box (rounding at its edge, or no box at all) are redone

@@ -18,9 +18,6 @@ const BRICK_WORDS: usize = 8; // 512 cells / 64 bits
 /// Most bricks a dense box may hold (8 MiB per kind of mark).
 const MAX_DENSE_BRICKS: usize = 1 << 17;
 
-/// Most cells of a dense box that the batched walk marks as bytes.
-const MAX_WALKED_CELLS: usize = 1 << 24;
-
 /// Morton code of three bits, x lowest.
 const SPREAD3: [u32; 8] = [0o0, 0o1, 0o10, 0o11, 0o100, 0o101, 0o110, 0o111];
 
@@ -243,6 +240,25 @@ impl KeyVolume {
         }
     }
 
+    /// Mark many cells occupied (the dense box looked up once, not per cell).
+    pub fn mark_all_occupied(&mut self, keys: impl IntoIterator<Item = OcTreeKey>) {
+        let mut outside = Vec::new();
+        match self.dense.as_mut() {
+            Some(d) => {
+                for key in keys {
+                    match d.bit(key) {
+                        Some(i) => d.occupied[i >> 6] |= 1 << (i & 63),
+                        None => outside.push(key),
+                    }
+                }
+            }
+            None => outside.extend(keys),
+        }
+        for key in outside {
+            self.mark_sparse(key, true);
+        }
+    }
+
     /// The slow path, out of line so the dense path inlines into the ray loop.
     #[cold]
     #[inline(never)]
@@ -272,8 +288,8 @@ impl KeyVolume {
     /// Walk the rays from `origin` to `ends` (keys in `end_keys`) and mark their cells
     /// free with the batched walk ([`walk_avx2`]) when this CPU and the dense box allow
     /// it. Returns the indices of the rays left for the scalar walk (all of them
-    /// without AVX2 or a dense box). Call [`KeyVolume::settle`] before reading the
-    /// volume.
+    /// without a batched walk or a dense box). Call [`KeyVolume::settle`] before
+    /// reading the volume.
     pub(crate) fn walk_rays(
         &mut self,
         conv: &super::key::KeyConverter,
@@ -282,12 +298,10 @@ impl KeyVolume {
         end_keys: &[Option<OcTreeKey>],
     ) -> Vec<usize> {
         match self.dense.as_mut() {
-            // A byte per cell: boxes beyond 16 Mi cells (16 MiB a thread, and as much
-            // to fold) go to the scalar walk, which marks the bits directly.
-            Some(d)
-                if walk_avx2::available()
-                    && d.dims.iter().product::<usize>() <= MAX_WALKED_CELLS =>
-            {
+            // A byte per cell of the dense box (at most 64 Mi, as many bytes a thread,
+            // zeroed lazily: only the pages rays cross are touched); folding it costs
+            // one pass over the box, far less than the scalar walk it replaces.
+            Some(d) if walk_avx2::available() => {
                 let (lo, dims) = (d.lo, d.dims);
                 let walked = d.walked.get_or_insert_with(|| CellBytes::new(lo, dims));
                 walk_avx2::walk_rays(conv, origin, ends, end_keys, walked)
@@ -409,6 +423,28 @@ impl KeyVolume {
                 }
             }
         }
+    }
+
+    /// At least as many as the cells `for_each_sorted` visits (exact unless unlike
+    /// volumes were merged), counted by bits: for reserving room for them.
+    pub fn marked_bound(&self) -> usize {
+        let ones = |free: &[u64], occupied: &[u64]| -> usize {
+            free.iter()
+                .zip(occupied)
+                .map(|(f, o)| (f | o).count_ones() as usize)
+                .sum()
+        };
+        let dense = self
+            .dense
+            .as_ref()
+            .map_or(0, |d| ones(&d.free, &d.occupied));
+        dense
+            + self
+                .sparse
+                .bricks
+                .iter()
+                .map(|b| ones(&b.free, &b.occupied))
+                .sum::<usize>()
     }
 
     /// Counts of (free-only, occupied) cells.
