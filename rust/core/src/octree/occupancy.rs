@@ -431,12 +431,12 @@ impl OcTree {
                 }
                 updates = &filtered;
             }
-            if depth == TREE_DEPTH {
+            if depth == TREE_DEPTH || covers_alike(updates, depth) {
                 self.apply_log_odds(node, updates[0].1);
                 return true;
             }
             self.arena.expand(node);
-        } else if depth == TREE_DEPTH {
+        } else if depth == TREE_DEPTH || (just_created && covers_alike(updates, depth)) {
             self.apply_log_odds(node, updates[0].1);
             return true;
         }
@@ -710,6 +710,17 @@ impl OcTree {
 
 /// How many keys 0, 1, ... satisfy `pred` from the start (`pred` true then false over
 /// the 2^16 keys of an axis): a bisection.
+/// Whether `updates` (distinct cells under one node at `depth`) cover every cell under
+/// it with the same delta. A leaf updated so ends as one leaf again: all its cells
+/// would get the same value and be pruned back into it, so it takes the update itself.
+fn covers_alike(updates: &[KeyUpdate], depth: u32) -> bool {
+    let cells = 1u64 << (3 * (TREE_DEPTH - depth));
+    updates.len() as u64 == cells
+        && updates
+            .iter()
+            .all(|u| u.1.to_bits() == updates[0].1.to_bits())
+}
+
 fn partition_keys(pred: impl Fn(u32) -> bool) -> u32 {
     let (mut lo, mut hi) = (0u32, 1u32 << 16);
     while lo < hi {
@@ -913,6 +924,57 @@ mod tests {
 
     /// Eight hits reach the upper clamp from anywhere in the clamping range (the
     /// loop the perception pipeline ran for its support voxels): same tree as one set.
+    #[test]
+    fn whole_blocks_updated_alike_equal_update_node_per_cell() {
+        // Batches that cover whole aligned blocks (2, 4 and 8 cells a side) with one
+        // delta take the leaf shortcut; blocks off the grid, partly clamped blocks and
+        // mixed deltas do not. Both must equal OctoMap's per-cell updates.
+        let mut rng = Rng::new(11);
+        for seed in 0..30 {
+            let base = random_tree(200 + seed);
+            for (side, aligned, delta) in [
+                (2i32, true, -0.4f32),
+                (4, true, 0.85),
+                (8, true, -0.4),
+                (4, false, -0.4),
+                (4, true, -100.0),
+                (2, true, 100.0),
+            ] {
+                let mut cells = std::collections::BTreeMap::new();
+                for _ in 0..3 {
+                    let mut corner = [0, 1, 2].map(|_| rand_cell(&mut rng));
+                    if aligned {
+                        corner = corner.map(|c| c.div_euclid(side) * side);
+                    }
+                    for i in 0..side * side * side {
+                        let c = [i % side, (i / side) % side, i / (side * side)];
+                        let key = key_at(corner[0] + c[0], corner[1] + c[1], corner[2] + c[2]);
+                        // Every tenth block gets one cell with another delta.
+                        let d = if seed % 10 == 0 && i == 0 {
+                            delta * 0.5
+                        } else {
+                            delta
+                        };
+                        cells.insert(key.morton(), d);
+                    }
+                }
+                let updates: Vec<KeyUpdate> = cells.into_iter().collect();
+                let mut ours = base.clone();
+                ours.apply_sorted_updates(&updates);
+                let mut want = base.clone();
+                for &(code, d) in &updates {
+                    want.update_node_log_odds(OcTreeKey::from_morton(code), d)
+                        .unwrap();
+                }
+                assert_eq!(
+                    ours.write_full_bytes(),
+                    want.write_full_bytes(),
+                    "seed {seed}, side {side}, aligned {aligned}, delta {delta}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn eight_hits_equal_setting_the_upper_clamp() {
         let mut rng = Rng::new(8);

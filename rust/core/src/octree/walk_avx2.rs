@@ -36,6 +36,8 @@ pub(crate) struct CellBytes {
     pub lo: [u16; 3],
     /// Box size in cells.
     pub dims: [usize; 3],
+    /// The lanes' buffers, kept from one batch of rays to the next.
+    lanes: LaneRays,
 }
 
 impl CellBytes {
@@ -46,6 +48,7 @@ impl CellBytes {
             bytes: vec![0; dims.iter().product::<usize>() + 1],
             lo,
             dims,
+            lanes: LaneRays::default(),
         }
     }
 
@@ -126,7 +129,7 @@ pub(crate) fn available() -> bool {
 /// The rays the batched walk takes, ready to load into lanes: end points by axis, end
 /// cells (indices into the box), step counts and the rays' indices in the scan. The
 /// first `len` are rays; idle ones after them fill the last group.
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 struct LaneRays {
     x: Vec<f32>,
     y: Vec<f32>,
@@ -138,18 +141,19 @@ struct LaneRays {
 }
 
 impl LaneRays {
-    /// Room for `n` rays and a group of idle ones.
-    fn zeroed(n: usize) -> Self {
+    /// Empty, with room for `n` rays and a group of idle ones (earlier contents beyond
+    /// `len` are left: every lane read is written first).
+    fn reset(&mut self, n: usize) {
         let n = n + 16;
-        LaneRays {
-            x: vec![0.0; n],
-            y: vec![0.0; n],
-            z: vec![0.0; n],
-            end: vec![0; n],
-            steps: vec![0; n],
-            ray: vec![0; n],
-            len: 0,
+        if self.x.len() < n {
+            for v in [&mut self.x, &mut self.y, &mut self.z] {
+                v.resize(n, 0.0);
+            }
+            self.end.resize(n, 0);
+            self.steps.resize(n, 0);
+            self.ray.resize(n, 0);
         }
+        self.len = 0;
     }
 
     #[inline]
@@ -226,7 +230,8 @@ pub(crate) fn walk_rays_with(
     let mut rest = Vec::new();
     // The rays to walk, in the order given: neighbouring pixels take nearly the same
     // number of steps, so consecutive rays walk together with little waiting.
-    let mut lanes = LaneRays::zeroed(ends.len());
+    let mut lanes = std::mem::take(&mut cells.lanes);
+    lanes.reset(ends.len());
     for (i, (end, key)) in ends.iter().zip(end_keys).enumerate() {
         match *key {
             Some(key) if key != key_origin => {
@@ -244,6 +249,7 @@ pub(crate) fn walk_rays_with(
         }
     }
     if lanes.len == 0 {
+        cells.lanes = lanes;
         return rest;
     }
     // Every walk visits the origin cell first.
@@ -273,6 +279,7 @@ pub(crate) fn walk_rays_with(
             }
         }
     }
+    cells.lanes = lanes;
     rest
 }
 
