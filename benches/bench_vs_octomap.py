@@ -15,7 +15,9 @@ Each scan set is inserted into an empty tree by OctoMap, by earcore on one threa
 by earcore on two; the maps must be byte-identical (.ot). The contenders take turns,
 one insertion each per round; times are medians over rounds, speed-ups medians over
 rounds of OctoMap's time over earcore's in the same round (this shared VM's speed
-drifts in bursts that hit neighbouring runs alike).
+drifts in bursts that hit neighbouring runs alike). Before each insertion the previous
+result is dropped and glibc's heap consolidated, outside the clock, so that no
+contender pays for freeing another's nodes.
 
     python benches/bench_vs_octomap.py [--repeats 15] [--scenes benchmark,cell,rooms,outdoor,lidar]
 """
@@ -97,14 +99,37 @@ def lidar_scans() -> list[list[Scan]]:
 SCENES = {"benchmark": benchmark_scans, "cell": cell_scans, "rooms": rooms_scans, "outdoor": outdoor_scans, "lidar": lidar_scans}
 
 
+def _heap_tidy():
+    """One large allocation and its release through glibc's malloc: it consolidates the
+    small chunks the last contender freed (its tree's nodes, its hash sets), which the
+    next contender's first large allocation would otherwise pay for. (`malloc_trim`
+    would consolidate too, but hands pages back that the next contender then faults
+    in again.)"""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        libc.malloc.restype = ctypes.c_void_p
+        libc.free.argtypes = [ctypes.c_void_p]
+        return lambda: libc.free(libc.malloc(1 << 16))
+    except (OSError, AttributeError):
+        return lambda: None
+
+
+heap_tidy = _heap_tidy()
+
+
 def interleaved_times(contenders: list, repeats: int) -> tuple[list[list[float]], list[object]]:
     """Times of each `(function, threads)` contender over `repeats` rounds in which
-    every contender runs once, in turn; and each one's last result."""
+    every contender runs once, in turn; and each one's last result. A contender's
+    previous result is dropped and the heap tidied before its clock starts."""
     times: list[list[float]] = [[] for _ in contenders]
     results: list[object] = [None] * len(contenders)
     for round_ in range(repeats + 1):  # round 0 warms up: page faults, thread pool, clocks
         for i, (fn, threads) in enumerate(contenders):
             earcore.set_num_threads(threads)
+            results[i] = None
+            heap_tidy()
             start = time.perf_counter()
             results[i] = fn()
             if round_ > 0:
