@@ -105,7 +105,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"lens within {lens:.2f} px where seen")
         if cal.has_depth:
             line += (f", depth error left {1000 * err.depth_error_rms:.1f} mm rms, colour-depth offset "
-                     f"{1000 * err.offset_translation:.1f} mm / {err.offset_rotation_deg:.2f}°")
+                     f"{1000 * err.offset_translation:.1f} mm / {err.offset_rotation_deg:.2f}°; "
+                     f"pose from pixels ±{1000 * cal.pixel_pose_sigma_m:.1f} mm / ±{cal.pixel_pose_sigma_deg:.2f}° (1σ), "
+                     f"{1000 * cal.pose_agreement_m:.1f} mm from the pose from depth")
         else:
             line += " (colour only: AX = ZB)"
         _say(line)

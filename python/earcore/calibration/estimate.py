@@ -21,7 +21,7 @@ from earcore.calibration.eye_to_hand import (
     fit_eye_to_hand_from_poses,
     refine_by_reprojection,
 )
-from earcore.calibration.intrinsics import calibrate_lens, calibrate_lens_on_robot, reprojection_errors
+from earcore.calibration.intrinsics import calibrate_lens, calibrate_lens_on_robot, pose_uncertainty, reprojection_errors
 from earcore.calibration.store import CameraCalibration
 from earcore.depth_error import DepthBias, radius2_grid, radius2_of
 from earcore.transforms import mean_pose, rotation_from_vector
@@ -194,9 +194,8 @@ class Estimator:
         depth_error = DepthBias()
         for _ in range(self.config.refinement_passes):
             t = time.perf_counter()
-            depth_lens, base_from_ir = self._lens_on_robot(
-                name, obs, [o.ir for o in obs], fit.flange_from_board, depth_lens.K, depth_lens.distortion
-            )
+            rig_mount = fit.flange_from_board
+            depth_lens, base_from_ir = self._lens_on_robot(name, obs, [o.ir for o in obs], rig_mount, depth_lens.K, depth_lens.distortion)
             self.solver_time += time.perf_counter() - t
             if not screened:
                 # A frame the lens and pose cannot explain (a corner found in the wrong
@@ -215,6 +214,10 @@ class Estimator:
             if np.abs(fit.flange_from_board - previous).max() < 1e-5:
                 break
         self.refuse_poor_lens(name, depth_lens)
+        pixel_pose = pose_uncertainty(
+            self._corners_in_base(obs, rig_mount), np.concatenate([o.ir.corners for o in obs]),
+            depth_lens.K, depth_lens.distortion, base_from_ir, lens_model=self.config.lens_model,
+        )
         t = time.perf_counter()
         colour_lens, offset = None, None
         both = [o for o in obs if o.colour is not None]
@@ -254,6 +257,8 @@ class Estimator:
             colour_reprojection_rms=float("nan") if colour_lens is None else colour_lens.rms,
             zhang_reprojection_rms=zhang.rms,
             pose_agreement_m=float(np.linalg.norm(base_from_ir[:3, 3] - fit.base_from_camera[:3, 3])),
+            pixel_pose_sigma_m=pixel_pose.translation_m,
+            pixel_pose_sigma_deg=pixel_pose.rotation_deg,
             frames=len(obs),
             corners=fit.corners,
             depth_region=_region([o.ir for o in obs]),

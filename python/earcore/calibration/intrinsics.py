@@ -12,7 +12,15 @@ import numpy as np
 from earcore.calibration.board import Detection, _cv2
 from earcore.calibration.errors import DegeneratePoses, TooFewFrames
 
-__all__ = ["LensFit", "calibrate_lens", "calibrate_lens_on_robot", "lens_displacement", "reprojection_errors"]
+__all__ = [
+    "LensFit",
+    "PoseUncertainty",
+    "calibrate_lens",
+    "calibrate_lens_on_robot",
+    "lens_displacement",
+    "pose_uncertainty",
+    "reprojection_errors",
+]
 
 
 @dataclass
@@ -22,6 +30,10 @@ class LensFit:
     #: RMS reprojection error (pixels) over every corner of every frame.
     rms: float
     frames: int
+
+
+#: The distortion coefficients (indices into k1, k2, p1, p2, k3) each lens model fits.
+_FITTED_DISTORTION = {"full": [0, 1, 2, 3, 4], "radial": [0, 1, 4], "radial2": [0, 1]}
 
 
 def _lens_flags(model: str) -> int:
@@ -144,3 +156,77 @@ def reprojection_errors(points_base, pixels, K, distortion, base_from_camera) ->
         np.asarray(points_base, dtype=np.float64), rvec, camera_from_base[:3, 3], np.asarray(K, float), np.asarray(distortion, float)
     )
     return np.linalg.norm(projected.reshape(-1, 2) - np.asarray(pixels, dtype=np.float64), axis=1)
+
+
+@dataclass
+class PoseUncertainty:
+    """How well the corners pin down a camera's pose: the covariance of the camera's
+    centre in the base frame and of a small turn of the camera about the base's axes."""
+
+    #: 6×6 covariance of (centre x, y, z in m; rotation x, y, z in rad).
+    covariance: np.ndarray
+
+    @property
+    def translation_m(self) -> float:
+        """One standard deviation of the centre's position (3D, m)."""
+        return float(np.sqrt(np.trace(self.covariance[:3, :3])))
+
+    @property
+    def rotation_deg(self) -> float:
+        """One standard deviation of the orientation (the turn's angle, degrees)."""
+        return float(np.degrees(np.sqrt(np.trace(self.covariance[3:, 3:]))))
+
+
+def pose_uncertainty(
+    points_base: np.ndarray,
+    pixels: np.ndarray,
+    K: np.ndarray,
+    distortion: np.ndarray,
+    base_from_camera: np.ndarray,
+    *,
+    lens_model: str = "radial",
+) -> PoseUncertainty:
+    """The covariance of the pose `calibrate_lens_on_robot` found, from its residuals:
+    σ²(JᵀJ)⁻¹ over the pose and every lens parameter the fit estimated (so that the
+    lens's own uncertainty widens the pose's), σ² the residuals' variance per pixel
+    coordinate; carried to the camera's centre and orientation in the base frame.
+
+    It counts the pixels' noise only: errors in the corners' base-frame positions (the
+    board's mount, the robot's kinematics) are not in it."""
+    cv2 = _cv2()
+    points_base = np.asarray(points_base, dtype=np.float64)
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    dist = np.asarray(distortion, dtype=np.float64).reshape(-1)[:5]
+    camera_from_base = np.linalg.inv(base_from_camera)
+    rvec, _ = cv2.Rodrigues(camera_from_base[:3, :3])
+    tvec = camera_from_base[:3, 3]
+    projected, jacobian = cv2.projectPoints(points_base, rvec, tvec, np.asarray(K, float), dist)
+    # Columns: rvec (3), tvec (3), fx fy, cx cy, then the distortion coefficients.
+    columns = list(range(10)) + [10 + i for i in _FITTED_DISTORTION[lens_model]]
+    J = jacobian[:, columns]
+    residual = projected.reshape(-1) - pixels.reshape(-1)
+    dof = max(len(residual) - len(columns), 1)
+    sigma2 = float(residual @ residual) / dof
+    try:
+        cov = sigma2 * np.linalg.inv(J.T @ J)[:6, :6]
+    except np.linalg.LinAlgError:
+        return PoseUncertainty(np.full((6, 6), np.inf))
+
+    def centre_and_turn(v: np.ndarray) -> np.ndarray:
+        r, _ = cv2.Rodrigues(v[:3])
+        centre = -r.T @ v[3:]
+        # The turn from the estimate to this orientation, about the base's axes (a
+        # small one: the antisymmetric part is exact to third order, where an
+        # arccos-based logarithm loses the difference).
+        d = r.T @ camera_from_base[:3, :3]
+        turn = 0.5 * np.array([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]])
+        return np.concatenate([centre, turn])
+
+    # The map from (rvec, tvec) to (centre, turn), linearised by central differences.
+    x0 = np.concatenate([rvec.reshape(3), tvec])
+    G = np.zeros((6, 6))
+    for k in range(6):
+        h = np.zeros(6)
+        h[k] = 1e-6
+        G[:, k] = (centre_and_turn(x0 + h) - centre_and_turn(x0 - h)) / 2e-6
+    return PoseUncertainty(G @ cov @ G.T)

@@ -55,6 +55,11 @@ class CameraCalibration:
     zhang_reprojection_rms: float = math.nan
     #: Distance (m) between the pose from pixels and the pose from depth (a check).
     pose_agreement_m: float = math.nan
+    #: One standard deviation of the pose from pixels (the robot-rig fit), from the
+    #: corners' pixel noise (`earcore.calibration.intrinsics.pose_uncertainty`): the
+    #: centre's position (m) and the orientation (degrees).
+    pixel_pose_sigma_m: float = math.nan
+    pixel_pose_sigma_deg: float = math.nan
     frames: int = 0
     corners: int = 0
     #: Where the board was seen in the depth image (u_min, v_min, u_max, v_max): the
