@@ -708,8 +708,6 @@ impl OcTree {
     }
 }
 
-/// How many keys 0, 1, ... satisfy `pred` from the start (`pred` true then false over
-/// the 2^16 keys of an axis): a bisection.
 /// Whether `updates` (distinct cells under one node at `depth`) cover every cell under
 /// it with the same delta. A leaf updated so ends as one leaf again: all its cells
 /// would get the same value and be pruned back into it, so it takes the update itself.
@@ -721,6 +719,8 @@ fn covers_alike(updates: &[KeyUpdate], depth: u32) -> bool {
             .all(|u| u.1.to_bits() == updates[0].1.to_bits())
 }
 
+/// How many keys 0, 1, ... satisfy `pred` from the start (`pred` true then false over
+/// the 2^16 keys of an axis): a bisection.
 fn partition_keys(pred: impl Fn(u32) -> bool) -> u32 {
     let (mut lo, mut hi) = (0u32, 1u32 << 16);
     while lo < hi {
@@ -922,8 +922,6 @@ mod tests {
         assert_eq!(tree.write_full_bytes(), before);
     }
 
-    /// Eight hits reach the upper clamp from anywhere in the clamping range (the
-    /// loop the perception pipeline ran for its support voxels): same tree as one set.
     #[test]
     fn whole_blocks_updated_alike_equal_update_node_per_cell() {
         // Batches that cover whole aligned blocks (2, 4 and 8 cells a side) with one
@@ -975,6 +973,8 @@ mod tests {
         }
     }
 
+    /// Eight hits reach the upper clamp from anywhere in the clamping range (the
+    /// loop the perception pipeline ran for its support voxels): same tree as one set.
     #[test]
     fn eight_hits_equal_setting_the_upper_clamp() {
         let mut rng = Rng::new(8);
