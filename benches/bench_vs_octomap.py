@@ -158,9 +158,9 @@ def main() -> None:
     print(f"# machine: {cpu}, {os.cpu_count()} cores; medians of interleaved rounds\n")
     print(
         "| scene | scans × points | resolution | OctoMap | earcore 1 thread | earcore 2 threads | speed-up 1 thread "
-        "| speed-up 2 threads | same map | rounds |"
+        "| speed-up 2 threads | same map | bytes/node OctoMap | bytes/node earcore | rounds |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     tmp = tempfile.mkdtemp()
     worst = {}
     for scene in args.scenes.split(","):
@@ -190,13 +190,16 @@ def main() -> None:
                 )
                 t_ref, t_one, t_two = map(statistics.median, times)
                 one, two = round_ratio(times[0], times[1]), round_ratio(times[0], times[2])
+                # Before `write`, which prunes OctoMap's tree in place. earcore's figure
+                # counts everything it holds, spare capacity included.
+                bytes_ref, bytes_ours = ref.memoryUsage() / ref.size(), ours.memory_usage() / ours.size()
                 path = os.path.join(tmp, "ours.ot")
                 ours.write(path)
                 same = open(path, "rb").read() == ref.write()
                 points = f"{len(scans)} × {round(np.mean([len(p) for p, _ in scans]) / 1000)}k"
                 print(
                     f"| {name} | {points} | {res * 100:.0f} cm | {t_ref * 1e3:.1f} ms | {t_one * 1e3:.1f} ms | {t_two * 1e3:.1f} ms "
-                    f"| {one:.1f}× | {two:.1f}× | {'yes' if same else 'NO'} | {repeats} |",
+                    f"| {one:.1f}× | {two:.1f}× | {'yes' if same else 'NO'} | {bytes_ref:.1f} | {bytes_ours:.1f} | {repeats} |",
                     flush=True,
                 )
                 worst[res] = min(worst.get(res, np.inf), one)
