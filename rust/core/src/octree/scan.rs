@@ -243,6 +243,8 @@ struct TraceScratch {
     /// maximum range), and the end's key.
     points: Vec<Point3f>,
     ends: Vec<Point3f>,
+    /// With a maximum range: whether each ray ends at its point (not cut, so a hit).
+    within: Vec<bool>,
     end_keys: Vec<Option<OcTreeKey>>,
 }
 
@@ -261,6 +263,7 @@ fn trace_part(
     let TraceScratch {
         points,
         ends,
+        within,
         end_keys,
     } = scratch;
     // Converted part by part, so that the float points stay in the cache.
@@ -279,7 +282,12 @@ fn trace_part(
         None => points,
         Some(_) => {
             ends.clear();
-            ends.extend(points.iter().map(|&p| cut(p).unwrap_or(p)));
+            within.clear();
+            for &p in points {
+                let end = cut(p);
+                ends.push(end.unwrap_or(p));
+                within.push(end.is_none());
+            }
             ends
         }
     };
@@ -290,7 +298,7 @@ fn trace_part(
         Some(_) => end_keys.extend(ends.iter().map(|&p| conv.coord_to_key_checked(p))),
     }
     if hits {
-        let within = |i: usize| max_range.is_none() || cut(points[i]).is_none();
+        let within = |i: usize| max_range.is_none() || within[i];
         volume.mark_all_occupied(
             end_keys
                 .iter()
