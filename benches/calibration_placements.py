@@ -10,20 +10,28 @@ the simulation's truth, the pose-from-pixels uncertainty (1σ), the distance bet
 poses from pixels and from depth, or the refusal and its reason.
 
     python benches/calibration_placements.py [--placements 10] [--seed 0] [--max-frames 30] [--json out.json]
+        [--observations DIR]
+
+With `--observations`, every camera's accepted frames, sensor and true pose are pickled
+into DIR (`<placement>_<camera>.pkl`), so that the fits can be solved again from them
+(`Estimator.finish`) without moving the robot.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import pickle
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 from earcore.app.calibration_cell import calibration_cell, calibration_cell_config, evaluate
 from earcore.calibration.config import CalibrationConfig
 from earcore.calibration.errors import CalibrationError
+from earcore.calibration.estimate import SensorSpec
 from earcore.calibration.procedure import Calibrator
 from earcore.sim.config import CameraConfig
 
@@ -42,13 +50,32 @@ def placement(rng: np.random.Generator) -> list[CameraConfig]:
     return cameras
 
 
+def _save(folder: str | None, placement_index: int, name: str, calibrator: Calibrator, cell, true_mount: np.ndarray) -> None:
+    if folder is None:
+        return
+    cam = calibrator.camera(name)
+    record = {
+        "observations": calibrator.observations.get(name, []),
+        "sensor": SensorSpec.of(cam.sensor),
+        "start_q": calibrator.start_poses.get(name, (0.0, None))[1],
+        "config": calibrator.config,
+        "true_base_from_camera": cam.base_from_camera,
+        "true_mount": true_mount,
+    }
+    with open(Path(folder) / f"{placement_index}_{name}.pkl", "wb") as f:
+        pickle.dump(record, f)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--placements", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-frames", type=int, default=30)
     parser.add_argument("--json", default=None, help="also write every camera's figures here")
+    parser.add_argument("--observations", default=None, help="pickle every camera's frames, sensor and true pose into this folder")
     args = parser.parse_args()
+    if args.observations:
+        Path(args.observations).mkdir(parents=True, exist_ok=True)
     print(
         "| placement | camera | place (distance m, azimuth °, elevation °) | moved by | frames | pose error | "
         "pose from pixels ±1σ | pixels vs depth | result |"
@@ -72,9 +99,11 @@ def main() -> None:
                 cal = calibrator.calibrate_camera(cam.name)
             except CalibrationError as exc:
                 row.update(result=f"refused: {exc}")
+                _save(args.observations, k, cam.name, calibrator, cell, true_mount)
                 print(f"| {k} | {cam.name} | {where} | {100 * moved[0]:.1f} cm, {moved[1]:.1f}° | | | | | refused: {exc} |", flush=True)
                 rows.append(row)
                 continue
+            _save(args.observations, k, cam.name, calibrator, cell, true_mount)
             err = evaluate(cell, cal, true_mount, calibrator.observations[cam.name])
             row.update(
                 frames=cal.frames, error_mm=1e3 * err.translation, error_deg=err.rotation_deg,

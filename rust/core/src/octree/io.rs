@@ -308,6 +308,7 @@ impl OcTree {
             tree.read_binary_node(tree.root, 0, &mut r)?;
         }
         r.finish()?;
+        tree.arena.trim_spare();
         if tree.size() != head.size {
             return Err(Error::Format(format!(
                 "header says {} nodes, data holds {}",
@@ -412,6 +413,7 @@ impl OcTree {
             }
         }
         r.finish()?;
+        tree.arena.trim_spare();
         if tree.size() != head.size {
             return Err(Error::Format(format!(
                 "header says {} nodes, data holds {}",

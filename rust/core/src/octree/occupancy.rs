@@ -310,6 +310,7 @@ impl OcTree {
             false
         };
         self.update_recursive::<true>(self.root, created, 0, &cells);
+        self.arena.trim_spare();
         Ok(())
     }
 
@@ -391,6 +392,7 @@ impl OcTree {
             false
         };
         self.update_recursive::<false>(self.root, created, 0, updates);
+        self.arena.trim_spare();
     }
 
     /// Returns whether anything below `node` changed. With `ASSIGN`, each update's
@@ -404,12 +406,9 @@ impl OcTree {
         depth: u32,
         updates: &[KeyUpdate],
     ) -> bool {
+        debug_assert!(depth < TREE_DEPTH, "cells are updated by their parents");
         let filtered: Vec<KeyUpdate>;
         let mut updates = updates;
-        if ASSIGN && depth == TREE_DEPTH {
-            self.arena.set_value(node, updates[0].1);
-            return true;
-        }
         if ASSIGN {
             if !just_created && !self.arena.has_children(node) {
                 self.arena.expand(node);
@@ -431,23 +430,38 @@ impl OcTree {
                 }
                 updates = &filtered;
             }
-            if depth == TREE_DEPTH || covers_alike(updates, depth) {
+            if covers_alike(updates, depth) {
                 self.apply_log_odds(node, updates[0].1);
                 return true;
             }
             self.arena.expand(node);
-        } else if depth == TREE_DEPTH || (just_created && covers_alike(updates, depth)) {
+        } else if just_created && covers_alike(updates, depth) {
             self.apply_log_odds(node, updates[0].1);
             return true;
         }
 
         let mut changed = false;
-        for (pos, group) in child_runs(updates, depth) {
-            let (child, created) = match self.arena.child(node, pos) {
-                Some(c) => (c, false),
-                None => (self.arena.create_child(node, pos, 0.0), true),
-            };
-            changed |= self.update_recursive::<ASSIGN>(child, created, depth + 1, group);
+        if depth + 1 == TREE_DEPTH {
+            // Cells are distinct, so each update is its own leaf: no runs to find.
+            for &(m, d) in updates {
+                let pos = (m & 7) as usize;
+                changed |= match self.arena.child(node, pos) {
+                    Some(leaf) => self.update_leaf::<ASSIGN>(leaf, d),
+                    None => {
+                        let leaf = self.arena.create_child(node, pos, 0.0);
+                        self.set_new_leaf::<ASSIGN>(leaf, d);
+                        true
+                    }
+                };
+            }
+        } else {
+            for (pos, group) in child_runs(updates, depth) {
+                let (child, created) = match self.arena.child(node, pos) {
+                    Some(c) => (c, false),
+                    None => (self.arena.create_child(node, pos, 0.0), true),
+                };
+                changed |= self.update_recursive::<ASSIGN>(child, created, depth + 1, group);
+            }
         }
         // Like OctoMap, a node is re-pruned or re-valued only when something below changed.
         if changed && !self.prune_node(node) {
@@ -455,6 +469,31 @@ impl OcTree {
             self.arena.set_value(node, max);
         }
         changed
+    }
+
+    /// An existing cell at the finest level: what `update_recursive` does there.
+    #[inline]
+    fn update_leaf<const ASSIGN: bool>(&mut self, leaf: u32, delta: f32) -> bool {
+        if ASSIGN {
+            self.arena.set_value(leaf, delta);
+            return true;
+        }
+        let v = self.arena.value(leaf);
+        if (delta >= 0.0 && v >= self.lo.clamp_max) || (delta <= 0.0 && v <= self.lo.clamp_min) {
+            return false;
+        }
+        self.apply_log_odds(leaf, delta);
+        true
+    }
+
+    /// A cell the batch just created at the finest level.
+    #[inline]
+    fn set_new_leaf<const ASSIGN: bool>(&mut self, leaf: u32, delta: f32) {
+        if ASSIGN {
+            self.arena.set_value(leaf, delta);
+        } else {
+            self.apply_log_odds(leaf, delta);
+        }
     }
 
     #[inline]

@@ -279,6 +279,7 @@ impl SurfaceMap {
         // With the shallowest leaf depth known, nodes above it skip the scan of their items.
         let depths = depths.map(|d| (d, u32::from(d.iter().copied().min().unwrap_or(16))));
         self.insert_recursive(self.root, 0, &items, points, depths, &mut touched);
+        self.arena.trim_spare();
         Ok(touched)
     }
 
