@@ -1,12 +1,14 @@
 """`earcore calibrate`: Paper I's automatic calibration in the simulated cell.
 
     earcore calibrate [--out calibration.yaml] [--camera NAME ...] [--seed 0] [--full]
+                      [--max-pose-sigma MM DEG | --accept-uncertain]
     earcore calibrate --check [--bump NAME]        # has a camera moved?
     earcore calibrate --camera NAME [--bump NAME]  # recalibrate only that camera
 
 Every fixed camera is calibrated unless `--camera` names some; the file gets the named
 cameras merged in (the others keep their entries), and is only written when every named
-camera succeeded. `--bump NAME` moves that camera 10 cm / 10° in the simulation first
+camera succeeded: a camera whose pose is less certain than `--max-pose-sigma` (1σ,
+default 4 mm / 0.3°) counts as failed. `--bump NAME` moves that camera 10 cm / 10° in the simulation first
 (someone knocked it) to try the check and the recalibration.
 """
 
@@ -18,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from earcore.app.arguments import Parser, count, fail, scale
+from earcore.app.arguments import Parser, count, fail, positive, scale
 
 __all__ = ["main"]
 
@@ -47,6 +49,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="frames per camera (default 20: three cameras in under 3 minutes of motion; Paper I: ~30)")
     parser.add_argument("--full", action="store_true", help="the whole trajectory (both distances, every position)")
     parser.add_argument("--no-tilt", action="store_true", help="no tilting along the trajectory")
+    parser.add_argument("--max-pose-sigma", nargs=2, type=positive, metavar=("MM", "DEG"), default=(4.0, 0.3),
+                        help="refuse (exit 1, file unchanged) a camera whose pose is less certain than this, 1σ (default 4 mm 0.3°)")
+    parser.add_argument("--accept-uncertain", action="store_true", help="write every camera whatever its pose's uncertainty")
     args = parser.parse_args(argv)
     if args.camera_scale < 0.25:
         parser.error(f"argument --camera-scale: the board's corners are not found below 0.25, got {args.camera_scale:g}")
@@ -59,7 +64,11 @@ def main(argv: list[str] | None = None) -> int:
             return fail("earcore calibrate", f"argument --bump: no camera {name!r}; cameras: {[c.name for c in cell.cameras]}")
         cam.place(perturb_pose(cam.base_from_camera, 0.10, np.radians(10.0), bump_rng))
         _say(f"simulation: {name} bumped by 10 cm / 10°")
-    settings = CalibrationConfig(max_frames=args.max_frames, tilt_fraction=0.0 if args.no_tilt else 0.7, seed=args.seed)
+    limit_mm, limit_deg = (None, None) if args.accept_uncertain else args.max_pose_sigma
+    settings = CalibrationConfig(
+        max_frames=args.max_frames, tilt_fraction=0.0 if args.no_tilt else 0.7, seed=args.seed,
+        max_pose_sigma_m=None if limit_mm is None else limit_mm / 1000, max_pose_sigma_deg=limit_deg,
+    )
     if args.full:
         settings = full_trajectory(settings)
     calibrator = Calibrator(cell, settings, progress=_say)
@@ -106,10 +115,10 @@ def main(argv: list[str] | None = None) -> int:
         if cal.has_depth:
             line += (f", depth error left {1000 * err.depth_error_rms:.1f} mm rms, colour-depth offset "
                      f"{1000 * err.offset_translation:.1f} mm / {err.offset_rotation_deg:.2f}°; "
-                     f"pose from pixels ±{1000 * cal.pixel_pose_sigma_m:.1f} mm / ±{cal.pixel_pose_sigma_deg:.2f}° (1σ), "
-                     f"{1000 * cal.pose_agreement_m:.1f} mm from the pose from depth")
+                     f"pose ±{1000 * cal.pose_sigma_m:.1f} mm / ±{cal.pose_sigma_deg:.2f}° (1σ: from pixels "
+                     f"±{1000 * cal.pixel_pose_sigma_m:.1f} mm, {1000 * cal.pose_agreement_m:.1f} mm from the pose from depth)")
         else:
-            line += " (colour only: AX = ZB)"
+            line += f" (colour only: AX = ZB); pose ±{1000 * cal.pose_sigma_m:.1f} mm / ±{cal.pose_sigma_deg:.2f}° (1σ)"
         _say(line)
     return 0
 

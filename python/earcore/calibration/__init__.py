@@ -7,7 +7,14 @@ perception loop reads. Needs OpenCV (`pip install 'earcore[calibration]'`).
 from earcore.calibration.board import Checkerboard, Detection, corner_points, detect_board
 from earcore.calibration.check import PoseCheck, check_camera
 from earcore.calibration.config import CalibrationConfig, full_trajectory, nominal_mount
-from earcore.calibration.errors import BoardNotSeen, CalibrationError, CalibrationFileError, DegeneratePoses, TooFewFrames
+from earcore.calibration.errors import (
+    BoardNotSeen,
+    CalibrationError,
+    CalibrationFileError,
+    DegeneratePoses,
+    PoorCalibration,
+    TooFewFrames,
+)
 from earcore.calibration.estimate import Estimator, Observation, SensorSpec
 from earcore.calibration.eye_to_hand import EyeToHand, fit_eye_to_hand
 from earcore.calibration.intrinsics import LensFit, calibrate_lens, calibrate_lens_on_robot, lens_displacement
@@ -31,6 +38,7 @@ __all__ = [
     "EyeToHand",
     "LensFit",
     "Observation",
+    "PoorCalibration",
     "PoseCheck",
     "SensorSpec",
     "TooFewFrames",

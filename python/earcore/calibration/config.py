@@ -43,6 +43,11 @@ class CalibrationConfig:
     #: of view) and positions per stage (Fig. 6).
     stage_radii: tuple[float, ...] = (0.0, 0.45, 0.85)
     stage_positions: tuple[int, ...] = (1, 4, 8)
+    #: Where frames still missing after the stages are sought (Step 5b): radii and
+    #: positions between the stages', each facing the camera, then turned halfway to
+    #: the start pose's board; () seeks none.
+    topup_radii: tuple[float, ...] = (0.3, 0.65)
+    topup_positions: tuple[int, ...] = (4, 8)
     #: Distances as multiples of the start pose's (Paper I: again 20 % farther).
     distance_factors: tuple[float, ...] = (1.0, 1.2)
     #: Stop a camera's trajectory after this many accepted frames (None: all).
@@ -70,6 +75,11 @@ class CalibrationConfig:
     lens_model: str = "radial"
     #: A calibration whose corners reproject worse than this (pixels rms) is refused.
     max_reprojection_px: float = 1.0
+    #: A camera whose pose is uncertain beyond this (`CameraCalibration.pose_sigma_m`,
+    #: `pose_sigma_deg`, about 1σ) is refused (`PoorCalibration`) instead of written;
+    #: None: no limit.
+    max_pose_sigma_m: float | None = 0.004
+    max_pose_sigma_deg: float | None = 0.3
     #: Passes of lens-and-pose from pixels / mount from depth in step 7.
     refinement_passes: int = 4
     #: The depth error's terms to fit (of offset + scale·z + radial·ρ²·z²,
@@ -84,4 +94,4 @@ def full_trajectory(settings: CalibrationConfig) -> CalibrationConfig:
     """The dense staged trajectory (more stages, more positions per stage: overlapping
     views, like Paper I's long runs) and no frame limit; the default trajectory is the
     sparse one that covers the field of view in ~30 frames."""
-    return replace(settings, stage_radii=(0.0, 0.3, 0.55, 0.8), stage_positions=(1, 6, 8, 12), max_frames=None)
+    return replace(settings, stage_radii=(0.0, 0.3, 0.55, 0.8), stage_positions=(1, 6, 8, 12), topup_radii=(), topup_positions=(), max_frames=None)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from earcore.errors import EarcoreError
 
-__all__ = ["BoardNotSeen", "CalibrationError", "CalibrationFileError", "DegeneratePoses", "TooFewFrames"]
+__all__ = ["BoardNotSeen", "CalibrationError", "CalibrationFileError", "DegeneratePoses", "PoorCalibration", "TooFewFrames"]
 
 
 class CalibrationError(EarcoreError, RuntimeError):
@@ -30,6 +30,11 @@ class TooFewFrames(CalibrationError):
 
 class DegeneratePoses(CalibrationError):
     """The frames lack the variety (rotation, field-of-view coverage) a quantity needs."""
+
+
+class PoorCalibration(CalibrationError):
+    """The fit succeeded, but its reported uncertainty is beyond the stated quality
+    (`CalibrationConfig.max_pose_sigma_m` / `max_pose_sigma_deg`)."""
 
 
 class CalibrationFileError(EarcoreError, ValueError):

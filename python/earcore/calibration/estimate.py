@@ -24,7 +24,7 @@ from earcore.calibration.eye_to_hand import (
 from earcore.calibration.intrinsics import calibrate_lens, calibrate_lens_on_robot, pose_uncertainty, reprojection_errors
 from earcore.calibration.store import CameraCalibration
 from earcore.depth_error import DepthBias, radius2_grid, radius2_of
-from earcore.transforms import mean_pose, rotation_from_vector
+from earcore.transforms import mean_pose, rotation_angle, rotation_from_vector
 
 __all__ = ["Estimator", "Observation", "SensorSpec"]
 
@@ -217,6 +217,7 @@ class Estimator:
         pixel_pose = pose_uncertainty(
             self._corners_in_base(obs, rig_mount), np.concatenate([o.ir.corners for o in obs]),
             depth_lens.K, depth_lens.distortion, base_from_ir, lens_model=self.config.lens_model,
+            mount=(np.array([o.base_from_flange for o in obs]), self.board_points, rig_mount), corners_per_frame=len(self.board_points),
         )
         t = time.perf_counter()
         colour_lens, offset = None, None
@@ -240,6 +241,8 @@ class Estimator:
             offset = np.linalg.inv(base_from_ir) @ base_from_colour
         self.solver_time += time.perf_counter() - t
         pose = base_from_ir if self.config.pose_from == "pixels" else fit.base_from_camera
+        agreement_m = float(np.linalg.norm(base_from_ir[:3, 3] - fit.base_from_camera[:3, 3]))
+        agreement_deg = float(np.degrees(rotation_angle(base_from_ir, fit.base_from_camera)))
         return CameraCalibration(
             name=name,
             base_from_camera=pose,
@@ -256,9 +259,12 @@ class Estimator:
             depth_reprojection_rms=depth_lens.rms,
             colour_reprojection_rms=float("nan") if colour_lens is None else colour_lens.rms,
             zhang_reprojection_rms=zhang.rms,
-            pose_agreement_m=float(np.linalg.norm(base_from_ir[:3, 3] - fit.base_from_camera[:3, 3])),
+            pose_agreement_m=agreement_m,
+            pose_agreement_deg=agreement_deg,
             pixel_pose_sigma_m=pixel_pose.translation_m,
             pixel_pose_sigma_deg=pixel_pose.rotation_deg,
+            pose_sigma_m=float(np.hypot(pixel_pose.translation_m, agreement_m)),
+            pose_sigma_deg=float(np.hypot(pixel_pose.rotation_deg, agreement_deg)),
             frames=len(obs),
             corners=fit.corners,
             depth_region=_region([o.ir for o in obs]),
@@ -299,9 +305,17 @@ class Estimator:
             if np.abs(mount - previous).max() < 1e-5:
                 break
         self.refuse_poor_lens(name, lens)
+        pixel_pose = pose_uncertainty(
+            self._corners_in_base(obs, mount), np.concatenate([o.ir.corners for o in obs]), lens.K, lens.distortion,
+            base_from_camera, lens_model=s.lens_model, mount=(flanges, self.board_points, mount), corners_per_frame=len(self.board_points),
+        )
         return CameraCalibration(
             name=name,
             base_from_camera=base_from_camera,
+            pixel_pose_sigma_m=pixel_pose.translation_m,
+            pixel_pose_sigma_deg=pixel_pose.rotation_deg,
+            pose_sigma_m=pixel_pose.translation_m,
+            pose_sigma_deg=pixel_pose.rotation_deg,
             colour_K=lens.K,
             colour_distortion=lens.distortion,
             colour_size=obs[0].ir.image_size,

@@ -5,12 +5,15 @@ depth camera is the difference of the two rig poses)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
 from earcore.calibration.board import Detection, _cv2
 from earcore.calibration.errors import DegeneratePoses, TooFewFrames
+from earcore.transforms import pose_from_vector
 
 __all__ = [
     "LensFit",
@@ -78,9 +81,10 @@ def calibrate_lens(
     if min(cover) < 0.3:
         raise DegeneratePoses(camera, f"the board covered only {cover[0]:.0%} × {cover[1]:.0%} of the image")
     flags = cv2.CALIB_USE_INTRINSIC_GUESS | _lens_flags(lens_model)
-    rms, K, dist, _, _ = cv2.calibrateCamera(
-        _object_points(board_points, len(detections)), image_points, size, K_guess.astype(np.float64).copy(), None, flags=flags
-    )
+    with _solver_refusal(camera, "Zhang's method"):
+        rms, K, dist, _, _ = cv2.calibrateCamera(
+            _object_points(board_points, len(detections)), image_points, size, K_guess.astype(np.float64).copy(), None, flags=flags
+        )
     return LensFit(K, np.asarray(dist, dtype=np.float64).reshape(-1)[:5], float(rms), len(detections))
 
 
@@ -101,6 +105,18 @@ def lens_displacement(K_a, dist_a, K_b, dist_b, size: tuple[int, int], step: int
     rays = cv2.undistortPoints(px.reshape(-1, 1, 2), np.asarray(K_a, float), np.asarray(dist_a, float)).reshape(-1, 2)
     back, _ = cv2.projectPoints(np.c_[rays, np.ones(len(rays))], np.zeros(3), np.zeros(3), np.asarray(K_b, float), np.asarray(dist_b, float))
     return float(np.linalg.norm(back.reshape(-1, 2) - px, axis=1).max())
+
+
+@contextmanager
+def _solver_refusal(camera: str, what: str) -> Iterator[None]:
+    """OpenCV refuses a lens that has wandered off (a principal point outside the
+    image, too few points for the model) with its own error: name the camera instead."""
+    cv2 = _cv2()
+    try:
+        yield
+    except cv2.error as exc:
+        reason = str(exc).strip().splitlines()[-1].split(") ")[-1].split(" in function")[0]
+        raise DegeneratePoses(camera, f"{what} failed: {reason}") from exc
 
 
 def calibrate_lens_on_robot(
@@ -134,10 +150,11 @@ def calibrate_lens_on_robot(
     if not ok:
         raise DegeneratePoses(camera, "no camera pose explains the corners (PnP failed)")
     flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_USE_EXTRINSIC_GUESS | _lens_flags(lens_model)
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
-        [points_base.astype(np.float32)], [pixels.astype(np.float32).reshape(-1, 1, 2)], image_size,
-        K_guess.astype(np.float64).copy(), dist0, rvecs=(rvec,), tvecs=(tvec,), flags=flags,
-    )
+    with _solver_refusal(camera, "the lens fit on the robot"):
+        rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+            [points_base.astype(np.float32)], [pixels.astype(np.float32).reshape(-1, 1, 2)], image_size,
+            K_guess.astype(np.float64).copy(), dist0, rvecs=(rvec,), tvecs=(tvec,), flags=flags,
+        )
     r, _ = cv2.Rodrigues(np.asarray(rvecs[0]))
     camera_from_base = np.eye(4)
     camera_from_base[:3, :3] = r
@@ -185,32 +202,65 @@ def pose_uncertainty(
     base_from_camera: np.ndarray,
     *,
     lens_model: str = "radial",
+    mount: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    corners_per_frame: int | None = None,
 ) -> PoseUncertainty:
     """The covariance of the pose `calibrate_lens_on_robot` found, from its residuals:
     σ²(JᵀJ)⁻¹ over the pose and every lens parameter the fit estimated (so that the
     lens's own uncertainty widens the pose's), σ² the residuals' variance per pixel
     coordinate; carried to the camera's centre and orientation in the base frame.
 
-    It counts the pixels' noise only: errors in the corners' base-frame positions (the
-    board's mount, the robot's kinematics) are not in it."""
+    With `mount` = (base_from_flange per frame (F, 4, 4), the board's corners (C, 3),
+    flange_from_board), `points_base` being those corners carried by each frame's flange
+    and the mount, the mount's six parameters are estimated along (a pose error that the
+    mount can absorb widens the pose's uncertainty). Without it, the corners' base-frame
+    positions count as exact. Errors of the robot's kinematics are in neither.
+
+    With `corners_per_frame` (the points come frame by frame, that many each), the
+    covariance is the cluster-robust sandwich (JᵀJ)⁻¹(Σ_f J_fᵀr̃_f r̃_fᵀJ_f)(JᵀJ)⁻¹ over
+    frames f, r̃_f the frame's residuals with its leverage taken out (the jackknife's
+    "CR3" form): a frame's corners err together (blur, the board's pose in the image),
+    which the per-pixel σ² would count as independent."""
     cv2 = _cv2()
     points_base = np.asarray(points_base, dtype=np.float64)
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     dist = np.asarray(distortion, dtype=np.float64).reshape(-1)[:5]
+    K = np.asarray(K, float)
     camera_from_base = np.linalg.inv(base_from_camera)
     rvec, _ = cv2.Rodrigues(camera_from_base[:3, :3])
     tvec = camera_from_base[:3, 3]
-    projected, jacobian = cv2.projectPoints(points_base, rvec, tvec, np.asarray(K, float), dist)
+    projected, jacobian = cv2.projectPoints(points_base, rvec, tvec, K, dist)
     # Columns: rvec (3), tvec (3), fx fy, cx cy, then the distortion coefficients.
     columns = list(range(10)) + [10 + i for i in _FITTED_DISTORTION[lens_model]]
     J = jacobian[:, columns]
+    if mount is not None:
+        J = np.hstack([J, _mount_jacobian(mount, rvec, tvec, K, dist, len(points_base))])
     residual = projected.reshape(-1) - pixels.reshape(-1)
-    dof = max(len(residual) - len(columns), 1)
+    dof = max(len(residual) - J.shape[1], 1)
     sigma2 = float(residual @ residual) / dof
     try:
-        cov = sigma2 * np.linalg.inv(J.T @ J)[:6, :6]
+        bread = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         return PoseUncertainty(np.full((6, 6), np.inf))
+    cov = sigma2 * bread[:6, :6]
+    if corners_per_frame is not None:
+        per_frame = 2 * corners_per_frame
+        if len(residual) % per_frame:
+            raise ValueError(f"{len(residual) // 2} corners are not whole frames of {corners_per_frame}")
+        n_frames = len(residual) // per_frame
+        J_f = J.reshape(n_frames, per_frame, -1)
+        r_f = residual.reshape(n_frames, per_frame)
+        # Each frame's residuals as if the fit had not seen that frame (the jackknife's
+        # leverage correction, "CR3"): a fit pulls toward every frame, most toward the
+        # few that alone fix a parameter, which would hide their error.
+        leverage = np.einsum("fip,pq,fjq->fij", J_f, bread, J_f)
+        try:
+            r_f = np.linalg.solve(np.eye(per_frame) - leverage, r_f[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            return PoseUncertainty(np.full((6, 6), np.inf))
+        scores = np.einsum("fkp,fk->fp", J_f, r_f)
+        meat = scores.T @ scores * (n_frames - 1) / n_frames
+        cov = (bread @ meat @ bread)[:6, :6]
 
     def centre_and_turn(v: np.ndarray) -> np.ndarray:
         r, _ = cv2.Rodrigues(v[:3])
@@ -230,3 +280,25 @@ def pose_uncertainty(
         h[k] = 1e-6
         G[:, k] = (centre_and_turn(x0 + h) - centre_and_turn(x0 - h)) / 2e-6
     return PoseUncertainty(G @ cov @ G.T)
+
+
+def _mount_jacobian(mount, rvec, tvec, K, dist, n_points: int) -> np.ndarray:
+    """d(pixels)/d(mount) by central differences, the mount moved by a small
+    (translation, rotation vector) in the board's frame: (2N, 6)."""
+    cv2 = _cv2()
+    flanges, board, flange_from_board = (np.asarray(m, dtype=np.float64) for m in mount)
+    if len(flanges) * len(board) != n_points:
+        raise ValueError(f"mount: {len(flanges)} frames × {len(board)} corners, but {n_points} points")
+
+    def pixels_with(m: np.ndarray) -> np.ndarray:
+        poses = flanges @ m  # (F, 4, 4)
+        points = (np.einsum("fij,cj->fci", poses[:, :3, :3], board) + poses[:, None, :3, 3]).reshape(-1, 3)
+        return cv2.projectPoints(points, rvec, tvec, K, dist)[0].reshape(-1)
+
+    h = 1e-6
+    out = np.empty((2 * n_points, 6))
+    for k in range(6):
+        step = np.zeros(6)
+        step[k] = h
+        out[:, k] = (pixels_with(flange_from_board @ pose_from_vector(step)) - pixels_with(flange_from_board @ pose_from_vector(-step))) / (2 * h)
+    return out

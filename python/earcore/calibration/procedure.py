@@ -28,14 +28,14 @@ import numpy as np
 
 from earcore.calibration.board import Checkerboard, Detection, detect_board
 from earcore.calibration.config import CalibrationConfig
-from earcore.calibration.errors import BoardNotSeen, CalibrationError, CalibrationFileError
+from earcore.calibration.errors import BoardNotSeen, CalibrationError, CalibrationFileError, PoorCalibration
 from earcore.calibration.estimate import Estimator, Observation, SensorSpec
 from earcore.calibration.eye_to_hand import EyeToHand
 from earcore.calibration.motion import BoardMotion
 from earcore.calibration.store import Calibration, CameraCalibration
-from earcore.transforms import axis_angle_matrix, rotation_vector
+from earcore.transforms import axis_angle_matrix, rotation_from_vector, rotation_vector
 
-__all__ = ["Calibrator"]
+__all__ = ["Calibrator", "refuse_uncertain"]
 
 
 def _axis_rotation(axis: int, angle: float) -> np.ndarray:
@@ -80,6 +80,55 @@ class _TiltSearch:
             return False  # the first failure: stop here
         self.angle, self.q = angle, q.copy()
         return True
+
+
+def refuse_uncertain(result: CameraCalibration, config: CalibrationConfig) -> None:
+    """Raise `PoorCalibration`, naming the camera and what its uncertainty is made of,
+    when its pose is less certain than `config.max_pose_sigma_m` / `_deg` accept."""
+    limit_m, limit_deg = config.max_pose_sigma_m, config.max_pose_sigma_deg
+    over_m = limit_m is not None and not result.pose_sigma_m <= limit_m
+    over_deg = limit_deg is not None and not result.pose_sigma_deg <= limit_deg
+    if not (over_m or over_deg):
+        return
+    limits = [f"{1000 * limit_m:.1f} mm" if limit_m is not None else "", f"{limit_deg}°" if limit_deg is not None else ""]
+    parts = [f"the pose from pixels alone ±{1000 * result.pixel_pose_sigma_m:.1f} mm / ±{result.pixel_pose_sigma_deg:.2f}°"]
+    if result.has_depth:
+        parts.append(f"the poses from pixels and from depth {1000 * result.pose_agreement_m:.1f} mm / {result.pose_agreement_deg:.2f}° apart")
+    if config.max_frames is not None and result.frames < config.max_frames:
+        parts.append(f"only {result.frames} of {config.max_frames} frames (the other board poses tried were out of reach or out of view)")
+    raise PoorCalibration(
+        result.name,
+        f"pose uncertain to ±{1000 * result.pose_sigma_m:.1f} mm / ±{result.pose_sigma_deg:.2f}° (1σ), beyond "
+        f"{' / '.join(x for x in limits if x)}: " + "; ".join(parts),
+    )
+
+
+class _Aim:
+    """Board poses in one camera's frame that keep the whole board in its image: the
+    board's centre at `radius` (fraction of the usable half-field of view) in direction
+    `phase` around the image centre, `factor` times the start distance away."""
+
+    def __init__(self, width: int, height: int, K: np.ndarray, board_half: np.ndarray, distance: float) -> None:
+        self.half_fov = np.array([(width / 2) / K[0, 0], (height / 2) / K[1, 1]])
+        self.board_half, self.distance = board_half, distance
+
+    def facing(self, radius: float, phase: float, factor: float, *, toward: np.ndarray | None = None, blend: float = 0.0) -> np.ndarray:
+        """camera_from_board: the board's face toward the camera, its x along the image's
+        x; with `toward` (a camera_from_board rotation), turned `blend` of the way to it."""
+        d = self.distance * factor
+        usable = np.maximum(self.half_fov - 1.3 * self.board_half.max() / d, 0.02)
+        xy = radius * usable * np.array([math.cos(phase), math.sin(phase)])
+        ray = np.array([xy[0], xy[1], 1.0])
+        centre = d * ray / np.linalg.norm(ray)
+        zb = -centre / np.linalg.norm(centre)
+        xb = np.array([1.0, 0.0, 0.0]) - zb[0] * zb
+        xb /= np.linalg.norm(xb)
+        out = np.eye(4)
+        out[:3, 0], out[:3, 1], out[:3, 2] = xb, np.cross(zb, xb), zb
+        if toward is not None and blend > 0:
+            out[:3, :3] = out[:3, :3] @ rotation_from_vector(blend * rotation_vector(out[:3, :3].T @ toward))
+        out[:3, 3] = centre
+        return out
 
 
 class Calibrator:
@@ -281,9 +330,8 @@ class Calibrator:
         fit = self.estimator.fit(self.observations[name], spec, K0, d0, fit.flange_from_board, estimate_mount=True, threshold=loose)
         # Step 5: staged trajectory, re-aimed after every accepted frame.
         distance = float(np.linalg.norm((np.linalg.inv(fit.base_from_camera) @ start_board)[:3, 3]))
-        w, h = cam.sensor.width, cam.sensor.height
-        half_fov = np.array([(w / 2) / K0[0, 0], (h / 2) / K0[1, 1]])
-        board_half = np.array(self.board.size) / 2
+        start_turn = (np.linalg.inv(fit.base_from_camera) @ start_board)[:3, :3]
+        aim = _Aim(cam.sensor.width, cam.sensor.height, K0, np.array(self.board.size) / 2, distance)
         tilts = [(0, 1), (1, 1), (0, -1), (1, -1), (2, 1), (2, -1)]
         n_pos = 0
         # Each position is visited at every distance in turn (Paper I runs the whole
@@ -299,34 +347,52 @@ class Calibrator:
                     lim = limits.get(f"{label}{'+' if sign > 0 else '-'}", 0.0)
                     tilt = _axis_rotation(axis, sign * math.radians(s.tilt_fraction * lim))
                 n_pos += 1
+                phase = 2 * math.pi * j / count + (math.pi / 4 if count == 4 else 0.0)
                 for factor in s.distance_factors:
                     if self._full(name):
                         break
-                    d = distance * factor
-                    # Where the board's centre may go and keep the whole board in the image.
-                    usable = np.maximum(half_fov - 1.3 * board_half.max() / d, 0.02)
-                    phase = 2 * math.pi * j / count + (math.pi / 4 if count == 4 else 0.0)
-                    xy = radius * usable * np.array([math.cos(phase), math.sin(phase)])
-                    ray = np.array([xy[0], xy[1], 1.0])
-                    centre = d * ray / np.linalg.norm(ray)
-                    # Face the camera: board z toward it, board x along the image's x.
-                    zb = -centre / np.linalg.norm(centre)
-                    xb = np.array([1.0, 0.0, 0.0]) - zb[0] * zb
-                    xb /= np.linalg.norm(xb)
-                    cam_from_board = np.eye(4)
-                    cam_from_board[:3, 0], cam_from_board[:3, 1], cam_from_board[:3, 2] = xb, np.cross(zb, xb), zb
-                    cam_from_board[:3, 3] = centre
-                    cam_from_board = cam_from_board @ tilt
-                    if not self.motion.reach_board_pose(fit.base_from_camera @ cam_from_board, fit.flange_from_board):
-                        continue  # unreachable or colliding: skip (Paper I)
-                    obs = self.observe(name, tilted=tilted)
-                    if obs is not None:
-                        obs.distance_factor, obs.radius, obs.slot = factor, radius, j
-                    if self._accept(obs):
-                        fit = self.estimator.fit(self.observations[name], spec, K0, d0, fit.flange_from_board, estimate_mount=True, threshold=loose)
+                    target = aim.facing(radius, phase, factor) @ tilt
+                    fit = self._capture(name, spec, K0, d0, fit, target, tilted, (factor, radius, j))
+        # Step 5b: Paper I skips what the robot cannot reach; with a frame budget, the
+        # frames still missing are sought between the stages' positions, facing the
+        # camera and then turned halfway to the start pose's board (which the camera saw
+        # there), so that a camera the robot serves only at an angle still gets its frames.
+        if s.max_frames is not None:
+            tried = 0
+            for radius, count in zip(s.topup_radii, s.topup_positions):
+                for j in range(count):
+                    phase = 2 * math.pi * (j + 0.5) / count
+                    for blend in (0.0, 0.5):
+                        for factor in s.distance_factors:
+                            if self._full(name):
+                                break
+                            target = aim.facing(radius, phase, factor, toward=start_turn, blend=blend)
+                            tried += 1
+                            fit = self._capture(name, spec, K0, d0, fit, target, blend > 0, (factor, radius, j))
+            if tried and not self._full(name):
+                self.progress(
+                    f"{name}: {len(self.observations[name])} of {s.max_frames} frames; "
+                    f"the {tried} further board poses tried are out of reach or out of view"
+                )
         self.progress(f"{name}: {len(self.observations[name])} frames in {self.motion.motion_time - motion_before:.0f} s of motion")
         # Steps 6-7: lenses, then eye-to-hand again through the corrected lenses.
-        return self.finish(name)
+        result = self.finish(name)
+        refuse_uncertain(result, self.config)
+        return result
+
+    def _capture(self, name, spec, K0, d0, fit: EyeToHand, camera_from_board: np.ndarray, tilted: bool, where) -> EyeToHand:
+        """Bring the board to `camera_from_board` (as the current fit places the camera),
+        keep the frame if the camera sees it, and re-fit with it. Unreachable or colliding
+        poses are skipped (Paper I)."""
+        if not self.motion.reach_board_pose(fit.base_from_camera @ camera_from_board, fit.flange_from_board):
+            return fit
+        obs = self.observe(name, tilted=tilted)
+        if obs is not None:
+            obs.distance_factor, obs.radius, obs.slot = where
+        if not self._accept(obs):
+            return fit
+        loose = self.config.ransac_threshold_uncorrected
+        return self.estimator.fit(self.observations[name], spec, K0, d0, fit.flange_from_board, estimate_mount=True, threshold=loose)
 
     def finish(self, name: str, observations: list[Observation] | None = None) -> CameraCalibration:
         """Steps 6-7 (`Estimator.finish`) from camera `name`'s accepted frames, or from

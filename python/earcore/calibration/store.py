@@ -53,13 +53,22 @@ class CameraCalibration:
     colour_reprojection_rms: float = math.nan
     #: Zhang's method alone (Paper I), before the robot-rig refinement.
     zhang_reprojection_rms: float = math.nan
-    #: Distance (m) between the pose from pixels and the pose from depth (a check).
+    #: Distance (m) and angle (degrees) between the pose from pixels and the pose from
+    #: depth (a check).
     pose_agreement_m: float = math.nan
-    #: One standard deviation of the pose from pixels (the robot-rig fit), from the
-    #: corners' pixel noise (`earcore.calibration.intrinsics.pose_uncertainty`): the
-    #: centre's position (m) and the orientation (degrees).
+    pose_agreement_deg: float = math.nan
+    #: One standard deviation of the pose from pixels (the robot-rig fit, the board's
+    #: mount estimated along), from the corners' pixel noise
+    #: (`earcore.calibration.intrinsics.pose_uncertainty`): the centre's position (m)
+    #: and the orientation (degrees).
     pixel_pose_sigma_m: float = math.nan
     pixel_pose_sigma_deg: float = math.nan
+    #: The uncertainty of `base_from_camera` (m, degrees; about one standard
+    #: deviation): for a depth camera the pose from pixels' σ and the two poses'
+    #: disagreement added in quadrature (the disagreement carries what the pixel noise
+    #: does not: the depth error left, the lens's bias); for a colour-only camera its σ.
+    pose_sigma_m: float = math.nan
+    pose_sigma_deg: float = math.nan
     frames: int = 0
     corners: int = 0
     #: Where the board was seen in the depth image (u_min, v_min, u_max, v_max): the

@@ -42,6 +42,8 @@ BAD_OPTIONS = [
     (["calibrate", "--max-frames", "7"], "--max-frames"),
     (["calibrate", "--camera-scale", "0.01"], "--camera-scale"),
     (["calibrate", "--camera-scale", "1e9"], "--camera-scale"),
+    (["calibrate", "--max-pose-sigma", "1", "x"], "--max-pose-sigma"),
+    (["calibrate", "--max-pose-sigma", "-1", "0.2"], "--max-pose-sigma"),
     (["experiment", "calibration", "--camera-scale", "0.1"], "--camera-scale"),
     (["run", "--seed", "99999999999999999999999999"], "--seed"),
     (["demo", "--after", "1e300"], "--after"),

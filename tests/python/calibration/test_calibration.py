@@ -7,6 +7,7 @@ input, and the whole procedure in the cell against the simulation's ground truth
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from earcore.calibration import (
     Calibrator,
     CameraCalibration,
     DegeneratePoses,
+    PoorCalibration,
     TooFewFrames,
     calibrate_lens,
     calibrate_lens_on_robot,
@@ -33,6 +35,7 @@ from earcore.calibration import (
 )
 from earcore.calibration.board import Checkerboard, Detection
 from earcore.calibration.eye_to_hand import fit_eye_to_hand_from_poses, refine_by_reprojection
+from earcore.calibration.procedure import refuse_uncertain
 from earcore.depth_error import DepthBias, radius2_grid
 from earcore.transforms import look_at, mean_pose, perturb_pose
 
@@ -239,6 +242,21 @@ def test_lens_on_robot_recovers_lens_and_pose():
     assert lens.rms == pytest.approx(0.1 * math.sqrt(2), rel=0.15)  # 0.1 px per axis
 
 
+def test_a_lens_guess_outside_the_image_is_refused_with_the_camera_named():
+    """OpenCV rejects a principal point outside the image; the caller gets a calibration
+    error naming the camera (a re-fit from a poor frame subset can guess that badly)."""
+    rng = np.random.default_rng(4)
+    base_from_camera = look_at([1.1, 0.8, 0.8], [0.4, 0.0, 0.3])
+    views = _views(rng, 10, distance=(0.7, 1.0))
+    points = np.concatenate([apply(base_from_camera @ pose, BOARD.inner_corners()) for pose, _ in views])
+    pixels = np.concatenate([px for _, px in views])
+    off = np.array([[350.0, 0, 900], [0, 350.0, 210], [0, 0, 1]])
+    with pytest.raises(DegeneratePoses, match="'left'.*lens fit on the robot failed: Principal point must be within the image"):
+        calibrate_lens_on_robot(points, pixels, (512, 424), off, camera="left")
+    with pytest.raises(DegeneratePoses, match="'left'.*Zhang's method failed"):
+        calibrate_lens([Detection(px, (512, 424)) for _, px in views], BOARD.inner_corners(), off, camera="left")
+
+
 def test_zhang_needs_frames_and_coverage():
     rng = np.random.default_rng(5)
     views = _views(rng, 10)
@@ -442,6 +460,26 @@ def test_algorithm_1_finds_the_camera_the_lens_and_the_mount(calibrated_v1):
 
 
 @pytest.mark.slow
+@pytest.mark.slow
+def test_the_reported_uncertainty_covers_the_error_and_gates_the_result(calibrated_v1):
+    cell, mount, calibrator, result = calibrated_v1
+    errors = evaluate(cell, result, mount, calibrator.observations[result.name])
+    assert result.pose_sigma_m == pytest.approx(math.hypot(result.pixel_pose_sigma_m, result.pose_agreement_m))
+    assert result.pose_sigma_deg == pytest.approx(math.hypot(result.pixel_pose_sigma_deg, result.pose_agreement_deg))
+    assert errors.translation <= 3 * result.pose_sigma_m, (errors.translation, result.pose_sigma_m)
+    assert errors.rotation_deg <= 3 * result.pose_sigma_deg, (errors.rotation_deg, result.pose_sigma_deg)
+    config = calibrator.config
+    refuse_uncertain(result, config)  # it passed the default limits
+    with pytest.raises(PoorCalibration, match=r"'kinect_v1_front': pose uncertain to ±.* beyond [0-9.]+ mm / 0.3°: the pose from pixels alone"):
+        refuse_uncertain(result, replace(config, max_pose_sigma_m=0.9 * result.pose_sigma_m))
+    with pytest.raises(PoorCalibration, match=r"beyond [0-9.]+°: .*from pixels and from depth"):
+        refuse_uncertain(result, replace(config, max_pose_sigma_m=None, max_pose_sigma_deg=0.9 * result.pose_sigma_deg))
+    refuse_uncertain(result, replace(config, max_pose_sigma_m=None, max_pose_sigma_deg=None))
+    unsure = replace(result, pose_sigma_m=math.nan)  # an uncertainty that could not be computed is no pass
+    with pytest.raises(PoorCalibration):
+        refuse_uncertain(unsure, config)
+
+
 def test_a_bumped_camera_is_noticed(calibrated_v1):
     cell, mount, calibrator, result = calibrated_v1
     ok = check_camera(calibrator, result)
