@@ -515,7 +515,11 @@ def test_a_colour_only_camera_is_calibrated_from_its_images(tmp_path):
         assert errors.translation < 0.005 and errors.rotation_deg < 0.5, errors
         assert errors.mount_translation < 0.001 and errors.colour_lens_px < 1.5, errors
         assert result.colour_reprojection_rms < 0.5
+        # Its uncertainty is the pixel fit's (pose and mount from the same pixels).
+        assert result.pose_sigma_m == result.pixel_pose_sigma_m and result.pose_sigma_deg == result.pixel_pose_sigma_deg
+        assert errors.translation <= 3 * result.pose_sigma_m and errors.rotation_deg <= 3 * result.pose_sigma_deg, (errors, result.pose_sigma_m)
         loaded = Calibration.load(tmp_path / "cal.yaml").cameras["webcam_front"]
+        assert loaded.pose_sigma_m == pytest.approx(result.pose_sigma_m)
         assert loaded.depth_K is None and np.allclose(loaded.base_from_camera, result.base_from_camera)
         pipeline = PerceptionPipeline(PerceptionConfig(), earcore.robots.load("ur5"))
         pipeline.load_calibration(Calibration({"webcam_front": loaded}))
