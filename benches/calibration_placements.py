@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from earcore.app.arguments import positive
 from earcore.app.calibration_cell import calibration_cell, calibration_cell_config, evaluate
 from earcore.calibration.config import CalibrationConfig
 from earcore.calibration.errors import CalibrationError, PoorCalibration
@@ -73,7 +74,7 @@ def main() -> None:
     parser.add_argument("--placements", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-frames", type=int, default=30)
-    parser.add_argument("--max-pose-sigma", nargs=2, type=float, metavar=("MM", "DEG"), default=(2.5, 0.2),
+    parser.add_argument("--max-pose-sigma", nargs=2, type=positive, metavar=("MM", "DEG"), default=(2.5, 0.2),
                         help="refuse a camera whose pose is less certain (1σ) than this, (default 2.5 mm 0.2°, stricter than `earcore calibrate`'s 4 mm 0.3°)")
     parser.add_argument("--json", default=None, help="also write every camera's figures here")
     parser.add_argument("--observations", default=None, help="pickle every camera's frames, sensor and true pose into this folder")

@@ -49,9 +49,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="frames per camera (default 20: three cameras in under 3 minutes of motion; Paper I: ~30)")
     parser.add_argument("--full", action="store_true", help="the whole trajectory (both distances, every position)")
     parser.add_argument("--no-tilt", action="store_true", help="no tilting along the trajectory")
-    parser.add_argument("--max-pose-sigma", nargs=2, type=positive, metavar=("MM", "DEG"), default=(4.0, 0.3),
-                        help="refuse (exit 1, file unchanged) a camera whose pose is less certain than this, 1σ (default 4 mm 0.3°)")
-    parser.add_argument("--accept-uncertain", action="store_true", help="write every camera whatever its pose's uncertainty")
+    quality = parser.add_mutually_exclusive_group()
+    quality.add_argument("--max-pose-sigma", nargs=2, type=positive, metavar=("MM", "DEG"), default=(4.0, 0.3),
+                         help="refuse (exit 1, file unchanged) a camera whose pose is less certain than this, 1σ (default 4 mm 0.3°)")
+    quality.add_argument("--accept-uncertain", action="store_true", help="write every camera whatever its pose's uncertainty")
     args = parser.parse_args(argv)
     if args.camera_scale < 0.25:
         parser.error(f"argument --camera-scale: the board's corners are not found below 0.25, got {args.camera_scale:g}")

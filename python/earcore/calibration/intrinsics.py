@@ -115,7 +115,7 @@ def _solver_refusal(camera: str, what: str) -> Iterator[None]:
     try:
         yield
     except cv2.error as exc:
-        reason = str(exc).strip().splitlines()[-1].split(") ")[-1].split(" in function")[0]
+        reason = " ".join(str(getattr(exc, "err", None) or exc).split())
         raise DegeneratePoses(camera, f"{what} failed: {reason}") from exc
 
 
@@ -248,6 +248,9 @@ def pose_uncertainty(
         if len(residual) % per_frame:
             raise ValueError(f"{len(residual) // 2} corners are not whole frames of {corners_per_frame}")
         n_frames = len(residual) // per_frame
+        if n_frames < 2:
+            # One frame has no spread to measure.
+            return PoseUncertainty(np.full((6, 6), np.inf))
         J_f = J.reshape(n_frames, per_frame, -1)
         r_f = residual.reshape(n_frames, per_frame)
         # Each frame's residuals as if the fit had not seen that frame (the jackknife's
@@ -261,6 +264,9 @@ def pose_uncertainty(
         scores = np.einsum("fkp,fk->fp", J_f, r_f)
         meat = scores.T @ scores * (n_frames - 1) / n_frames
         cov = (bread @ meat @ bread)[:6, :6]
+    if not (np.isfinite(cov).all() and (np.diag(cov) > 0).all()):
+        # A nearly singular JᵀJ: some direction of the pose is not fixed at all.
+        return PoseUncertainty(np.full((6, 6), np.inf))
 
     def centre_and_turn(v: np.ndarray) -> np.ndarray:
         r, _ = cv2.Rodrigues(v[:3])

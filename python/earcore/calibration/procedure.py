@@ -90,12 +90,12 @@ def refuse_uncertain(result: CameraCalibration, config: CalibrationConfig) -> No
     over_deg = limit_deg is not None and not result.pose_sigma_deg <= limit_deg
     if not (over_m or over_deg):
         return
-    limits = [f"{1000 * limit_m:.1f} mm" if limit_m is not None else "", f"{limit_deg}°" if limit_deg is not None else ""]
+    limits = [f"{1000 * limit_m:.1f} mm" if limit_m is not None else "", f"{limit_deg:g}°" if limit_deg is not None else ""]
     parts = [f"the pose from pixels alone ±{1000 * result.pixel_pose_sigma_m:.1f} mm / ±{result.pixel_pose_sigma_deg:.2f}°"]
     if result.has_depth:
         parts.append(f"the poses from pixels and from depth {1000 * result.pose_agreement_m:.1f} mm / {result.pose_agreement_deg:.2f}° apart")
     if config.max_frames is not None and result.frames < config.max_frames:
-        parts.append(f"only {result.frames} of {config.max_frames} frames (the other board poses tried were out of reach or out of view)")
+        parts.append(f"{result.frames} of {config.max_frames} frames kept (the rest out of reach, out of view or not explained by the fit)")
     raise PoorCalibration(
         result.name,
         f"pose uncertain to ±{1000 * result.pose_sigma_m:.1f} mm / ±{result.pose_sigma_deg:.2f}° (1σ), beyond "
@@ -358,11 +358,12 @@ class Calibrator:
         # camera and then turned halfway to the start pose's board (which the camera saw
         # there), so that a camera the robot serves only at an angle still gets its frames.
         if s.max_frames is not None:
-            tried = 0
+            tried, before = 0, len(self.observations[name])
+            blends = (0.0, 0.5) if s.tilt_fraction > 0 else (0.0,)
             for radius, count in zip(s.topup_radii, s.topup_positions):
                 for j in range(count):
-                    phase = 2 * math.pi * (j + 0.5) / count
-                    for blend in (0.0, 0.5):
+                    phase = 2 * math.pi * (j + 0.5) / count + (math.pi / 4 if count == 4 else 0.0)
+                    for blend in blends:
                         for factor in s.distance_factors:
                             if self._full(name):
                                 break
@@ -370,9 +371,10 @@ class Calibrator:
                             tried += 1
                             fit = self._capture(name, spec, K0, d0, fit, target, blend > 0, (factor, radius, j))
             if tried and not self._full(name):
+                got = len(self.observations[name]) - before
                 self.progress(
-                    f"{name}: {len(self.observations[name])} of {s.max_frames} frames; "
-                    f"the {tried} further board poses tried are out of reach or out of view"
+                    f"{name}: {len(self.observations[name])} of {s.max_frames} frames; of {tried} further board poses "
+                    f"tried, {got} gave a frame, the others were out of reach or out of view"
                 )
         self.progress(f"{name}: {len(self.observations[name])} frames in {self.motion.motion_time - motion_before:.0f} s of motion")
         # Steps 6-7: lenses, then eye-to-hand again through the corrected lenses.

@@ -460,7 +460,6 @@ def test_algorithm_1_finds_the_camera_the_lens_and_the_mount(calibrated_v1):
 
 
 @pytest.mark.slow
-@pytest.mark.slow
 def test_the_reported_uncertainty_covers_the_error_and_gates_the_result(calibrated_v1):
     cell, mount, calibrator, result = calibrated_v1
     errors = evaluate(cell, result, mount, calibrator.observations[result.name])
@@ -480,6 +479,7 @@ def test_the_reported_uncertainty_covers_the_error_and_gates_the_result(calibrat
         refuse_uncertain(unsure, config)
 
 
+@pytest.mark.slow
 def test_a_bumped_camera_is_noticed(calibrated_v1):
     cell, mount, calibrator, result = calibrated_v1
     ok = check_camera(calibrator, result)

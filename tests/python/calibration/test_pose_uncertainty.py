@@ -133,7 +133,7 @@ def test_with_the_mount_estimated_along_the_spread_matches_a_joint_fit():
         px, _ = cv2.projectPoints(corners(flanges, m), x[:3], x[3:6], k, d)
         return px.reshape(-1) - pixels.reshape(-1)
 
-    centre_errors, reported, reported_fixed = [], [], []
+    centre_errors, reported, reported_fixed, per_frame = [], [], [], []
     for _ in range(30):
         pixels = clean + rng.normal(0.0, 0.3, clean.shape)
         x = least_squares(residual, x0, args=(pixels,), method="lm", x_scale="jac").x
@@ -143,11 +143,17 @@ def test_with_the_mount_estimated_along_the_spread_matches_a_joint_fit():
         points = corners(flanges, m)
         reported.append(pose_uncertainty(points, pixels, k, d, pose, lens_model="radial", mount=(flanges, BOARD, m)).translation_m)
         reported_fixed.append(pose_uncertainty(points, pixels, k, d, pose, lens_model="radial").translation_m)
+        per_frame.append(
+            pose_uncertainty(points, pixels, k, d, pose, lens_model="radial", mount=(flanges, BOARD, m), corners_per_frame=48).translation_m
+        )
     spread = float(np.sqrt((np.array(centre_errors) ** 2).sum(1).mean()))
     # 30 trials pin a standard deviation to about ±13 % (1σ).
     assert 0.7 < spread / np.median(reported) < 1.4, (spread, np.median(reported))
     # The mount's freedom is real here: ignoring it would under-report the spread.
     assert np.median(reported_fixed) < 0.8 * np.median(reported), (np.median(reported_fixed), np.median(reported))
+    # Counted per frame (12 frames for 19 unknowns), the leverage correction errs on the
+    # cautious side, within bounds.
+    assert 0.8 * spread < np.median(per_frame) < 2.0 * spread, (spread, np.median(per_frame))
 
 
 def test_a_mount_the_frames_cannot_fix_makes_the_pose_uncertain():
@@ -165,6 +171,25 @@ def test_a_mount_the_frames_cannot_fix_makes_the_pose_uncertain():
     free = pose_uncertainty(points, pixels, K, DIST, truth, lens_model="radial", mount=(flanges, BOARD, mount))
     assert fixed.translation_m < 0.005
     assert free.translation_m > 100 * fixed.translation_m, (fixed.translation_m, free.translation_m)
+    assert np.isfinite(fixed.translation_m) and not np.isnan(free.translation_m)
+
+
+def test_too_few_frames_for_a_per_frame_spread_report_no_certainty():
+    """One frame has no spread between frames to measure: "unknown" (infinite), never
+    zero; a few frames give a wide, finite answer, wider than the per-pixel one."""
+    rng = np.random.default_rng(2)
+    truth = camera_pose(np.array([1.2, 0.8, 1.0]), [0.3, 0.0, 0.3])
+    for frames in (1, 4):
+        points = rig(rng, truth, frames)
+        pixels = project(points, truth) + rng.normal(0.0, 0.3, (len(points), 2))
+        u = pose_uncertainty(points, pixels, K, DIST, truth, lens_model="radial", corners_per_frame=48)
+        per_pixel = pose_uncertainty(points, pixels, K, DIST, truth, lens_model="radial")
+        if frames == 1:
+            assert u.translation_m == np.inf and u.rotation_deg == np.inf
+        else:
+            assert per_pixel.translation_m < u.translation_m < np.inf, (per_pixel.translation_m, u.translation_m)
+    with pytest.raises(ValueError, match="whole frames"):
+        pose_uncertainty(points, pixels, K, DIST, truth, lens_model="radial", corners_per_frame=47)
 
 
 @pytest.mark.parametrize(("shared_px", "own_px"), [(0.3, 0.1), (0.0, 0.3)])
@@ -190,3 +215,4 @@ def test_errors_shared_by_a_frames_corners_are_counted_per_frame(shared_px, own_
     if shared_px > 0:
         assert np.median(per_pixel) < 0.6 * spread, (spread, np.median(per_pixel))
     assert 0.7 < spread / np.median(per_frame) < 1.4, (spread, np.median(per_frame))
+

@@ -825,10 +825,11 @@ mod tests {
 
     use super::super::key::TREE_MAX_VAL;
 
-    /// OctoMap's `setNodeValueRecurs` (lazy_eval = false) for one cell, written out
-    /// node by node: the reference for the batched `set_log_odds`.
-    fn set_one(tree: &mut OcTree, key: OcTreeKey, value: f32) {
-        let value = value.clamp(tree.lo.clamp_min, tree.lo.clamp_max);
+    /// OctoMap's `setNodeValueRecurs` / `updateNodeRecurs` (lazy_eval = false) for one
+    /// cell, written out node by node: the cell becomes `leaf(its value)`, pruned nodes
+    /// on the way are expanded, and every node on the way back is re-pruned or takes
+    /// its children's maximum. The reference for the batched updates.
+    fn octomap_one(tree: &mut OcTree, key: OcTreeKey, leaf: &dyn Fn(f32) -> f32) {
         let created = tree.root == NONE;
         if created {
             tree.root = tree.arena.alloc(0.0);
@@ -839,9 +840,10 @@ mod tests {
             just_created: bool,
             key: OcTreeKey,
             depth: u32,
-            v: f32,
+            leaf: &dyn Fn(f32) -> f32,
         ) {
             if depth == TREE_DEPTH {
+                let v = leaf(t.arena.value(node));
                 t.arena.set_value(node, v);
                 return;
             }
@@ -856,14 +858,32 @@ mod tests {
                 }
             }
             let child = t.arena.child(node, pos).unwrap();
-            recurse(t, child, created, key, depth + 1, v);
+            recurse(t, child, created, key, depth + 1, leaf);
             if !t.prune_node(node) {
                 let max = t.max_child_log_odds(node);
                 t.arena.set_value(node, max);
             }
         }
         let root = tree.root;
-        recurse(tree, root, created, key, 0, value);
+        recurse(tree, root, created, key, 0, leaf);
+    }
+
+    /// OctoMap's `setNodeValue(key, value)`.
+    fn set_one(tree: &mut OcTree, key: OcTreeKey, value: f32) {
+        let value = value.clamp(tree.lo.clamp_min, tree.lo.clamp_max);
+        octomap_one(tree, key, &|_| value);
+    }
+
+    /// OctoMap's `updateNode(key, delta)`: a search first, and no change at all when the
+    /// leaf holding the cell is already clamped in the update's direction.
+    fn update_one(tree: &mut OcTree, key: OcTreeKey, delta: f32) {
+        let (lo, hi) = (tree.lo.clamp_min, tree.lo.clamp_max);
+        if let Some(v) = tree.search(key, 0) {
+            if (delta >= 0.0 && v >= hi) || (delta <= 0.0 && v <= lo) {
+                return;
+            }
+        }
+        octomap_one(tree, key, &|v| (v + delta).clamp(lo, hi));
     }
 
     fn random_keys(rng: &mut Rng, n: usize) -> Vec<OcTreeKey> {
@@ -1000,8 +1020,7 @@ mod tests {
                 ours.apply_sorted_updates(&updates);
                 let mut want = base.clone();
                 for &(code, d) in &updates {
-                    want.update_node_log_odds(OcTreeKey::from_morton(code), d)
-                        .unwrap();
+                    update_one(&mut want, OcTreeKey::from_morton(code), d);
                 }
                 assert_eq!(
                     ours.write_full_bytes(),
@@ -1009,6 +1028,45 @@ mod tests {
                     "seed {seed}, side {side}, aligned {aligned}, delta {delta}"
                 );
             }
+        }
+    }
+
+    #[test]
+    fn random_batches_equal_octomap_update_node_per_cell() {
+        // Pruned leaves at every level (random_tree), clamped cells, cells the batch
+        // creates; deltas of both signs, zeros and ones that clamp at once.
+        let mut rng = Rng::new(12);
+        let deltas = [0.85f32, -0.4, 100.0, -100.0, 0.0, -0.0, 1e-9];
+        for seed in 0..60 {
+            let base = random_tree(300 + seed);
+            let mut cells = std::collections::BTreeMap::new();
+            let one = deltas[seed as usize % deltas.len()];
+            for _ in 0..(1 + (rng.unit() * 120.0) as usize) {
+                let key = key_at(
+                    rand_cell(&mut rng),
+                    rand_cell(&mut rng),
+                    rand_cell(&mut rng),
+                );
+                let d = if seed % 2 == 0 {
+                    one
+                } else {
+                    deltas[(rng.unit() * deltas.len() as f64) as usize % deltas.len()]
+                };
+                cells.insert(key.morton(), d);
+            }
+            let updates: Vec<KeyUpdate> = cells.into_iter().collect();
+            let mut ours = base.clone();
+            ours.apply_sorted_updates(&updates);
+            let mut want = base.clone();
+            for &(code, d) in &updates {
+                update_one(&mut want, OcTreeKey::from_morton(code), d);
+            }
+            assert_eq!(
+                ours.write_full_bytes(),
+                want.write_full_bytes(),
+                "seed {seed}"
+            );
+            assert_eq!(ours.size(), want.size());
         }
     }
 
