@@ -48,6 +48,9 @@ class CalibrationConfig:
     #: the start pose's board; () seeks none.
     topup_radii: tuple[float, ...] = (0.3, 0.65)
     topup_positions: tuple[int, ...] = (4, 8)
+    #: Their distances (multiples of the start pose's): wider than the stages', so that
+    #: the focal length and the distance along the view separate.
+    topup_distance_factors: tuple[float, ...] = (0.85, 1.4)
     #: Distances as multiples of the start pose's (Paper I: again 20 % farther).
     distance_factors: tuple[float, ...] = (1.0, 1.2)
     #: Stop a camera's trajectory after this many accepted frames (None: all).

@@ -364,7 +364,7 @@ class Calibrator:
                 for j in range(count):
                     phase = 2 * math.pi * (j + 0.5) / count + (math.pi / 4 if count == 4 else 0.0)
                     for blend in blends:
-                        for factor in s.distance_factors:
+                        for factor in s.topup_distance_factors:
                             if self._full(name):
                                 break
                             target = aim.facing(radius, phase, factor, toward=start_turn, blend=blend)
