@@ -886,6 +886,18 @@ mod tests {
         octomap_one(tree, key, &|v| (v + delta).clamp(lo, hi));
     }
 
+    /// `base` after the batch equals `base` after OctoMap's `updateNode` per cell.
+    fn assert_batch_is_octomap(base: &OcTree, updates: &[KeyUpdate], case: &str) {
+        let mut ours = base.clone();
+        ours.apply_sorted_updates(updates);
+        let mut want = base.clone();
+        for &(code, d) in updates {
+            update_one(&mut want, OcTreeKey::from_morton(code), d);
+        }
+        assert_eq!(ours.write_full_bytes(), want.write_full_bytes(), "{case}");
+        assert_eq!(ours.size(), want.size(), "{case}");
+    }
+
     fn random_keys(rng: &mut Rng, n: usize) -> Vec<OcTreeKey> {
         (0..n)
             .map(|_| key_at(rand_cell(rng), rand_cell(rng), rand_cell(rng)))
@@ -1016,16 +1028,10 @@ mod tests {
                     }
                 }
                 let updates: Vec<KeyUpdate> = cells.into_iter().collect();
-                let mut ours = base.clone();
-                ours.apply_sorted_updates(&updates);
-                let mut want = base.clone();
-                for &(code, d) in &updates {
-                    update_one(&mut want, OcTreeKey::from_morton(code), d);
-                }
-                assert_eq!(
-                    ours.write_full_bytes(),
-                    want.write_full_bytes(),
-                    "seed {seed}, side {side}, aligned {aligned}, delta {delta}"
+                assert_batch_is_octomap(
+                    &base,
+                    &updates,
+                    &format!("seed {seed}, side {side}, aligned {aligned}, delta {delta}"),
                 );
             }
         }
@@ -1055,18 +1061,7 @@ mod tests {
                 cells.insert(key.morton(), d);
             }
             let updates: Vec<KeyUpdate> = cells.into_iter().collect();
-            let mut ours = base.clone();
-            ours.apply_sorted_updates(&updates);
-            let mut want = base.clone();
-            for &(code, d) in &updates {
-                update_one(&mut want, OcTreeKey::from_morton(code), d);
-            }
-            assert_eq!(
-                ours.write_full_bytes(),
-                want.write_full_bytes(),
-                "seed {seed}"
-            );
-            assert_eq!(ours.size(), want.size());
+            assert_batch_is_octomap(&base, &updates, &format!("seed {seed}"));
         }
     }
 
