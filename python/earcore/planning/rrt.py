@@ -56,8 +56,9 @@ class JointSpacePlanner:
 
     `resolution` (rad) is the largest joint step between checked configurations on an
     edge; `range` the RRT step (0 = OMPL's default, 20 % of the space's extent).
-    Joint limits wider than ±π (UR's ±2π) are narrowed to `max_joint_span` around the
-    start, which keeps the search in the part of the space a task uses.
+    Joint limits wider than `max_joint_span` (UR's ±2π) are narrowed to that span around
+    the middle of start and goal, widened to hold both when they are farther apart: the
+    search stays in the part of the space a task uses.
     """
 
     def __init__(
@@ -204,9 +205,10 @@ class JointSpacePlanner:
         for j in range(dof):
             lo, hi = float(limits[j, 0]), float(limits[j, 1])
             if hi - lo > self.max_joint_span:
+                # The window always holds both ends: OMPL cannot start outside its space.
                 centre = 0.5 * (start[j] + goal[j])
-                lo = max(lo, centre - 0.5 * self.max_joint_span)
-                hi = min(hi, centre + 0.5 * self.max_joint_span)
+                lo = max(lo, min(centre - 0.5 * self.max_joint_span, start[j], goal[j]))
+                hi = min(hi, max(centre + 0.5 * self.max_joint_span, start[j], goal[j]))
             bounds.setLow(j, lo)
             bounds.setHigh(j, hi)
         space.setBounds(bounds)

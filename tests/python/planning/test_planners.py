@@ -34,6 +34,17 @@ def test_rrt_connect_paths_are_collision_free(ur5):
     assert planner.checks["states"] + planner.checks["motions"] > 0
 
 
+def test_ends_farther_apart_than_the_search_window_are_planned(ur5):
+    """A joint that must turn farther than `max_joint_span`: the window around the ends'
+    middle is widened to hold both (OMPL cannot start outside its space)."""
+    tree = pillar_tree()
+    span = float(np.max(np.abs(B - A))) * 0.5
+    planner = JointSpacePlanner(ur5, tree, seed=7, max_joint_span=span)
+    (solution,) = planner.plan(A, B, time_limit=2.0)
+    assert np.allclose(solution.waypoints[0], A) and np.allclose(solution.waypoints[-1], B)
+    assert not dense_collides(ur5, tree, solution.waypoints)
+
+
 def test_direct_motion_skips_the_search(ur5):
     planner = JointSpacePlanner(ur5, earcore.OcTree(0.05))
     (only,) = planner.plan(A, B)
