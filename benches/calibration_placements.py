@@ -77,7 +77,7 @@ def main() -> None:
     parser.add_argument("--max-frames", type=int, default=30)
     parser.add_argument("--max-pose-sigma", nargs=2, type=positive, metavar=("MM", "DEG"), default=(1.5, 0.15),
                         help="refuse a camera whose pose is less certain (1σ) than this (default 1.5 mm 0.15°: 3 mm / 0.3° "
-                             "at 2σ; `earcore calibrate` refuses beyond 4 mm 0.3°)")
+                             "at 2σ; `earcore calibrate` refuses beyond 5 mm 0.5°)")
     parser.add_argument("--json", default=None, help="also write every camera's figures here")
     parser.add_argument("--observations", default=None, help="pickle every camera's frames, sensor and true pose into this folder")
     args = parser.parse_args()

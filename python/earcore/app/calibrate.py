@@ -8,7 +8,7 @@
 Every fixed camera is calibrated unless `--camera` names some; the file gets the named
 cameras merged in (the others keep their entries), and is only written when every named
 camera succeeded: a camera whose pose is less certain than `--max-pose-sigma` (1σ,
-default 4 mm / 0.3°) counts as failed. `--bump NAME` moves that camera 10 cm / 10° in the simulation first
+default 5 mm / 0.5°) counts as failed. `--bump NAME` moves that camera 10 cm / 10° in the simulation first
 (someone knocked it) to try the check and the recalibration.
 """
 
@@ -50,8 +50,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--full", action="store_true", help="the whole trajectory (both distances, every position)")
     parser.add_argument("--no-tilt", action="store_true", help="no tilting along the trajectory")
     quality = parser.add_mutually_exclusive_group()
-    quality.add_argument("--max-pose-sigma", nargs=2, type=positive, metavar=("MM", "DEG"), default=(4.0, 0.3),
-                         help="refuse (exit 1, file unchanged) a camera whose pose is less certain than this, 1σ (default 4 mm 0.3°)")
+    quality.add_argument("--max-pose-sigma", nargs=2, type=positive, metavar=("MM", "DEG"), default=(5.0, 0.5),
+                         help="refuse (exit 1, file unchanged) a camera whose pose is less certain than this, 1σ (default 5 mm 0.5°)")
     quality.add_argument("--accept-uncertain", action="store_true", help="write every camera whatever its pose's uncertainty")
     args = parser.parse_args(argv)
     if args.camera_scale < 0.25:

@@ -81,8 +81,8 @@ class CalibrationConfig:
     #: A camera whose pose is uncertain beyond this (`CameraCalibration.pose_sigma_m`,
     #: `pose_sigma_deg`, about 1σ) is refused (`PoorCalibration`) instead of written;
     #: None: no limit.
-    max_pose_sigma_m: float | None = 0.004
-    max_pose_sigma_deg: float | None = 0.3
+    max_pose_sigma_m: float | None = 0.005
+    max_pose_sigma_deg: float | None = 0.5
     #: Passes of lens-and-pose from pixels / mount from depth in step 7.
     refinement_passes: int = 4
     #: The depth error's terms to fit (of offset + scale·z + radial·ρ²·z²,

@@ -469,7 +469,7 @@ def test_the_reported_uncertainty_covers_the_error_and_gates_the_result(calibrat
     assert errors.rotation_deg <= 3 * result.pose_sigma_deg, (errors.rotation_deg, result.pose_sigma_deg)
     config = calibrator.config
     refuse_uncertain(result, config)  # it passed the default limits
-    with pytest.raises(PoorCalibration, match=r"'kinect_v1_front': pose uncertain to ±.* beyond [0-9.]+ mm / 0.3°: the pose from pixels alone"):
+    with pytest.raises(PoorCalibration, match=r"'kinect_v1_front': pose uncertain to ±.* beyond [0-9.]+ mm / 0.5°: the pose from pixels alone"):
         refuse_uncertain(result, replace(config, max_pose_sigma_m=0.9 * result.pose_sigma_m))
     with pytest.raises(PoorCalibration, match=r"beyond [0-9.]+°: .*from pixels and from depth"):
         refuse_uncertain(result, replace(config, max_pose_sigma_m=None, max_pose_sigma_deg=0.9 * result.pose_sigma_deg))
