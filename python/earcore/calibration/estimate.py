@@ -214,11 +214,7 @@ class Estimator:
             if np.abs(fit.flange_from_board - previous).max() < 1e-5:
                 break
         self.refuse_poor_lens(name, depth_lens)
-        pixel_pose = pose_uncertainty(
-            self._corners_in_base(obs, rig_mount), np.concatenate([o.ir.corners for o in obs]),
-            depth_lens.K, depth_lens.distortion, base_from_ir, lens_model=self.config.lens_model,
-            mount=(np.array([o.base_from_flange for o in obs]), self.board_points, rig_mount), corners_per_frame=len(self.board_points),
-        )
+        pixel_pose = self._pixel_pose_uncertainty(obs, depth_lens, base_from_ir, rig_mount)
         t = time.perf_counter()
         colour_lens, offset = None, None
         both = [o for o in obs if o.colour is not None]
@@ -305,10 +301,7 @@ class Estimator:
             if np.abs(mount - previous).max() < 1e-5:
                 break
         self.refuse_poor_lens(name, lens)
-        pixel_pose = pose_uncertainty(
-            self._corners_in_base(obs, mount), np.concatenate([o.ir.corners for o in obs]), lens.K, lens.distortion,
-            base_from_camera, lens_model=s.lens_model, mount=(flanges, self.board_points, mount), corners_per_frame=len(self.board_points),
-        )
+        pixel_pose = self._pixel_pose_uncertainty(obs, lens, base_from_camera, mount)
         return CameraCalibration(
             name=name,
             base_from_camera=base_from_camera,
@@ -336,6 +329,15 @@ class Estimator:
             raise DegeneratePoses(
                 name, f"the lens and pose explain the corners only to {lens.rms:.1f} px rms (> {limit} px): too few or too similar frames"
             )
+
+    def _pixel_pose_uncertainty(self, obs: list[Observation], lens, base_from_camera: np.ndarray, mount: np.ndarray):
+        """The rig fit's pose covariance (`pose_uncertainty`): the mount estimated along,
+        residuals counted per frame."""
+        return pose_uncertainty(
+            self._corners_in_base(obs, mount), np.concatenate([o.ir.corners for o in obs]), lens.K, lens.distortion,
+            base_from_camera, lens_model=self.config.lens_model,
+            mount=(np.array([o.base_from_flange for o in obs]), self.board_points, mount), corners_per_frame=len(self.board_points),
+        )
 
     def _corners_in_base(self, obs: list[Observation], mount: np.ndarray) -> np.ndarray:
         """Every frame's board corners placed in the base frame by forward kinematics."""
