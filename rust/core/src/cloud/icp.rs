@@ -136,7 +136,7 @@ pub struct PlaneMemo {
 }
 
 /// Target points remembered per source point.
-const CANDIDATES: usize = 8;
+const CANDIDATES: usize = 4;
 
 /// How far beyond the correspondence distance a search looks (as a fraction of it),
 /// so that a point with nothing in reach keeps knowing so while it moves that much.
@@ -502,7 +502,7 @@ pub fn icp_point_to_plane_interruptible(
 }
 
 /// Source points of the coarse stage (when the source has at least twice as many).
-const COARSE_POINTS: usize = 4096;
+const COARSE_POINTS: usize = 2048;
 
 /// Pairs the coarse stage must end with for its pose to be kept (fewer fit noise).
 const COARSE_MIN_PAIRS: usize = 256;
@@ -673,6 +673,11 @@ mod tests {
 
     impl IcpTarget for FreshDescents<'_> {
         type Cursor = ();
+
+        /// As the map it stands for.
+        fn coarse_to_fine(&self) -> bool {
+            false
+        }
 
         fn pair(
             &self,

@@ -2,8 +2,6 @@
 //! (median splits on the widest axis, leaves of up to 8 points), queried many times,
 //! from any number of threads.
 
-use crate::geometry::distance_squared;
-
 /// A leaf holds at most this many points.
 const LEAF_SIZE: usize = 8;
 
@@ -11,10 +9,11 @@ const LEAF_SIZE: usize = 8;
 /// (fastest for small k); beyond it, in a heap.
 const SORTED_K: usize = 48;
 
+/// What a node is, as the searches see it.
 #[derive(Clone, Copy, Debug)]
 enum Node {
-    /// Points `order[start..end]`.
-    Leaf { start: u32, end: u32 },
+    /// The points of `blocks[block]`.
+    Leaf { block: u32 },
     /// Points with `axis` coordinate below `value` go left (ties may go either way).
     Split {
         axis: u8,
@@ -24,15 +23,54 @@ enum Node {
     },
 }
 
+/// A node in 16 bytes (four to a cache line), in depth-first order: a split's left
+/// child is the node after it.
+#[derive(Clone, Copy, Debug)]
+struct Packed {
+    /// The split value (unused in a leaf).
+    value: f64,
+    /// A split's right child; a leaf's block.
+    link: u32,
+    /// The split axis, or [`LEAF`].
+    axis: u32,
+}
+
+/// [`Packed::axis`] of a leaf.
+const LEAF: u32 = 3;
+
 /// A k-d tree over 3D points, for nearest and k-nearest neighbour queries.
 #[derive(Clone, Debug)]
 pub struct KdTree {
     points: Vec<[f64; 3]>,
     /// Point indices, permuted so that every leaf's points are contiguous.
     order: Vec<u32>,
-    /// `points[order[i]]`: the leaves' points side by side, for cache-friendly scans.
-    ordered: Vec<[f64; 3]>,
-    nodes: Vec<Node>,
+    /// Every leaf's points coordinate by coordinate, for distances eight at a time.
+    blocks: Vec<Block>,
+    nodes: Vec<Packed>,
+}
+
+/// A leaf's points, one array per coordinate, in increasing index (so that the first
+/// of equally near points is the lowest index); unused slots hold infinities, which
+/// are never nearer than anything.
+#[derive(Clone, Copy, Debug)]
+struct Block {
+    coordinates: [[f64; LEAF_SIZE]; 3],
+    indices: [u32; LEAF_SIZE],
+}
+
+impl Block {
+    /// Squared distances from `q` to the block's points (infinity in unused slots).
+    #[inline(always)]
+    fn distances(&self, q: &[f64; 3]) -> [f64; LEAF_SIZE] {
+        let mut d = [0.0; LEAF_SIZE];
+        for (a, axis) in self.coordinates.iter().enumerate() {
+            for (d, &c) in d.iter_mut().zip(axis) {
+                let e = c - q[a];
+                *d += e * e;
+            }
+        }
+        d
+    }
 }
 
 impl KdTree {
@@ -41,18 +79,13 @@ impl KdTree {
         let mut tree = KdTree {
             points: points.to_vec(),
             order: (0..points.len() as u32).collect(),
-            ordered: Vec::new(),
+            blocks: Vec::new(),
             nodes: Vec::new(),
         };
         if !points.is_empty() {
             let n = points.len();
             tree.build(0, n);
         }
-        tree.ordered = tree
-            .order
-            .iter()
-            .map(|&i| tree.points[i as usize])
-            .collect();
         tree
     }
 
@@ -75,10 +108,23 @@ impl KdTree {
     fn build(&mut self, start: usize, end: usize) -> u32 {
         let id = self.nodes.len() as u32;
         if end - start <= LEAF_SIZE {
-            self.nodes.push(Node::Leaf {
-                start: start as u32,
-                end: end as u32,
+            let mut block = Block {
+                coordinates: [[f64::INFINITY; LEAF_SIZE]; 3],
+                indices: [u32::MAX; LEAF_SIZE],
+            };
+            self.order[start..end].sort_unstable();
+            for (slot, &i) in self.order[start..end].iter().enumerate() {
+                for a in 0..3 {
+                    block.coordinates[a][slot] = self.points[i as usize][a];
+                }
+                block.indices[slot] = i;
+            }
+            self.nodes.push(Packed {
+                value: 0.0,
+                link: self.blocks.len() as u32,
+                axis: LEAF,
             });
+            self.blocks.push(block);
             return id;
         }
         let mut lo = [f64::INFINITY; 3];
@@ -93,22 +139,39 @@ impl KdTree {
         let axis = (0..3)
             .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
             .unwrap_or(0);
-        let mid = start + (end - start) / 2;
+        // Half the points, rounded up to whole leaves, so that leaves are full.
+        let half = (end - start).div_ceil(2);
+        let mid = start + half.div_ceil(LEAF_SIZE) * LEAF_SIZE;
         let pts = &self.points;
         self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| {
             pts[a as usize][axis].total_cmp(&pts[b as usize][axis])
         });
         let value = self.points[self.order[mid] as usize][axis];
-        self.nodes.push(Node::Leaf { start: 0, end: 0 }); // placeholder, filled below
-        let left = self.build(start, mid);
-        let right = self.build(mid, end);
-        self.nodes[id as usize] = Node::Split {
-            axis: axis as u8,
+        self.nodes.push(Packed {
             value,
-            left,
-            right,
-        };
+            link: 0, // the right child, known below
+            axis: axis as u32,
+        });
+        self.build(start, mid);
+        let right = self.build(mid, end);
+        self.nodes[id as usize].link = right;
         id
+    }
+
+    /// Node `id` unpacked.
+    #[inline(always)]
+    fn node(&self, id: u32) -> Node {
+        let n = self.nodes[id as usize];
+        if n.axis == LEAF {
+            Node::Leaf { block: n.link }
+        } else {
+            Node::Split {
+                axis: n.axis as u8,
+                value: n.value,
+                left: id + 1,
+                right: n.link,
+            }
+        }
     }
 
     /// The nearest point to `q` as (squared distance, index); ties go to the lower index.
@@ -135,13 +198,17 @@ impl KdTree {
             if bound > best.0 {
                 continue;
             }
-            match self.nodes[node as usize] {
-                Node::Leaf { start, end } => {
-                    let (start, end) = (start as usize, end as usize);
-                    for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
-                        let d = distance_squared(p, &q);
-                        if d < best.0 || (d == best.0 && i < best.1) {
-                            best = (d, i);
+            match self.node(node) {
+                Node::Leaf { block } => {
+                    let block = &self.blocks[block as usize];
+                    let d = block.distances(&q);
+                    let nearest = d.iter().fold(f64::INFINITY, |m, &v| m.min(v));
+                    if nearest <= best.0 {
+                        // The first slot at that distance holds the lowest index.
+                        let slot = d.iter().position(|&v| v == nearest).unwrap_or(0);
+                        let i = block.indices[slot];
+                        if nearest < best.0 || i < best.1 {
+                            best = (nearest, i);
                         }
                     }
                 }
@@ -212,12 +279,14 @@ impl KdTree {
         exclude: Option<u32>,
         best: &mut C,
     ) {
-        match self.nodes[node as usize] {
-            Node::Leaf { start, end } => {
-                let (start, end) = (start as usize, end as usize);
-                for (p, &i) in self.ordered[start..end].iter().zip(&self.order[start..end]) {
-                    if Some(i) != exclude {
-                        best.offer(distance_squared(p, &q), i, k);
+        match self.node(node) {
+            Node::Leaf { block } => {
+                let block = &self.blocks[block as usize];
+                let d = block.distances(&q);
+                let worst = best.worst(k).unwrap_or(f64::INFINITY);
+                for (&d, &i) in d.iter().zip(&block.indices) {
+                    if d <= worst && i != u32::MAX && Some(i) != exclude {
+                        best.offer(d, i, k);
                     }
                 }
             }
@@ -318,6 +387,7 @@ impl Candidates for std::collections::BinaryHeap<(u64, u32)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::distance_squared;
 
     #[test]
     fn nearest_equals_brute_force() {
@@ -349,6 +419,38 @@ mod tests {
             for limit in [1e-4, 4e-3, 0.05] {
                 let expected = brute.filter(|&(d2, _)| d2 <= limit);
                 assert_eq!(tree.nearest_within(q, limit), expected, "{q:?} {limit}");
+            }
+        }
+    }
+
+    /// Every tree size up to a few leaves (leaves are filled to eight, the last one
+    /// partly): each point is found, with its nearest others in order.
+    #[test]
+    fn small_trees_of_every_size_equal_brute_force() {
+        let mut rng = crate::synthetic::Rng::new(4);
+        let mut out = Vec::new();
+        for n in 1..=41 {
+            let points: Vec<[f64; 3]> = (0..n)
+                .map(|_| {
+                    [
+                        rng.uniform(0.0, 1.0),
+                        rng.uniform(0.0, 1.0),
+                        rng.uniform(0.0, 0.1),
+                    ]
+                })
+                .collect();
+            let tree = KdTree::new(&points);
+            for (i, p) in points.iter().enumerate() {
+                assert_eq!(tree.nearest(*p), Some((0.0, i as u32)), "n = {n}");
+                let mut brute: Vec<(f64, u32)> = points
+                    .iter()
+                    .enumerate()
+                    .filter(|&(j, _)| j != i)
+                    .map(|(j, q)| (distance_squared(p, q), j as u32))
+                    .collect();
+                brute.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                tree.knn(*p, 5, Some(i as u32), &mut out);
+                assert_eq!(out, brute[..brute.len().min(5)], "n = {n}");
             }
         }
     }
