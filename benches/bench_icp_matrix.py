@@ -25,8 +25,9 @@ pipeline's motion model and adaptive threshold) beside earcore on the
 same alignments. open3d has no step tolerances: matched is at most 50 iterations with its
 default relative fitness / RMSE criteria (1e-6), defaults its ICPConvergenceCriteria()
 (30 iterations). kiss-icp's criterion is the step's norm: matched 1e-5 and at most 50
-iterations, defaults 1e-4 and 500; it runs once per regime (seconds each). Neither
-reports its iterations.
+iterations, defaults 1e-4 and 500; it is timed once per regime (seconds each), after
+an untimed warm-up. Neither reports its iterations. The process is pinned to one core
+(open3d's thread pool does not follow OMP_NUM_THREADS).
 
     python benches/bench_icp_matrix.py [--repeats 3] [--scenes cell,rooms,lidar] [--quick] [--no-others]
 """
@@ -38,6 +39,8 @@ import itertools
 import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+# One core for the whole process: open3d's TBB pool ignores OMP_NUM_THREADS.
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -227,7 +230,7 @@ def main() -> None:
                         ("kiss-icp default", lambda: peers.kiss(source, radius, False)),
                     ]:
                         try:
-                            # kiss-icp takes seconds: once is enough for its ratio.
+                            # kiss-icp takes seconds: timed once is enough for its ratio.
                             seconds, (transform, _) = median_time(fn, 1 if "kiss" in name else args.repeats)
                             mm, deg = error(np.asarray(transform) @ np.linalg.inv(answer))
                         except Exception as exc:  # noqa: BLE001 - a refusal is a result

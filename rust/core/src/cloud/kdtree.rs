@@ -42,8 +42,6 @@ const LEAF: u32 = 3;
 #[derive(Clone, Debug)]
 pub struct KdTree {
     points: Vec<[f64; 3]>,
-    /// Point indices, permuted so that every leaf's points are contiguous.
-    order: Vec<u32>,
     /// Every leaf's points coordinate by coordinate, for distances eight at a time.
     blocks: Vec<Block>,
     nodes: Vec<Packed>,
@@ -74,17 +72,17 @@ impl Block {
 }
 
 impl KdTree {
-    /// Build over `points` (they are copied).
+    /// Build over `points` (they are copied). Points must be finite: a NaN coordinate
+    /// can hide other points from searches.
     pub fn new(points: &[[f64; 3]]) -> Self {
         let mut tree = KdTree {
             points: points.to_vec(),
-            order: (0..points.len() as u32).collect(),
             blocks: Vec::new(),
             nodes: Vec::new(),
         };
         if !points.is_empty() {
-            let n = points.len();
-            tree.build(0, n);
+            let mut order: Vec<u32> = (0..points.len() as u32).collect();
+            tree.build(&mut order);
         }
         tree
     }
@@ -104,16 +102,17 @@ impl KdTree {
         &self.points
     }
 
-    /// Build the subtree over `order[start..end]`; returns its node index.
-    fn build(&mut self, start: usize, end: usize) -> u32 {
+    /// Build the subtree over the points `order` names (permuting it); returns its
+    /// node index.
+    fn build(&mut self, order: &mut [u32]) -> u32 {
         let id = self.nodes.len() as u32;
-        if end - start <= LEAF_SIZE {
+        if order.len() <= LEAF_SIZE {
             let mut block = Block {
                 coordinates: [[f64::INFINITY; LEAF_SIZE]; 3],
                 indices: [u32::MAX; LEAF_SIZE],
             };
-            self.order[start..end].sort_unstable();
-            for (slot, &i) in self.order[start..end].iter().enumerate() {
+            order.sort_unstable();
+            for (slot, &i) in order.iter().enumerate() {
                 for a in 0..3 {
                     block.coordinates[a][slot] = self.points[i as usize][a];
                 }
@@ -129,7 +128,7 @@ impl KdTree {
         }
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
-        for &i in &self.order[start..end] {
+        for &i in order.iter() {
             let p = self.points[i as usize];
             for a in 0..3 {
                 lo[a] = lo[a].min(p[a]);
@@ -140,20 +139,20 @@ impl KdTree {
             .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
             .unwrap_or(0);
         // Half the points, rounded up to whole leaves, so that leaves are full.
-        let half = (end - start).div_ceil(2);
-        let mid = start + half.div_ceil(LEAF_SIZE) * LEAF_SIZE;
+        let mid = order.len().div_ceil(2).div_ceil(LEAF_SIZE) * LEAF_SIZE;
         let pts = &self.points;
-        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| {
+        order.select_nth_unstable_by(mid, |&a, &b| {
             pts[a as usize][axis].total_cmp(&pts[b as usize][axis])
         });
-        let value = self.points[self.order[mid] as usize][axis];
+        let value = self.points[order[mid] as usize][axis];
         self.nodes.push(Packed {
             value,
             link: 0, // the right child, known below
             axis: axis as u32,
         });
-        self.build(start, mid);
-        let right = self.build(mid, end);
+        let (left, right) = order.split_at_mut(mid);
+        self.build(left);
+        let right = self.build(right);
         self.nodes[id as usize].link = right;
         id
     }
@@ -203,9 +202,10 @@ impl KdTree {
                     let block = &self.blocks[block as usize];
                     let d = block.distances(&q);
                     let nearest = d.iter().fold(f64::INFINITY, |m, &v| m.min(v));
-                    if nearest <= best.0 {
-                        // The first slot at that distance holds the lowest index.
-                        let slot = d.iter().position(|&v| v == nearest).unwrap_or(0);
+                    // The first slot at that distance holds the lowest index (none when
+                    // every distance is NaN).
+                    let slot = d.iter().position(|&v| v == nearest);
+                    if let (true, Some(slot)) = (nearest <= best.0, slot) {
                         let i = block.indices[slot];
                         if nearest < best.0 || i < best.1 {
                             best = (nearest, i);
@@ -285,7 +285,9 @@ impl KdTree {
                 let d = block.distances(&q);
                 let worst = best.worst(k).unwrap_or(f64::INFINITY);
                 for (&d, &i) in d.iter().zip(&block.indices) {
-                    if d <= worst && i != u32::MAX && Some(i) != exclude {
+                    // NaN distances are offered too, as one by one.
+                    let within = d.partial_cmp(&worst) != Some(std::cmp::Ordering::Greater);
+                    if within && i != u32::MAX && Some(i) != exclude {
                         best.offer(d, i, k);
                     }
                 }
@@ -453,6 +455,21 @@ mod tests {
                 assert_eq!(out, brute[..brute.len().min(5)], "n = {n}");
             }
         }
+    }
+
+    /// A NaN query finds nothing nearest, and k-nearest lists the points (at NaN), as
+    /// a scan one point at a time does.
+    #[test]
+    fn nan_queries_find_no_nearest() {
+        let points: Vec<[f64; 3]> = (0..20).map(|i| [i as f64, 0.0, 0.0]).collect();
+        let tree = KdTree::new(&points);
+        let q = [f64::NAN, 0.0, 0.0];
+        assert_eq!(tree.nearest(q), None);
+        assert_eq!(tree.nearest_within(q, f64::INFINITY), None);
+        let mut out = Vec::new();
+        tree.knn(q, 3, None, &mut out);
+        assert_eq!(out.len(), 3);
+        assert!(out.iter().all(|(d, _)| d.is_nan()));
     }
 
     #[test]
