@@ -1,6 +1,6 @@
 //! A static k-d tree over 3D points for k-nearest-neighbour queries: built once
-//! (median splits on the widest axis, leaves of up to 8 points), queried many times,
-//! from any number of threads.
+//! (splits on the widest axis at the median rounded to whole leaves, so that leaves
+//! hold eight points), queried many times, from any number of threads.
 
 /// A leaf holds at most this many points.
 const LEAF_SIZE: usize = 8;
@@ -57,7 +57,8 @@ struct Block {
 }
 
 impl Block {
-    /// Squared distances from `q` to the block's points (infinity in unused slots).
+    /// Squared distances from `q` to the block's points (infinity in unused slots), bit
+    /// for bit as `geometry::distance_squared` gives them (ICP compares the two).
     #[inline(always)]
     fn distances(&self, q: &[f64; 3]) -> [f64; LEAF_SIZE] {
         let mut d = [0.0; LEAF_SIZE];
