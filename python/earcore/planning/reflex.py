@@ -199,7 +199,7 @@ class ObstacleTracker:
         #: obstacle (1.6 m/s at 15 Hz moves 0.11 m; a cluster's visible part shifts more).
         self.gate = gate
         #: Frames of the centroid's velocity fits. Longer windows read slow hands less
-        #: noisily and fast reaches later: 5 frames (1/3 s at 15 Hz) had fewer reflexes
+        #: noisily and fast reaches later: 5 frames (0.27 s at 15 Hz) had fewer reflexes
         #: than 4 and no more contacts over ten seeds of either scenario; 6 touched the
         #: person twice (docs/design/reflexes.md).
         self.window = window

