@@ -104,21 +104,41 @@ class HumanArm:
         `speed`)."""
         return reach_duration(self.rest, target, speed or self.peak_speed)
 
-    def hand_position(self, t: float) -> np.ndarray:
+    def _stage(self, t: float):
+        """The reach under way at time t: (reach, its wander terms, its target, stage,
+        how far into the stage) with stage "in" (the fraction of the way there), "held"
+        (seconds into the hold) or "back" (the fraction of the way back); None at rest."""
         for reach, terms in zip(self.reaches, self._wander_terms):
             target = np.asarray(reach.target, dtype=np.float64)
             go = self.duration(target, reach.speed)
             end = reach.start + 2 * go + reach.hold
             if reach.start <= t < end:
-                offset: float | np.ndarray = 0.0
                 if t < reach.start + go:
-                    f = minimum_jerk((t - reach.start) / go)
-                elif t < reach.start + go + reach.hold:
-                    f, offset = 1.0, self._wander(reach, terms, t - reach.start - go)
-                else:
-                    f = 1.0 - minimum_jerk((t - reach.start - go - reach.hold) / go)
-                return self.rest + f * (target - self.rest) + offset
-        return self.rest.copy()
+                    return reach, terms, target, "in", (t - reach.start) / go
+                if t < reach.start + go + reach.hold:
+                    return reach, terms, target, "held", t - reach.start - go
+                return reach, terms, target, "back", (t - reach.start - go - reach.hold) / go
+        return None
+
+    def hand_position(self, t: float) -> np.ndarray:
+        stage = self._stage(t)
+        if stage is None:
+            return self.rest.copy()
+        reach, terms, target, name, into = stage
+        offset: float | np.ndarray = 0.0
+        if name == "in":
+            f = minimum_jerk(into)
+        elif name == "held":
+            f, offset = 1.0, self._wander(reach, terms, into)
+        else:
+            f = 1.0 - minimum_jerk(into)
+        return self.rest + f * (target - self.rest) + offset
+
+    def phase(self, t: float) -> str:
+        """What the arm does at time t: "in" (on its way to a reach's target), "held",
+        "back" (on its way back to rest) or "rest"."""
+        stage = self._stage(t)
+        return "rest" if stage is None else stage[3]
 
     @staticmethod
     def _wander(reach: Reach, terms: tuple[np.ndarray, np.ndarray], tau: float) -> np.ndarray:

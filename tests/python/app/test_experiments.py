@@ -132,6 +132,17 @@ def test_table2_scenarios_reach_into_the_direct_path_at_their_pace(scenario):
         experiment_configs(scenario="calm")
 
 
+def test_reflexes_by_phase_counts_the_completed_moves_reflexes():
+    """Reflexes up to the end of the last completed move (its start plus its execution
+    time) count by the arm's phase; one after it (in a move that never finished) does not."""
+    from earcore.app.experiments.planning import reflexes_by_phase
+
+    moves = [{"start_time": 0.5, "execution_time": 3.0}, {"start_time": 3.5, "execution_time": 4.0}]
+    truth = [{"time": t, "phase": p} for t, p in ((1.0, "in"), (2.0, "in"), (4.0, "held"), (7.5, "back"), (7.6, "in"))]
+    assert reflexes_by_phase(truth, moves) == {"in": 2, "held": 1, "back": 1}
+    assert reflexes_by_phase(truth, []) == {}
+
+
 def test_limit_analysis_counts_reaches_started_too_close_and_their_contacts():
     """Two reaches at 1.6 m/s: one starting 5 mm from the robot (inside any limit), one
     5 m away (outside). A contact while the first is on its way (0.88 s from its start)

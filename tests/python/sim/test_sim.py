@@ -185,6 +185,23 @@ def test_person_hand_speed_stays_within_the_limit(client):
     assert MINIMUM_JERK_PEAK == pytest.approx(1.875)
 
 
+def test_person_phase_follows_the_reach_schedule(client):
+    """A reach starting at 0.5 s to a target 0.5 m from rest at 1.0 m/s peak: on its way
+    in for 1.875 * 0.5 / 1.0 s, held 1.0 s, back as long, then at rest; the hand is at
+    the target while held and at rest outside the reach."""
+    rest, target = np.array([0.8, 0.5, 0.05]), np.array([0.8, 0.0, 0.05])
+    arm = HumanArm(client, (0.9, 0.4, 0.45), tuple(rest), [Reach(0.5, tuple(target), 1.0, speed=1.0)])
+    go = 1.875 * 0.5 / 1.0
+    expected = [(0.49, "rest"), (0.51, "in"), (0.5 + go - 0.01, "in"), (0.5 + go + 0.01, "held"),
+                (0.5 + go + 0.99, "held"), (0.5 + go + 1.01, "back"), (0.5 + 2 * go + 0.99, "back"),
+                (0.5 + 2 * go + 1.01, "rest")]
+    for t, phase in expected:
+        assert arm.phase(t) == phase, t
+    np.testing.assert_allclose(arm.hand_position(0.5 + go + 0.5), target)
+    np.testing.assert_allclose(arm.hand_position(0.49), rest)
+    assert arm.speed(0.5 + go / 2) == pytest.approx(1.0, rel=1e-3)  # the peak half-way in
+
+
 def test_person_arrives_after_the_warm_up(client):
     """Before `arrive` the arm is out of the scene (below the floor, no contact possible);
     a reach planned before it is refused."""

@@ -12,8 +12,9 @@ Two scenarios of the person's reaches (`SCENARIOS`):
   paper   Paper II's protocol: the hand brought into the direct path at operator pace
           (0.2-0.5 m/s) at random times (1-8 s apart), held 2-8 s.
 Prints mean ± std per return trip of planning, optimisation and execution time, path
-length, and the totals of collisions (true contacts), reflexes (by the rule that fired)
-and stops, and the minimum true robot-person distance; with the stress scenario also
+length, and the totals of collisions (true contacts), reflexes (by the rule that fired,
+and by what the person's arm was doing then: on its way in, held, on its way back) and
+stops, and the minimum true robot-person distance; with the stress scenario also
 the physical limit: the reaches that started closer than the shortest distance from
 which the arm can still avoid them (`separation.shortest_avoidable_distance`). Writes
 table2.json and paths.png (the tool's paths over the trips on the danger the map held,
@@ -50,7 +51,10 @@ from earcore.app.config import RunConfig
 from earcore.planning.executive import REACTION_TIME, Executive
 from earcore.sim.cell import default_waypoints
 
-__all__ = ["SCENARIOS", "CirclesDriver", "WatchedExecutive", "draw_paths", "experiment_configs", "fig7", "limit_analysis", "main", "table2"]
+__all__ = [
+    "SCENARIOS", "CirclesDriver", "WatchedExecutive", "draw_paths", "experiment_configs", "fig7", "limit_analysis", "main",
+    "reflexes_by_phase", "table2",
+]
 
 #: How far the held hand moves about its target (m) in Exp. 2 and 3. Still (0) by
 #: default: with 8 cm of wander (up to 0.28 m/s) both planners touched the person
@@ -128,8 +132,9 @@ def experiment_configs(
 class WatchedExecutive(Executive):
     """The planning executive with what Table II's pictures and the limit analysis
     need: per map frame of a trip the time, joint state, command and true robot-person
-    distance; the times contacts began; and the danger of each map column (the largest
-    of its voxels', top view) averaged over frames sampled every `DANGER_EVERY`."""
+    distance; the times contacts began; per reflex of the reflex layer what the person
+    truly did then (`reflex_truth`); and the danger of each map column (the largest of
+    its voxels', top view) averaged over frames sampled every `DANGER_EVERY`."""
 
     DANGER_EVERY = 5
     #: The top view's grid: lower corner (m), cell (m) and cells.
@@ -141,6 +146,10 @@ class WatchedExecutive(Executive):
         super().__init__(*args, **kwargs)
         self.frames: list[tuple[float, np.ndarray, np.ndarray, float]] = []
         self.contact_times: list[float] = []
+        #: Per reflex fired by the reflex layer: its time, the person's phase (`HumanArm.phase`:
+        #: on the way in, held, on the way back, at rest), true hand speed (m/s) and true
+        #: robot-person distance (m).
+        self.reflex_truth: list[dict] = []
         self._danger_sum = np.zeros(self.GRID_SHAPE)
         self._danger_samples = 0
         self._frame_index = 0
@@ -151,7 +160,16 @@ class WatchedExecutive(Executive):
         return self._danger_sum / max(self._danger_samples, 1)
 
     def on_frame(self):
+        fired = len(self.log.reflexes)
         report = super().on_frame()
+        person = getattr(self.cell, "person", None)
+        for reflex in self.log.reflexes[fired:]:
+            if "rule" in reflex and person is not None:  # the reflex layer's (not a recovery)
+                t = self.cell.time
+                distance = self.person_distance() if self.person_distance is not None else float("inf")
+                self.reflex_truth.append(
+                    {"time": t, "phase": person.phase(t), "hand_speed": person.speed(t), "distance": distance}
+                )
         if self.trip is not None:
             distance = self.person_distance() if self.person_distance is not None else float("inf")
             if distance <= 0 and (not self.frames or self.frames[-1][3] > 0):
@@ -218,6 +236,18 @@ def limit_analysis(executive: WatchedExecutive, person) -> dict:
     }
 
 
+def reflexes_by_phase(truth: list[dict], moves: list[dict]) -> dict[str, int]:
+    """How many of the reflexes in `truth` (`WatchedExecutive.reflex_truth`) fired in each
+    phase of the person's arm, counting those up to the end of the last completed move
+    (Table II counts the completed trips' reflexes)."""
+    end = max((m["start_time"] + m["execution_time"] for m in moves), default=-np.inf)
+    counts: dict[str, int] = {}
+    for reflex in truth:
+        if reflex["time"] <= end:
+            counts[reflex["phase"]] = counts.get(reflex["phase"], 0) + 1
+    return counts
+
+
 def table2(
     trips: int = 15,
     seed: int = 0,
@@ -270,6 +300,8 @@ def table2(
             "ssm_cpu_ms": planning.get("ssm_cpu_ms"),
             "ssm_slowed_frames": planning.get("ssm_slowed_frames", 0),
             "refused_plans": planning.get("refused_plans", 0),
+            "reflexes_by_phase": reflexes_by_phase(watched[name].reflex_truth, moves),
+            "reflex_truth": watched[name].reflex_truth,
             "wall_s": round(time.perf_counter() - t0, 1),
         }
         if config.cell.person.enabled and scenario == "stress":
@@ -342,6 +374,10 @@ def format_table(results: dict) -> str:
         lines.append(f"| {label} | " + " | ".join(str(results[n].get(key, 0)) for n in names) + " |")
     lines.append("| reflexes by rule | " + " | ".join(
         ", ".join(f"{k} {v}" for k, v in sorted(results[n].get("reflex_rules", {}).items())) or "–" for n in names) + " |")
+    if any(results[n].get("reflexes_by_phase") for n in names):
+        lines.append("| reflexes by the arm's phase (in / held / back / rest) | " + " | ".join(
+            " / ".join(str(results[n].get("reflexes_by_phase", {}).get(k, 0)) for k in ("in", "held", "back", "rest"))
+            if results[n].get("reflexes_by_phase") else "–" for n in names) + " |")
     lines.append("| min. robot-person distance (m) | " + " | ".join(
         f"{results[n]['min_clearance_m']:.3f}" if np.isfinite(results[n]["min_clearance_m"]) else "–" for n in names) + " |")
     if any("limit" in results[n] for n in names):
