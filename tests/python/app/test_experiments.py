@@ -132,6 +132,33 @@ def test_table2_scenarios_reach_into_the_direct_path_at_their_pace(scenario):
         experiment_configs(scenario="calm")
 
 
+def test_reflex_truth_records_the_reflex_layers_reflexes_with_the_persons_phase():
+    """Of a frame's new log entries only the reflex layer's (with a rule) are recorded, with
+    the arm's phase, hand speed and distance at that time; recoveries and frames without a
+    person record nothing."""
+    pytest.importorskip("pybullet")
+    import pybullet
+    from pybullet_utils.bullet_client import BulletClient
+
+    from earcore.app.experiments.planning import reflex_truth
+    from earcore.sim.person import HumanArm, Reach
+
+    client = BulletClient(pybullet.DIRECT)
+    try:
+        arm = HumanArm(client, (0.9, 0.4, 0.45), (0.8, 0.5, 0.05), [Reach(1.0, (0.8, 0.0, 0.05), 1.0, speed=1.0)])
+        go = 1.875 * 0.5
+        entries = [{"time": 1.0 + go / 2, "kind": "move_away", "rule": "predicted"}, {"time": 1.0 + go / 2, "kind": "recover_move_away"}]
+        (truth,) = reflex_truth(entries, arm, 1.0 + go / 2, 0.3)
+        assert truth["phase"] == "in" and truth["distance"] == 0.3
+        assert truth["hand_speed"] == pytest.approx(1.0, rel=1e-3)  # the reach's peak, half-way in
+        held = reflex_truth([{"rule": "close"}], arm, 1.0 + go + 0.5, 0.01)
+        assert [r["phase"] for r in held] == ["held"] and held[0]["hand_speed"] == pytest.approx(0.0, abs=1e-9)
+        assert reflex_truth([{"kind": "recover_backtrack"}], arm, 1.2, 0.3) == []
+        assert reflex_truth(entries, None, 1.2, float("inf")) == []
+    finally:
+        client.disconnect()
+
+
 def test_reflexes_by_phase_counts_the_completed_moves_reflexes():
     """Reflexes up to the end of the last completed move (its start plus its execution
     time) count by the arm's phase; one after it (in a move that never finished) does not."""

@@ -197,9 +197,29 @@ def test_person_phase_follows_the_reach_schedule(client):
                 (0.5 + 2 * go + 1.01, "rest")]
     for t, phase in expected:
         assert arm.phase(t) == phase, t
+    # Each stage begins at its boundary (as the schedule computes them) and ends just before the next.
+    start, go_s = 0.5, arm.duration(tuple(target), 1.0)
+    for t, phase in ((start, "in"), (start + go_s, "held"), (start + go_s + 1.0, "back"), (start + 2 * go_s + 1.0, "rest")):
+        assert arm.phase(t) == phase, t
+        assert arm.phase(np.nextafter(t, -np.inf)) != phase, t
     np.testing.assert_allclose(arm.hand_position(0.5 + go + 0.5), target)
     np.testing.assert_allclose(arm.hand_position(0.49), rest)
     assert arm.speed(0.5 + go / 2) == pytest.approx(1.0, rel=1e-3)  # the peak half-way in
+
+
+def test_a_held_hand_wanders_by_its_documented_offset(client):
+    """While held, the hand sits at the target plus the reach's wander: the amplitude times
+    sin²(π τ / hold) times (1, 1, 0.5) times sin(2π τ / period + phase) per axis, τ the
+    seconds into the hold; zero offset where the hold begins and ends."""
+    rest, target = np.array([0.8, 0.5, 0.05]), np.array([0.5, 0.2, 0.4])
+    reach = Reach(0.5, tuple(target), 2.0, speed=1.0, wander=0.08)
+    arm = HumanArm(client, (0.9, 0.4, 0.45), tuple(rest), [reach])
+    go = arm.duration(tuple(target), 1.0)
+    periods, phases = arm._wander_terms[0]
+    for tau in (0.0, 0.3, 0.7, 1.0, 1.6, 1.999):
+        want = 0.08 * np.sin(np.pi * tau / 2.0) ** 2 * np.array([1.0, 1.0, 0.5]) * np.sin(2 * np.pi * tau / periods + phases)
+        np.testing.assert_allclose(arm.hand_position(0.5 + go + tau), target + want, atol=1e-12)
+    assert np.linalg.norm(arm.hand_position(0.5 + go + 1.0) - target) > 0.01  # it does wander
 
 
 def test_person_arrives_after_the_warm_up(client):

@@ -53,7 +53,7 @@ from earcore.sim.cell import default_waypoints
 
 __all__ = [
     "SCENARIOS", "CirclesDriver", "WatchedExecutive", "draw_paths", "experiment_configs", "fig7", "limit_analysis", "main",
-    "reflexes_by_phase", "table2",
+    "reflex_truth", "reflexes_by_phase", "table2",
 ]
 
 #: How far the held hand moves about its target (m) in Exp. 2 and 3. Still (0) by
@@ -162,14 +162,11 @@ class WatchedExecutive(Executive):
     def on_frame(self):
         fired = len(self.log.reflexes)
         report = super().on_frame()
-        person = getattr(self.cell, "person", None)
-        for reflex in self.log.reflexes[fired:]:
-            if "rule" in reflex and person is not None:  # the reflex layer's (not a recovery)
-                t = self.cell.time
-                distance = self.person_distance() if self.person_distance is not None else float("inf")
-                self.reflex_truth.append(
-                    {"time": t, "phase": person.phase(t), "hand_speed": person.speed(t), "distance": distance}
-                )
+        if len(self.log.reflexes) > fired:
+            distance = self.person_distance() if self.person_distance is not None else float("inf")
+            self.reflex_truth += reflex_truth(
+                self.log.reflexes[fired:], getattr(self.cell, "person", None), self.cell.time, distance
+            )
         if self.trip is not None:
             distance = self.person_distance() if self.person_distance is not None else float("inf")
             if distance <= 0 and (not self.frames or self.frames[-1][3] > 0):
@@ -234,6 +231,20 @@ def limit_analysis(executive: WatchedExecutive, person) -> dict:
         "contacts_inside_limit": sum(o in inside for o in owners),
         "limits_m": [round(float(r[1]), 3) for r in rows],
     }
+
+
+def reflex_truth(entries: list[dict], person, t: float, distance: float) -> list[dict]:
+    """For the reflex layer's reflexes among a frame's new log `entries` (those with a
+    rule; recoveries have none): the time `t`, the person's phase then (`HumanArm.phase`),
+    the true hand speed (m/s) and the true robot-person `distance` (m). None without a
+    person."""
+    if person is None:
+        return []
+    return [
+        {"time": t, "phase": person.phase(t), "hand_speed": person.speed(t), "distance": distance}
+        for entry in entries
+        if "rule" in entry
+    ]
 
 
 def reflexes_by_phase(truth: list[dict], moves: list[dict]) -> dict[str, int]:
