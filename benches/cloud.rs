@@ -10,7 +10,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use earcore_core::cloud::{
-    crop_sphere, icp_point_to_plane, statistical_outliers, voxel_downsample, IcpParams,
+    crop_sphere, icp_point_to_plane, statistical_outliers, voxel_downsample, IcpParams, Kernel,
     OutlierParams,
 };
 use earcore_core::na::{Matrix4, Rotation3, Vector3};
@@ -124,7 +124,7 @@ fn icp(c: &mut Criterion) {
         translation_tolerance: 0.0,
         rotation_tolerance: 0.0,
         sigma_tolerance: 0.0,
-        huber_delta: Some(0.03),
+        kernel: Kernel::Huber(0.03),
     };
     let mut group = c.benchmark_group("icp_point_to_plane");
     group.throughput(Throughput::Elements(source.len() as u64));

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -36,14 +37,21 @@ def icp_point_to_plane(
     translation_tolerance: float = 0.0,
     rotation_tolerance: float = 0.0,
     sigma_tolerance: float = 1.0,
-    huber_delta: float | None = None,
+    huber_delta: float | Literal["auto"] | None = "auto",
 ) -> IcpResult:
     """Align `source` points (N, 3) to `target`: a `PlaneTarget` (build it once and
     reuse it), a `(points, normals)` pair, or a `SurfaceMap` (NOctoSLAM's association:
     the leaf's position with its parent's normal, else the deepest node with a normal;
     nodes larger than `max_correspondence_distance` are not paired), from `initial` (4×4
     `target_from_source`, identity by default). Gauss-Newton on the small-angle pose,
-    re-orthonormalised every step; `huber_delta` (metres) turns on a Huber kernel.
+    re-orthonormalised every step.
+
+    `huber_delta` weights the pairs: "auto" (the default) runs least squares until it
+    settles, then Huber's kernel one robust standard deviation of the residuals wide
+    (1.4826 × their median magnitude, re-estimated every iteration), so that pairs on
+    surfaces the target never saw (partial overlap) stop pulling the result off; a
+    number is a fixed Huber width in metres from the first iteration; None is plain
+    least squares throughout.
 
     It stops after `max_iterations`, or at the first step shorter than `sigma_tolerance`
     standard deviations of the pose estimate (the step's Mahalanobis length under the
@@ -68,6 +76,12 @@ def icp_point_to_plane(
         raise TypeError(
             f"target must be a PlaneTarget, a SurfaceMap or a (points, normals) pair, got {type(target).__name__}"
         )
+    width: float | None = None
+    if isinstance(huber_delta, str):
+        if huber_delta != "auto":
+            raise ValueError(f'huber_delta must be "auto", a width in metres or None, got {huber_delta!r}')
+    else:
+        width = huber_delta
     result = icp_point_to_plane_raw(
         source,
         target,
@@ -77,7 +91,8 @@ def icp_point_to_plane(
         translation_tolerance=translation_tolerance,
         rotation_tolerance=rotation_tolerance,
         sigma_tolerance=sigma_tolerance,
-        huber_delta=huber_delta,
+        huber_delta=width,
+        adaptive_huber=huber_delta == "auto",
     )
     if result.degenerate:
         warnings.warn(

@@ -1,6 +1,9 @@
 //! Point-to-plane ICP: `PlaneTarget` (points + normals + index, built once) and the solver.
 
-use earcore_core::cloud::{icp_point_to_plane_interruptible, IcpParams, IcpResult, PlaneTarget};
+use earcore_core::cloud::{
+    icp_point_to_plane_interruptible, IcpParams, IcpResult, Kernel, PlaneTarget,
+    ADAPTIVE_HUBER_SIGMAS,
+};
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray2};
 use pyo3::prelude::*;
@@ -82,7 +85,7 @@ fn to_py(py: Python<'_>, r: IcpResult) -> PyResult<PyIcpResult> {
 /// identity if None). Ctrl-C stops it between iterations (KeyboardInterrupt).
 #[pyfunction]
 #[pyo3(signature = (source, target, initial=None, *, max_iterations=50, max_correspondence_distance=0.2,
-                    translation_tolerance=0.0, rotation_tolerance=0.0, sigma_tolerance=1.0, huber_delta=None))]
+                    translation_tolerance=0.0, rotation_tolerance=0.0, sigma_tolerance=1.0, huber_delta=None, adaptive_huber=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn icp_point_to_plane_raw(
     py: Python<'_>,
@@ -95,6 +98,7 @@ pub fn icp_point_to_plane_raw(
     rotation_tolerance: f64,
     sigma_tolerance: f64,
     huber_delta: Option<f64>,
+    adaptive_huber: bool,
 ) -> PyResult<PyIcpResult> {
     let src = points(source, "source")?;
     let src = src.as_slice()?;
@@ -108,7 +112,16 @@ pub fn icp_point_to_plane_raw(
         translation_tolerance,
         rotation_tolerance,
         sigma_tolerance,
-        huber_delta,
+        kernel: match (huber_delta, adaptive_huber) {
+            (Some(_), true) => {
+                return Err(pyo3::exceptions::PyValueError::new_err(
+                    "give huber_delta (a fixed width) or adaptive_huber, not both",
+                ))
+            }
+            (Some(delta), false) => Kernel::Huber(delta),
+            (None, true) => Kernel::AdaptiveHuber(ADAPTIVE_HUBER_SIGMAS),
+            (None, false) => Kernel::Squared,
+        },
     };
     let result = if let Ok(t) = target.cast::<PyPlaneTarget>() {
         let t = t.get();

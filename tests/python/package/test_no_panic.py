@@ -66,7 +66,7 @@ KINDS = {
     ),
     **dict.fromkeys(
         ["discretize", "ignore_unknown", "occupied", "occupied_only", "leaves_only", "self_collision",
-         "return_links"],
+         "return_links", "adaptive_huber"],
         "bool",
     ),
     "update": "update",

@@ -16,8 +16,8 @@ pub use clusters::cluster_points;
 pub use crop::{crop_box, crop_sphere};
 pub use depth::{depth_to_points, incidence_cosines, BrownConrady, DepthFrame, Intrinsics};
 pub use icp::{
-    icp_point_to_plane, icp_point_to_plane_interruptible, IcpParams, IcpResult, IcpTarget,
-    PlaneTarget, SurfaceCursor,
+    icp_point_to_plane, icp_point_to_plane_interruptible, IcpParams, IcpResult, IcpTarget, Kernel,
+    PlaneTarget, SurfaceCursor, ADAPTIVE_HUBER_SIGMAS,
 };
 pub use kdtree::KdTree;
 pub use normals::{estimate_normals, estimate_normals_interruptible};
