@@ -10,7 +10,9 @@ robot's base frame by the true poses, cropped to 1.5 m). Target: the
 first three cameras' points on a 1 cm voxel grid; source: the fourth camera's points,
 15k and 100k of them, moved 2 cm / 2° off. The truth is the identity, so every result
 is scored by its remaining error. Target structures (k-d trees, normals, the surface map)
-are built once beforehand, as for a map; the times are the alignment alone.
+are built once beforehand, as for a map; the times are the alignment alone. earcore runs
+least squares (`huber_delta=None`), the point-to-plane peers' objective; its default
+kernel is compared in `bench_icp_matrix.py`.
 
     python benches/bench_icp_vs_peers.py [--repeats 5]
 
@@ -95,7 +97,8 @@ def main() -> None:
 
         def ours(tgt):
             r = earcore.icp_point_to_plane(moved, tgt, np.eye(4), max_correspondence_distance=0.05,
-                                           translation_tolerance=1e-5, rotation_tolerance=1e-5, sigma_tolerance=0.0)
+                                           translation_tolerance=1e-5, rotation_tolerance=1e-5, sigma_tolerance=0.0,
+                                           huber_delta=None)
             return r.transform, r.iterations
 
         def sg(kind):
