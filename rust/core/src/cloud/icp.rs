@@ -627,10 +627,10 @@ fn iterate<T: IcpTarget>(
             // answer every pair's pull is needed to get there.
             if width.is_none() && robust_width.is_some() && iteration < params.max_iterations {
                 *width = robust_width;
-                continue;
+            } else {
+                result.converged = true;
+                break;
             }
-            result.converged = true;
-            break;
         }
         if interrupt() {
             return Ok(false);
@@ -911,6 +911,23 @@ mod tests {
         let plain = icp_point_to_plane(&source, &target, &initial, few).unwrap();
         assert_eq!(done, Ok(Some(plain)));
         assert!((plain.transform[(0, 3)] + 0.02).abs() < 1e-9);
+        // With the defaults the adaptive kernel starts once least squares settles: that
+        // iteration is asked too; only the last, which stops, is not.
+        let mut asked = 0;
+        let settled = icp_point_to_plane_interruptible(
+            &source,
+            &target,
+            &initial,
+            IcpParams::default(),
+            &mut || {
+                asked += 1;
+                false
+            },
+        )
+        .unwrap()
+        .unwrap();
+        assert!(settled.converged);
+        assert_eq!(asked, settled.iterations - 1);
     }
 
     /// A room's corner seen by the target, and by the source with 1 mm of noise plus a
