@@ -46,14 +46,16 @@ def icp_point_to_plane(
     `target_from_source`, identity by default). Gauss-Newton on the small-angle pose,
     re-orthonormalised every step.
 
-    `huber_delta` weights the pairs: "auto" (the default) runs least squares until it
-    settles, then Huber's kernel one robust standard deviation of the residuals wide
-    (1.4826 × their median magnitude, re-estimated every iteration), so that pairs on
-    surfaces the target never saw (partial overlap) stop pulling the result off; a
-    number is a fixed Huber width in metres from the first iteration; None is plain
-    least squares throughout.
+    `huber_delta` weights the pairs: "auto" (the default) runs least squares until a
+    step passes the stopping test below, then Huber's kernel one robust standard
+    deviation of the residuals wide (1.4826 × their median magnitude, re-estimated every
+    iteration) until a step passes it again, so that pairs on surfaces the target never
+    saw (partial overlap) stop pulling the result off; with no stopping test it stays
+    least squares. A number is a fixed Huber width in metres from the first iteration;
+    None is plain least squares throughout.
 
-    It stops after `max_iterations`, or at the first step shorter than `sigma_tolerance`
+    It stops after `max_iterations`, or (with "auto", once the kernel runs) at the first
+    step shorter than `sigma_tolerance`
     standard deviations of the pose estimate (the step's Mahalanobis length under the
     covariance σ²·H⁻¹ of the fit, σ² the pairs' residual variance: a step the data
     cannot tell from noise), or at the first step that moves less than
@@ -62,8 +64,8 @@ def icp_point_to_plane(
     `sigma_tolerance=0` turns the first test off; a zero step tolerance is left out of the
     second (both zero: no step test).
 
-    Returns an `IcpResult` (transform, rmse, fitness, iterations, converged,
-    degenerate, conditioning); warns with `DegenerateAlignmentWarning` when the
+    Returns an `IcpResult` (transform, rmse, fitness, iterations, converged: a test
+    stopped it before `max_iterations`, degenerate, conditioning); warns with `DegenerateAlignmentWarning` when the
     geometry leaves some direction unconstrained.
 
     Each iteration is one pass over the source (O(N) pair lookups); `max_iterations`

@@ -39,7 +39,8 @@ pub enum Kernel {
     /// width follows the data: this many robust standard deviations (1.4826 × the
     /// median |residual|, over about 2048 pairs spread through the source) of the
     /// previous iteration's residuals, at least [`MIN_ADAPTIVE_WIDTH`], until a step
-    /// passes the test again. Far from the answer every pair's pull is needed (least
+    /// passes the test again (converged only then). With no stopping test it never
+    /// starts. Far from the answer every pair's pull is needed (least
     /// squares keeps its basin); once there, the width is the noise's, so that pairs on
     /// surfaces the target never saw (partial overlap) stop pulling the result off.
     AdaptiveHuber(f64),
@@ -470,11 +471,21 @@ pub fn icp_point_to_plane_interruptible(
             .step_by(source.len() / COARSE_POINTS)
             .copied()
             .collect();
+        // With no stopping test an adaptive kernel never starts, so neither may the
+        // coarse stage's (whose own test is fixed).
+        let testless = params.sigma_tolerance == 0.0
+            && params.translation_tolerance == 0.0
+            && params.rotation_tolerance == 0.0;
         let coarse_params = IcpParams {
             max_iterations: params.max_iterations / 2,
             translation_tolerance: 0.0,
             rotation_tolerance: 0.0,
             sigma_tolerance: 1.0,
+            kernel: if testless {
+                Kernel::Squared
+            } else {
+                params.kernel
+            },
             ..params
         };
         let mut trial = result;
@@ -560,13 +571,16 @@ fn iterate<T: IcpTarget>(
         .map(|start| (start, std::sync::Mutex::new(Default::default())))
         .collect();
     result.converged = false;
+    let mut sample = (source.len() / MEDIAN_SAMPLES).max(1);
     for iteration in 1..=params.max_iterations {
         let current = match params.kernel {
             Kernel::Squared => None,
             Kernel::Huber(delta) => Some(delta),
             Kernel::AdaptiveHuber(_) => *width,
         };
-        let system = normal_equations(source, target, transform, params, current, &runs);
+        let system = normal_equations(source, target, transform, params, current, sample, &runs);
+        // The next median from about MEDIAN_SAMPLES pairs, however few points pair.
+        sample = (system.pairs / MEDIAN_SAMPLES).max(1);
         let robust_width = match (params.kernel, system.median) {
             (Kernel::AdaptiveHuber(sigmas), Some(median)) => {
                 Some((sigmas * 1.4826 * median).max(MIN_ADAPTIVE_WIDTH))
@@ -625,7 +639,8 @@ fn iterate<T: IcpTarget>(
         if small_step || sigmas < params.sigma_tolerance * params.sigma_tolerance {
             // An adaptive kernel starts once least squares has settled: far from the
             // answer every pair's pull is needed to get there.
-            if width.is_none() && robust_width.is_some() && iteration < params.max_iterations {
+            // (Started on the last iteration allowed, it has not settled: not converged.)
+            if width.is_none() && robust_width.is_some() {
                 *width = robust_width;
             } else {
                 result.converged = true;
@@ -665,14 +680,15 @@ fn normal_equations<T: IcpTarget>(
     transform: &Matrix4<f64>,
     params: IcpParams,
     huber: Option<f64>,
+    sample: usize,
     runs: &[(usize, std::sync::Mutex<T::Cursor>)],
 ) -> NormalEquations {
     let r = transform.fixed_view::<3, 3>(0, 0).into_owned();
     let t = transform.fixed_view::<3, 1>(0, 3).into_owned();
-    // The median of a stride's worth (about MEDIAN_SAMPLES pairs) estimates the scale
-    // as well as all of them, at a fraction of the selection's cost.
+    // The median of every `sample`-th point's residual (about MEDIAN_SAMPLES of them)
+    // estimates the scale as well as all of them, at a fraction of the selection's cost.
     let stride = match params.kernel {
-        Kernel::AdaptiveHuber(_) => (source.len() / MEDIAN_SAMPLES).max(1),
+        Kernel::AdaptiveHuber(_) => sample,
         _ => 0,
     };
     let parts = threads::map_parts(runs, |(start, cursor)| {
@@ -999,9 +1015,10 @@ mod tests {
             normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
         }
         let target = PlaneTarget::new(&points, &normals).unwrap();
+        // 3000 points, a thousand on each plane: below the coarse stage's 4096.
         let source: Vec<[f64; 3]> = points
             .iter()
-            .step_by(2)
+            .take(3000)
             .map(|p| [0, 1, 2].map(|a| p[a] + 0.002 * rng.normal() + [0.08, -0.05, 0.06][a]))
             .collect();
         for iterations in [1, 2, 3] {
@@ -1016,6 +1033,47 @@ mod tests {
             let squared = run(Kernel::Squared);
             assert!(!squared.converged);
             assert_eq!(squared, run(Kernel::AdaptiveHuber(1.0)), "{iterations}");
+        }
+        // Least squares settling on the last iteration allowed starts the kernel, which
+        // has not settled: the same pose, not converged.
+        let settled =
+            icp_point_to_plane(&source, &target, &Matrix4::identity(), IcpParams::default())
+                .unwrap();
+        let squared = |max_iterations| IcpParams {
+            max_iterations,
+            kernel: Kernel::Squared,
+            ..IcpParams::default()
+        };
+        let plain = icp_point_to_plane(&source, &target, &Matrix4::identity(), squared(50));
+        let plain = plain.unwrap();
+        assert!(
+            plain.converged && settled.converged && settled.iterations > plain.iterations,
+            "{plain:?} {settled:?}"
+        );
+        let last = IcpParams {
+            max_iterations: plain.iterations,
+            ..IcpParams::default()
+        };
+        let cut = icp_point_to_plane(&source, &target, &Matrix4::identity(), last).unwrap();
+        assert_eq!(cut.transform, plain.transform);
+        assert!(!cut.converged);
+        // With no stopping test the kernel never starts, for a source small or large
+        // enough for the coarse stage.
+        let many: Vec<[f64; 3]> = points
+            .iter()
+            .map(|p| [0, 1, 2].map(|a| p[a] + 0.002 * rng.normal() + [0.03, -0.02, 0.02][a]))
+            .collect();
+        for source in [&source, &many] {
+            let testless = |kernel| IcpParams {
+                max_iterations: 12,
+                sigma_tolerance: 0.0,
+                kernel,
+                ..IcpParams::default()
+            };
+            let run = |kernel| {
+                icp_point_to_plane(source, &target, &Matrix4::identity(), testless(kernel)).unwrap()
+            };
+            assert_eq!(run(Kernel::Squared), run(Kernel::AdaptiveHuber(1.0)));
         }
     }
 }
