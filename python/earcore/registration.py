@@ -55,18 +55,18 @@ def icp_point_to_plane(
     None is plain least squares throughout.
 
     It stops after `max_iterations`, or (with "auto", once the kernel runs) at the first
-    step shorter than `sigma_tolerance`
-    standard deviations of the pose estimate (the step's Mahalanobis length under the
-    covariance σ²·H⁻¹ of the fit, σ² the pairs' residual variance: a step the data
-    cannot tell from noise), or at the first step that moves less than
-    `translation_tolerance` metres and turns less than `rotation_tolerance` radians
-    (small_gicp's `translation_epsilon` / `rotation_epsilon`, Open3D's step criteria).
+    step shorter than `sigma_tolerance` standard deviations of the pose estimate (the
+    step's Mahalanobis length under the covariance σ²·H⁻¹ of the fit, σ² the pairs'
+    residual variance: a step the data cannot tell from noise), or at the first step
+    that moves less than `translation_tolerance` metres and turns less than
+    `rotation_tolerance` radians (small_gicp's `translation_epsilon` /
+    `rotation_epsilon`, Open3D's step criteria).
     `sigma_tolerance=0` turns the first test off; a zero step tolerance is left out of the
     second (both zero: no step test).
 
     Returns an `IcpResult` (transform, rmse, fitness, iterations, converged: a test
-    stopped it before `max_iterations`, degenerate, conditioning); warns with `DegenerateAlignmentWarning` when the
-    geometry leaves some direction unconstrained.
+    stopped it before `max_iterations`, degenerate, conditioning); warns with
+    `DegenerateAlignmentWarning` when the geometry leaves some direction unconstrained.
 
     Each iteration is one pass over the source (O(N) pair lookups); `max_iterations`
     is not capped, but Ctrl-C stops the call between iterations (`KeyboardInterrupt`
