@@ -660,6 +660,7 @@ const RUN: usize = 2048;
 /// About this many residuals make an adaptive kernel's median.
 const MEDIAN_SAMPLES: usize = 2048;
 
+#[derive(Default)]
 struct NormalEquations {
     h: Matrix6<f64>,
     g: Vector6<f64>,
@@ -692,14 +693,7 @@ fn normal_equations<T: IcpTarget>(
         _ => 0,
     };
     let parts = threads::map_parts(runs, |(start, cursor)| {
-        let mut acc = NormalEquations {
-            h: Matrix6::zeros(),
-            g: Vector6::zeros(),
-            squared: 0.0,
-            weighted: 0.0,
-            pairs: 0,
-            median: None,
-        };
+        let mut acc = NormalEquations::default();
         let mut magnitudes = Vec::new();
         // Each run's cursor is locked by one thread only: never contended.
         let mut cursor = cursor.lock().unwrap_or_else(|e| e.into_inner());
@@ -734,14 +728,7 @@ fn normal_equations<T: IcpTarget>(
         (acc, magnitudes)
     });
     let mut magnitudes = Vec::new();
-    let mut sum = NormalEquations {
-        h: Matrix6::zeros(),
-        g: Vector6::zeros(),
-        squared: 0.0,
-        weighted: 0.0,
-        pairs: 0,
-        median: None,
-    };
+    let mut sum = NormalEquations::default();
     // Summed in the runs' fixed order: the same result for any number of threads.
     for (b, m) in parts {
         sum.h += b.h;
@@ -764,6 +751,18 @@ mod tests {
     use super::*;
     use crate::octree::{SurfaceMap, SurfaceParams};
     use crate::synthetic::Rng;
+
+    /// A room's corner: `n` random points on each of the planes x = 0, y = 0 and z = 0
+    /// over the unit square, with their normals.
+    fn corner(rng: &mut Rng, n: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        for _ in 0..n {
+            let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
+            points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
+            normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        }
+        (points, normals)
+    }
 
     /// NOctoSLAM's association done afresh for every point, every iteration.
     struct FreshDescents<'a>(&'a SurfaceMap);
@@ -844,12 +843,7 @@ mod tests {
     #[test]
     fn kept_nearest_neighbours_equal_fresh_searches() {
         let mut rng = Rng::new(9);
-        let (mut points, mut normals) = (Vec::new(), Vec::new());
-        for _ in 0..3000 {
-            let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
-            points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
-            normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
-        }
+        let (points, normals) = corner(&mut rng, 3000);
         let target = PlaneTarget::new(&points, &normals).unwrap();
         // Half of the source overlaps the target, half lies 0.3-0.8 m beyond it, and a
         // few hover 4-7 cm over the floor: they start out of the smallest reach (the
@@ -892,12 +886,7 @@ mod tests {
     #[test]
     fn an_interrupt_stops_icp_between_iterations() {
         let mut rng = Rng::new(6);
-        let (mut points, mut normals) = (Vec::new(), Vec::new());
-        for _ in 0..600 {
-            let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
-            points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
-            normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
-        }
+        let (points, normals) = corner(&mut rng, 600);
         let target = PlaneTarget::new(&points, &normals).unwrap();
         let source: Vec<[f64; 3]> = points.iter().map(|p| [p[0] + 0.02, p[1], p[2]]).collect();
         let params = IcpParams {
@@ -953,12 +942,7 @@ mod tests {
     #[test]
     fn an_adaptive_kernel_keeps_an_unseen_surface_from_pulling_the_result() {
         let mut rng = Rng::new(21);
-        let (mut points, mut normals) = (Vec::new(), Vec::new());
-        for _ in 0..4000 {
-            let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
-            points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
-            normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
-        }
+        let (points, normals) = corner(&mut rng, 4000);
         let target = PlaneTarget::new(&points, &normals).unwrap();
         // The truth: target_from_source undoes a 3 cm, 2° offset.
         let offset = Translation3::new(0.02, -0.015, 0.01).to_homogeneous()
@@ -1008,12 +992,7 @@ mod tests {
     #[test]
     fn an_adaptive_kernel_starts_as_least_squares() {
         let mut rng = Rng::new(4);
-        let (mut points, mut normals) = (Vec::new(), Vec::new());
-        for _ in 0..3000 {
-            let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
-            points.extend([[0.0, u, v], [u, 0.0, v], [u, v, 0.0]]);
-            normals.extend([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
-        }
+        let (points, normals) = corner(&mut rng, 3000);
         let target = PlaneTarget::new(&points, &normals).unwrap();
         // 3000 points, a thousand on each plane: below the coarse stage's 4096.
         let source: Vec<[f64; 3]> = points
