@@ -162,13 +162,13 @@ class WatchedExecutive(Executive):
     def on_frame(self):
         fired = len(self.log.reflexes)
         report = super().on_frame()
-        if len(self.log.reflexes) > fired:
-            distance = self.person_distance() if self.person_distance is not None else float("inf")
-            self.reflex_truth += reflex_truth(
-                self.log.reflexes[fired:], getattr(self.cell, "person", None), self.cell.time, distance
-            )
+        new = self.log.reflexes[fired:]
+        distance = float("inf")
+        if self.person_distance is not None and (new or self.trip is not None):
+            distance = self.person_distance()
+        if new:
+            self.reflex_truth += reflex_truth(new, getattr(self.cell, "person", None), self.cell.time, distance)
         if self.trip is not None:
-            distance = self.person_distance() if self.person_distance is not None else float("inf")
             if distance <= 0 and (not self.frames or self.frames[-1][3] > 0):
                 self.contact_times.append(self.cell.time)
             self.frames.append((self.cell.time, self.cell.q.copy(), self.command.copy(), distance))

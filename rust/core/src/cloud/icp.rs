@@ -40,9 +40,9 @@ pub enum Kernel {
     /// median |residual|, over about 2048 pairs spread through the source) of the
     /// previous iteration's residuals, at least [`MIN_ADAPTIVE_WIDTH`], until a step
     /// passes the test again (converged only then). With no stopping test it never
-    /// starts. Far from the answer every pair's pull is needed (least
-    /// squares keeps its basin); once there, the width is the noise's, so that pairs on
-    /// surfaces the target never saw (partial overlap) stop pulling the result off.
+    /// starts. Far from the answer every pair's pull is needed (least squares keeps its
+    /// basin); once there, the width is the noise's, so that pairs on surfaces the
+    /// target never saw (partial overlap) stop pulling the result off.
     AdaptiveHuber(f64),
 }
 
@@ -949,8 +949,8 @@ mod tests {
             * Rotation3::from_axis_angle(&Vector3::z_axis(), 2f64.to_radians()).to_homogeneous();
         let truth = offset.try_inverse().unwrap();
         // 3000 and then 9000 corner points (the coarse stage runs on the larger).
-        for corner in [3000, 9000] {
-            let mut seen: Vec<[f64; 3]> = (0..corner)
+        for seen_points in [3000, 9000] {
+            let mut seen: Vec<[f64; 3]> = (0..seen_points)
                 .map(|i| {
                     let (u, v) = (rng.uniform(0.05, 0.95), rng.uniform(0.05, 0.95));
                     let p = [[0.0, u, v], [u, 0.0, v], [u, v, 0.0]][i % 3];
@@ -958,7 +958,7 @@ mod tests {
                 })
                 .collect();
             seen.extend(
-                (0..corner / 10).map(|_| [0.04, rng.uniform(0.2, 0.6), rng.uniform(0.2, 0.6)]),
+                (0..seen_points / 10).map(|_| [0.04, rng.uniform(0.2, 0.6), rng.uniform(0.2, 0.6)]),
             );
             let source: Vec<[f64; 3]> = seen
                 .iter()
@@ -979,10 +979,10 @@ mod tests {
             };
             let squared = error(Kernel::Squared);
             let adaptive = error(Kernel::AdaptiveHuber(ADAPTIVE_HUBER_SIGMAS));
-            assert!(squared > 0.005, "{corner}: least squares {squared}");
+            assert!(squared > 0.005, "{seen_points}: least squares {squared}");
             assert!(
                 adaptive < 0.0015 && adaptive < 0.1 * squared,
-                "{corner}: {adaptive} vs {squared}"
+                "{seen_points}: {adaptive} vs {squared}"
             );
         }
     }
