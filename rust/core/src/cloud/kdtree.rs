@@ -179,63 +179,16 @@ impl KdTree {
         self.nearest_within(q, f64::INFINITY)
     }
 
-    /// The nearest point within squared distance `limit` (inclusive) of `q`, if any.
-    /// An iterative walk with a fixed stack (the hot path of point-to-plane ICP); the
-    /// limit prunes the walk, which matters for points with no near neighbour.
+    /// The nearest point within squared distance `limit` (inclusive) of `q`, if any
+    /// (ties go to the lower index). The limit prunes the walk, which matters for
+    /// points with no near neighbour.
     pub fn nearest_within(&self, q: [f64; 3], limit: f64) -> Option<(f64, u32)> {
         if self.nodes.is_empty() {
             return None;
         }
-        let mut best = (limit, u32::MAX);
-        // (node, squared distance from q to the node's side of every split above it).
-        // Median splits keep the tree ≤ 32 levels deep for u32 indices, and a
-        // depth-first walk holds at most one entry per level plus one.
-        let mut stack = [(0u32, 0.0f64); 64];
-        let mut len = 1;
-        while len > 0 {
-            len -= 1;
-            let (node, bound) = stack[len];
-            if bound > best.0 {
-                continue;
-            }
-            match self.node(node) {
-                Node::Leaf { block } => {
-                    let block = &self.blocks[block as usize];
-                    let d = block.distances(&q);
-                    let nearest = d.iter().fold(f64::INFINITY, |m, &v| m.min(v));
-                    // The first slot at that distance holds the lowest index (none when
-                    // every distance is NaN).
-                    let slot = d.iter().position(|&v| v == nearest);
-                    if let (true, Some(slot)) = (nearest <= best.0, slot) {
-                        let i = block.indices[slot];
-                        if nearest < best.0 || i < best.1 {
-                            best = (nearest, i);
-                        }
-                    }
-                }
-                Node::Split {
-                    axis,
-                    value,
-                    left,
-                    right,
-                } => {
-                    let diff = q[axis as usize] - value;
-                    let (near, far) = if diff < 0.0 {
-                        (left, right)
-                    } else {
-                        (right, left)
-                    };
-                    let far_bound = bound.max(diff * diff);
-                    if far_bound <= best.0 {
-                        stack[len] = (far, far_bound);
-                        len += 1;
-                    }
-                    stack[len] = (near, bound);
-                    len += 1;
-                }
-            }
-        }
-        (best.1 != u32::MAX).then_some(best)
+        let mut best = [(limit, u32::MAX)];
+        self.search_fixed(0, &q, &mut best);
+        (best[0].1 != u32::MAX).then_some(best[0])
     }
 
     /// The `k` nearest points to `q` as (squared distance, index), nearest first
@@ -266,7 +219,68 @@ impl KdTree {
         if k == 0 || self.nodes.is_empty() {
             return;
         }
-        self.search(0, q, k, None, &mut Bounded { kept: out, limit });
+        match k {
+            1 => self.knn_fixed::<1>(q, k, limit, out),
+            2 => self.knn_fixed::<2>(q, k, limit, out),
+            3 | 4 => self.knn_fixed::<4>(q, k, limit, out),
+            5..=8 => self.knn_fixed::<8>(q, k, limit, out),
+            _ => self.search(0, q, k, None, &mut Bounded { kept: out, limit }),
+        }
+    }
+
+    /// [`Self::knn_within`] for `k ≤ K`, the best kept in a fixed array on the stack:
+    /// no calls per candidate (the hot path of ICP's pairing).
+    fn knn_fixed<const K: usize>(
+        &self,
+        q: [f64; 3],
+        k: usize,
+        limit: f64,
+        out: &mut Vec<(f64, u32)>,
+    ) {
+        let mut best = [(limit, u32::MAX); K];
+        self.search_fixed(0, &q, &mut best);
+        out.extend(best.iter().take(k).filter(|b| b.1 != u32::MAX));
+    }
+
+    /// Depth-first search gathering the `K` nearest within `best[K - 1]`'s distance, in
+    /// order (ties by index). Unfilled entries hold index `u32::MAX` at the limit, so
+    /// any point within the limit displaces them.
+    fn search_fixed<const K: usize>(&self, node: u32, q: &[f64; 3], best: &mut [(f64, u32); K]) {
+        let n = self.nodes[node as usize];
+        if n.axis == LEAF {
+            let block = &self.blocks[n.link as usize];
+            let d = block.distances(q);
+            let worst = best[K - 1].0;
+            // Which slots can enter, found without a branch per slot (NaN never does).
+            let mut mask = 0u32;
+            for (slot, &v) in d.iter().enumerate() {
+                mask |= u32::from(v <= worst) << slot;
+            }
+            while mask != 0 {
+                let slot = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let entry = (d[slot], block.indices[slot]);
+                if entry < best[K - 1] {
+                    let mut at = K - 1;
+                    while at > 0 && best[at - 1] > entry {
+                        best[at] = best[at - 1];
+                        at -= 1;
+                    }
+                    best[at] = entry;
+                }
+            }
+            return;
+        }
+        let diff = q[n.axis as usize] - n.value;
+        let (near, far) = if diff < 0.0 {
+            (node + 1, n.link)
+        } else {
+            (n.link, node + 1)
+        };
+        self.search_fixed(near, q, best);
+        if diff * diff <= best[K - 1].0 {
+            self.search_fixed(far, q, best);
+        }
     }
 
     /// Depth-first search for the `k` nearest to `q`, gathering them in `best`: the
@@ -476,7 +490,7 @@ mod tests {
     #[test]
     fn knn_within_equals_brute_force() {
         let mut rng = crate::synthetic::Rng::new(11);
-        let points: Vec<[f64; 3]> = (0..700)
+        let scattered: Vec<[f64; 3]> = (0..700)
             .map(|_| {
                 [
                     rng.uniform(-1.0, 1.0),
@@ -485,25 +499,38 @@ mod tests {
                 ]
             })
             .collect();
-        let tree = KdTree::new(&points);
+        // Points on a coarse lattice, many twice: equal distances everywhere, so the
+        // order among equals (by index) is tested too.
+        let lattice: Vec<[f64; 3]> = (0..900)
+            .map(|_| [0, 1, 2].map(|_| 0.1 * (rng.uniform(-4.0, 4.0).round())))
+            .collect();
         let mut out = Vec::new();
-        for _ in 0..400 {
-            let q = [
-                rng.uniform(-1.3, 1.3),
-                rng.uniform(-1.3, 1.3),
-                rng.uniform(-0.5, 0.5),
-            ];
-            let limit = rng.uniform(0.0, 0.2);
-            let mut all: Vec<(f64, u32)> = points
-                .iter()
-                .enumerate()
-                .map(|(i, p)| (distance_squared(p, &q), i as u32))
-                .filter(|&(d, _)| d <= limit)
-                .collect();
-            all.sort_by(|a, b| a.partial_cmp(b).unwrap());
-            all.truncate(8);
-            tree.knn_within(q, 8, limit, &mut out);
-            assert_eq!(out, all);
+        for points in [scattered, lattice] {
+            let tree = KdTree::new(&points);
+            for round in 0..800 {
+                let q = if round % 2 == 0 {
+                    [
+                        rng.uniform(-1.3, 1.3),
+                        rng.uniform(-1.3, 1.3),
+                        rng.uniform(-0.5, 0.5),
+                    ]
+                } else {
+                    [0, 1, 2].map(|_| 0.05 * (rng.uniform(-9.0, 9.0).round()))
+                };
+                let limit = rng.uniform(0.0, 0.2);
+                // Every size of the searches' fixed arrays, and the general search.
+                let k = [1, 2, 3, 4, 5, 8, 9, 20][round % 8];
+                let mut all: Vec<(f64, u32)> = points
+                    .iter()
+                    .enumerate()
+                    .map(|(i, p)| (distance_squared(p, &q), i as u32))
+                    .filter(|&(d, _)| d <= limit)
+                    .collect();
+                all.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                tree.knn_within(q, k, limit, &mut out);
+                assert_eq!(out, all[..all.len().min(k)], "k = {k}");
+                assert_eq!(tree.nearest_within(q, limit), all.first().copied());
+            }
         }
     }
 
