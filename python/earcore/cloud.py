@@ -12,7 +12,7 @@ from earcore import _earcore
 
 __all__ = [
     "box_voxel_centres", "cluster_points", "voxel_codes", "crop", "depth_to_points", "estimate_normals", "incidence_angles",
-    "remove_statistical_outliers", "voxel_downsample",
+    "remove_statistical_outliers", "voxel_downsample", "voxel_means",
 ]
 
 
@@ -148,6 +148,14 @@ def voxel_codes(points, resolution: float) -> np.ndarray:
     axis around the origin), for set operations on voxels with numpy (`np.isin`)."""
     # np.reshape keeps a masked or complex array what it is, for the binding to refuse.
     return _earcore.voxel_codes(np.reshape(points, (-1, 3)), resolution)
+
+
+def voxel_means(centres, points, resolution: float) -> np.ndarray:
+    """Per voxel (named by its centre, or any point in it; cells of size `resolution` as
+    `voxel_codes` has them), the mean of the `points` that fall in it, or the centre
+    itself where none does: where within its voxel a surface was seen, to follow it by
+    less than a voxel. (M, 3)."""
+    return _earcore.voxel_means(np.reshape(centres, (-1, 3)), np.reshape(points, (-1, 3)), resolution)
 
 
 def box_voxel_centres(box_min, box_max, resolution: float) -> np.ndarray:

@@ -266,6 +266,26 @@ pub fn voxel_codes<'py>(
     Ok(vec_to_array(py, codes))
 }
 
+/// Per voxel named by a point in it (`centres` (M, 3), e.g. voxel centres, on the grid
+/// of `voxel_codes`), the mean of the `points` (N, 3) in that voxel, or the centre
+/// itself where none falls: (M, 3).
+#[pyfunction]
+#[pyo3(signature = (centres, points, resolution))]
+pub fn voxel_means<'py>(
+    py: Python<'py>,
+    centres: &Bound<'py, PyAny>,
+    points: &Bound<'py, PyAny>,
+    resolution: f64,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let (c, p) = (
+        self::points(centres, "centres")?,
+        self::points(points, "points")?,
+    );
+    let (c, p) = (c.as_slice()?, p.as_slice()?);
+    let means = py.detach(|| cloud::voxel_means(c, p, resolution)).py()?;
+    rows_to_array(py, means)
+}
+
 /// `dst_from_src` (4, 4) minimising Σ wᵢ |R srcᵢ + t − dstᵢ|² (Kabsch), for paired
 /// points (N, 3), N ≥ 3 not all on one line.
 #[pyfunction]

@@ -112,6 +112,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     py.import("os")?
         .call_method("register_at_fork", (), Some(&hooks))?;
     m.add_function(wrap_pyfunction!(cloud::voxel_codes, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::voxel_means, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::render_depth_points, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::benchmark_frame, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::robot_cell_voxels, m)?)?;

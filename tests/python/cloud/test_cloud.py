@@ -177,6 +177,25 @@ def test_voxel_grid_centroids_are_exact(layout):
         earcore.voxel_downsample(pts, 0.05, colours[:10])
 
 
+def test_voxel_means_are_the_means_of_the_points_in_each_voxel():
+    rng = np.random.default_rng(5)
+    res = 0.05
+    pts = rng.normal(0, 0.3, (20_000, 3))
+    cells = np.unique(np.floor(pts / res), axis=0)
+    # Some voxels with points, some without (those keep their centre), in any order.
+    wanted = np.vstack([cells[rng.choice(len(cells), 300, replace=False)], np.floor(rng.uniform(5, 6, (50, 3)) / res)])
+    wanted = wanted[rng.permutation(len(wanted))]
+    centres = (wanted + 0.5) * res
+    means = earcore.cloud.voxel_means(centres, pts, res)
+    cell_of = np.floor(pts / res)
+    for centre, cell, mean in zip(centres, wanted, means):
+        inside = pts[np.all(cell_of == cell, axis=1)]
+        expected = inside.mean(axis=0) if len(inside) else centre
+        np.testing.assert_allclose(mean, expected, rtol=0, atol=1e-12)
+    assert np.array_equal(earcore.cloud.voxel_means(centres, np.zeros((0, 3)), res), centres)
+    assert earcore.cloud.voxel_means(np.zeros((0, 3)), pts, res).shape == (0, 3)
+
+
 def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     cos = np.abs(np.sum(a * b, axis=1)) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
     return np.degrees(np.arccos(np.clip(cos, -1, 1)))

@@ -214,7 +214,10 @@ def test_cells_too_small_to_tell_points_apart_are_an_error():
                  lambda: earcore.cloud.cluster_points(pts * 1e300, 1.0),
                  lambda: earcore.cloud.voxel_codes(pts, 1e-12),
                  lambda: earcore.cloud.voxel_codes(pts, 0.0),
-                 lambda: earcore.cloud.voxel_codes([[np.nan, 0, 0]], 0.05)):
+                 lambda: earcore.cloud.voxel_codes([[np.nan, 0, 0]], 0.05),
+                 lambda: earcore.cloud.voxel_means(pts, pts, 0.0),
+                 lambda: earcore.cloud.voxel_means([[np.inf, 0, 0]], pts, 0.05),
+                 lambda: earcore.cloud.voxel_means(pts, [[np.nan, 0, 0]], 0.05)):
         with pytest.raises(ValueError):
             call()
     # Reasonable cells still tell every point apart.

@@ -23,4 +23,4 @@ pub use kdtree::KdTree;
 pub use normals::{estimate_normals, estimate_normals_interruptible};
 pub use outliers::{statistical_outliers, statistical_outliers_interruptible, OutlierParams};
 pub use rigid_fit::{rigid_fit, rigid_fit_ransac, rigid_fit_ransac_interruptible, RansacFit};
-pub use voxel_grid::{pack_cell, voxel_codes, voxel_downsample};
+pub use voxel_grid::{pack_cell, voxel_codes, voxel_downsample, voxel_means};

@@ -46,6 +46,60 @@ pub fn voxel_codes(points: &[[f64; 3]], resolution: f64) -> Result<Vec<i64>> {
         .collect()
 }
 
+/// Per voxel named by a point inside it (`centres`, typically voxel centres, on the
+/// grid of [`voxel_codes`]), the mean of the `points` that fall in that voxel, or the
+/// centre itself where none does. Errors like [`voxel_codes`] on a bad resolution or
+/// centre, and on a non-finite point (finite points beyond the grid lie in no voxel).
+pub fn voxel_means(
+    centres: &[[f64; 3]],
+    points: &[[f64; 3]],
+    resolution: f64,
+) -> Result<Vec<[f64; 3]>> {
+    let codes = voxel_codes(centres, resolution)?;
+    let mut slot_of: FxHashMap<i64, u32> = FxHashMap::default();
+    slot_of.reserve(codes.len());
+    let slots: Vec<u32> = codes
+        .iter()
+        .map(|&c| {
+            let fresh = slot_of.len() as u32;
+            *slot_of.entry(c).or_insert(fresh)
+        })
+        .collect();
+    let mut sums = vec![([0.0f64; 3], 0u32); slot_of.len()];
+    const LIMIT: f64 = (1u64 << 20) as f64;
+    for (i, p) in points.iter().enumerate() {
+        if !p.iter().all(|c| c.is_finite()) {
+            return Err(Error::InvalidArgument(format!(
+                "points must be finite (point {i}: {p:?})"
+            )));
+        }
+        let cell = p.map(|c| (c / resolution).floor());
+        if !cell.iter().all(|c| c.abs() < LIMIT) {
+            continue;
+        }
+        let code = pack_cell(cell.map(|c| c as i64)).expect("cells within ±2^20 pack") as i64;
+        if let Some(&slot) = slot_of.get(&code) {
+            let (sum, count) = &mut sums[slot as usize];
+            for a in 0..3 {
+                sum[a] += p[a];
+            }
+            *count += 1;
+        }
+    }
+    Ok(centres
+        .iter()
+        .zip(&slots)
+        .map(|(centre, &slot)| {
+            let (sum, count) = sums[slot as usize];
+            if count == 0 {
+                *centre
+            } else {
+                sum.map(|v| v / count as f64)
+            }
+        })
+        .collect())
+}
+
 /// Returns the centroids (in order of each voxel's first point) and, when `values`
 /// (`stride` numbers per point) are given, their per-voxel means. Errors when
 /// `voxel_size` is not a positive length, a point is not finite or beyond the grid's
