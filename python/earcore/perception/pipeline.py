@@ -143,6 +143,8 @@ class PerceptionPipeline:
         #: Simulation only: follow the points of this segmentation id (the robot's
         #: pybullet body) through the pipeline to count how many reach the map.
         self.track_body: int | None = None
+        #: The points the last frame updated the map with (base frame).
+        self.inserted_points: np.ndarray = np.zeros((0, 3))
 
     def set_pose(self, camera: str, base_from_camera: np.ndarray) -> None:
         """The calibrated pose of a fixed camera (used instead of the frame's)."""
@@ -234,11 +236,13 @@ class PerceptionPipeline:
             self._refined = True
         views = [self.camera_points(frame, report) for frame in frames]
         if not sum(len(v.points) for v in views):
+            self.inserted_points = np.zeros((0, 3))
             self.insert(None, views, report)
             return self.end_frame(report, time_s)
         cloud = self.merge(views, report)
         cloud = self.remove_outliers(cloud, report)
         cloud = self.remove_robot(cloud, q, report)
+        self.inserted_points = cloud.points
         self.insert(cloud, views, report)
         report = self.end_frame(report, time_s)
         t0 = time.perf_counter()

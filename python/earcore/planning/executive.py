@@ -426,7 +426,8 @@ class Executive:
         t0, cpu0 = time.perf_counter(), time.thread_time()
         tcp_speed = self._tool_speed()
         qd = self.command if self.config.relative_velocity else None
-        report = self.tracker.update(cell.time, self.tree.current_obstacles()[0], q, tcp_speed, qd)
+        centres = self.tree.current_obstacles()[0]
+        report = self.tracker.update(cell.time, centres, q, tcp_speed, qd, points=self.pipeline.inserted_points)
         self.planner.rrt.set_keep_out(self.grown_robot, self.tracker.last_dynamic, self.tree.resolution)
         in_reflex = self.motion is not None and self.motion.kind in ("reflex", "backtrack")
         close = report.approaching and report.clearance < self.config.min_separation

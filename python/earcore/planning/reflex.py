@@ -6,7 +6,9 @@ Per map frame:
    (voxels seen during a warm-up, grown by one voxel for noise) are clustered
    (`earcore.cluster_points`, 26-connected voxels) into obstacles;
 2. clusters are matched to the previous frame's tracks by nearest centroid; a track's
-   velocity is the least-squares slope of its centroid over the last few frames;
+   velocity is the least-squares slope of its centroid over the last few frames, the
+   centroid of where in each voxel the frame's points fell (`cloud.voxel_means`), which
+   moves by less than a voxel;
 3. per track, d = exact clearance between the robot's bodies and the cluster's voxel
    boxes (`RobotModel.clearance_to_voxels`) and the risk D = |v|² / (β d) (Eq. 2), v the
    obstacle's velocity (the paper) or, by default in the executive, for an obstacle
@@ -29,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import earcore
-from earcore.cloud import voxel_codes
+from earcore.cloud import voxel_codes, voxel_means
 from earcore.planning.separation import protective_separation
 from earcore.planning.trajectory import cumsum0, densify, without_repeats
 
@@ -45,6 +47,10 @@ class ObstacleTrack:
     #: (time, centroid) of the last few frames.
     history: list[tuple[float, np.ndarray]] = field(default_factory=list)
     voxels: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    #: Per voxel, where in it the obstacle was seen (the mean of the frame's points in
+    #: it, `cloud.voxel_means`; the centres when the tracker got no points): the centroid
+    #: and the lead come from these, which move by less than a voxel.
+    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     #: The centroid's velocity for Eq. 2 (`_velocities`: the faster of the slope and
     #: a constant-acceleration fit at the newest frame; the slope lags a reach that speeds
@@ -81,8 +87,9 @@ class ObstacleTrack:
         about half the hand's speed; the lead moves with the hand. A lead that jumps
         farther than `jump` in one frame is another part of the obstacle (the far end
         switched, or the robot hid it): its history starts again."""
-        far = self.voxels[np.argmax(_squared_norms(self.voxels - self.anchor))]
-        lead = self.voxels[_squared_norms(self.voxels - far) <= radius * radius].mean(axis=0)
+        seen = self.positions if len(self.positions) == len(self.voxels) else self.voxels
+        far = seen[np.argmax(_squared_norms(seen - self.anchor))]
+        lead = seen[_squared_norms(seen - far) <= radius * radius].mean(axis=0)
         if self.lead_history and math.dist(lead, self.lead_history[-1][1]) > jump:
             self.lead_history = []
         self.lead_history = (self.lead_history + [(time_s, lead)])[-window:]
@@ -234,21 +241,32 @@ class ObstacleTracker:
         return self._dynamic
 
     def update(
-        self, time_s: float, centres: np.ndarray, q: np.ndarray, robot_speed: float = 0.0, qd: np.ndarray | None = None
+        self,
+        time_s: float,
+        centres: np.ndarray,
+        q: np.ndarray,
+        robot_speed: float = 0.0,
+        qd: np.ndarray | None = None,
+        points: np.ndarray | None = None,
     ) -> RiskReport:
         """One frame: the current obstacles' voxel centres, the robot's joint state and
         its speed (m/s, for the ISO figure). Returns the frame's risk report.
+
+        With the frame's `points` (those the map was updated with), obstacles are
+        followed by where in their voxels they were seen (`cloud.voxel_means`) rather than
+        by voxel centres, which jump a whole voxel at a time.
 
         With the joint velocities `qd`, v in Eq. 2 is the obstacle's velocity relative to
         the robot's closest point (the closing speed that braking distances are about;
         the paper uses the obstacle's own velocity, which is what `qd=None` gives)."""
         t0 = time.perf_counter()
         voxels = self._dynamic = self.dynamic_voxels(centres)
-        clusters: list[np.ndarray] = []
+        clusters: list[tuple[np.ndarray, np.ndarray]] = []
         if len(voxels):
+            positions = voxels if points is None else voxel_means(voxels, points, self.resolution)
             labels = earcore.cluster_points(voxels, self.resolution)
             counts = np.bincount(labels)
-            clusters = [voxels[labels == i] for i in np.flatnonzero(counts >= self.min_voxels)]
+            clusters = [(voxels[labels == i], positions[labels == i]) for i in np.flatnonzero(counts >= self.min_voxels)]
         self._associate(time_s, clusters)
         best = None
         for track in self.tracks:
@@ -288,8 +306,8 @@ class ObstacleTracker:
             time.perf_counter() - t0, approaching, link, velocity, track_voxels, jacobian, np.array(q, dtype=np.float64),
         )
 
-    def _associate(self, time_s: float, clusters: list[np.ndarray]) -> None:
-        centroids = [c.mean(axis=0) for c in clusters]
+    def _associate(self, time_s: float, clusters: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        centroids = [seen.mean(axis=0) for _, seen in clusters]
         unmatched = list(range(len(clusters)))
         kept = []
         for track in self.tracks:
@@ -300,11 +318,12 @@ class ObstacleTracker:
             if dists[j] <= self.gate:
                 i = unmatched.pop(j)
                 track.history = (track.history + [(time_s, centroids[i])])[-self.window :]
-                track.voxels = clusters[i]
+                track.voxels, track.positions = clusters[i]
                 track.velocity, track.velocity_now = _velocities(track.history)
                 kept.append(track)
         for i in unmatched:
-            kept.append(ObstacleTrack(self._next_id, [(time_s, centroids[i])], clusters[i], anchor=centroids[i]))
+            voxels, positions = clusters[i]
+            kept.append(ObstacleTrack(self._next_id, [(time_s, centroids[i])], voxels, positions, anchor=centroids[i]))
             self._next_id += 1
         for track in kept:
             track.observe_lead(time_s, self.lead_window, self.lead_radius, self.gate)

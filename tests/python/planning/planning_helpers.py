@@ -74,7 +74,7 @@ def moving_executive(robot, tree, q, velocity, **planning):
     from earcore.planning.executive import Executive, TripReport
 
     cell = KinematicCell(robot, q)
-    executive = Executive(cell, SimpleNamespace(tree=tree), PlanningConfig(warmup=0.0, **planning), [B])
+    executive = Executive(cell, SimpleNamespace(tree=tree, inserted_points=np.zeros((0, 3))), PlanningConfig(warmup=0.0, **planning), [B])
     executive.trip = TripReport(goal=0, start_time=0.0)  # mid-trip: control() starts none
     executive.command = np.asarray(velocity, dtype=np.float64)
     return executive

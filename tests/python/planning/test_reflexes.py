@@ -214,6 +214,42 @@ def test_the_velocity_window_reads_slow_hands_closer_to_their_speed(ur5):
     assert fast.min() >= 0.75 and fast.max() <= 1.9
 
 
+def test_the_frames_points_read_a_hand_closer_to_its_speed_than_voxel_centres(ur5):
+    """A hand seen as points on its visible side (a 6 cm ball's half facing a camera,
+    one point per 8 mm) moving steadily towards the tool, 5 cm voxels at 15 Hz, 60
+    random directions and offsets: followed by where in each voxel it was seen
+    (`points`), the course's speed is nearer the true speed than from voxel centres,
+    at operator pace and fast."""
+    res = 0.05
+    tool = ur5.fk(A)[-1, :3, 3]
+    rng = np.random.default_rng(8)
+    sphere = rng.normal(size=(700, 3))
+    sphere = 0.06 * sphere / np.linalg.norm(sphere, axis=1, keepdims=True)
+    camera = np.array([1.0, 0.3, 1.5])
+
+    def errors(speed, with_points):
+        rng = np.random.default_rng(3)
+        out = []
+        for _ in range(60):
+            d = rng.normal(size=3)
+            d /= np.linalg.norm(d)
+            start = tool + 0.9 * d + rng.uniform(0, res, 3)
+            tracker = ObstacleTracker(ur5, res)
+            for k in range(12):
+                centre = start - speed * k / 15 * d
+                seen = sphere[sphere @ (camera - centre) > 0] + centre
+                centres = np.unique((np.floor(seen / res) + 0.5) * res, axis=0)
+                tracker.update(k / 15, centres, A, points=seen if with_points else None)
+                if k >= tracker.window:
+                    out.append(abs(np.linalg.norm(tracker.tracks[0].course_velocity()) / speed - 1))
+        return np.array(out)
+
+    for speed in (0.3, 1.2):
+        points, centres = errors(speed, True), errors(speed, False)
+        assert np.percentile(points, 90) < 0.7 * np.percentile(centres, 90), speed
+        assert np.median(points) < np.median(centres), speed
+
+
 def test_a_lead_that_jumps_to_the_other_end_starts_again(ur5):
     """A still L-shaped bar, first seen whole, whose long arm's end the robot hides every
     other frame: the voxel farthest from where the track started switches ends (~0.4 m).

@@ -45,7 +45,7 @@ def run_with_hand(robot, hand_at, seconds: float, **planning):
     tree = earcore.OcTree(0.05)
     cell = KinematicCell(robot, A, time_step=DT)
     config = PlanningConfig(warmup=0.0, reflex_rule="prediction", **planning)
-    executive = Executive(cell, SimpleNamespace(tree=tree), config, [A, B], seed=0)
+    executive = Executive(cell, SimpleNamespace(tree=tree, inserted_points=np.zeros((0, 3))), config, [A, B], seed=0)
     tools, closest, step = [], np.inf, 0
     while cell.time < seconds and not executive.trips:
         executive.control(DT)
