@@ -517,9 +517,15 @@ mod tests {
                 } else {
                     [0, 1, 2].map(|_| 0.05 * (rng.uniform(-9.0, 9.0).round()))
                 };
-                let limit = rng.uniform(0.0, 0.2);
+                // Some limits exactly at a point's distance (the limit is inclusive), one
+                // without any.
+                let limit = match round % 5 {
+                    0 => distance_squared(&points[round % points.len()], &q),
+                    1 if round % 3 == 0 => f64::INFINITY,
+                    _ => rng.uniform(0.0, 0.2),
+                };
                 // Every size of the searches' fixed arrays, and the general search.
-                let k = [1, 2, 3, 4, 5, 8, 9, 20][round % 8];
+                let k = [1, 2, 3, 4, 5, 6, 7, 8, 9, 20][round % 10];
                 let mut all: Vec<(f64, u32)> = points
                     .iter()
                     .enumerate()
@@ -531,6 +537,12 @@ mod tests {
                 assert_eq!(out, all[..all.len().min(k)], "k = {k}");
                 assert_eq!(tree.nearest_within(q, limit), all.first().copied());
             }
+            let nan = [f64::NAN, 0.0, 0.0];
+            for k in [1, 2, 4, 8, 9] {
+                tree.knn_within(nan, k, 1.0, &mut out);
+                assert!(out.is_empty());
+            }
+            assert_eq!(tree.nearest_within(nan, f64::INFINITY), None);
         }
     }
 

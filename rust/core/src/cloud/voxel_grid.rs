@@ -25,6 +25,11 @@ pub fn pack_cell(cell: [i64; 3]) -> Option<u64> {
 /// voxel, for set operations on voxels. Points must be finite and their cells within
 /// 2^20 of the origin (|cell| < 2^20 on every axis, so no two cells share a code).
 pub fn voxel_codes(points: &[[f64; 3]], resolution: f64) -> Result<Vec<i64>> {
+    codes_of(points, resolution, "points")
+}
+
+/// [`voxel_codes`], naming the argument `what` in its errors.
+fn codes_of(points: &[[f64; 3]], resolution: f64, what: &str) -> Result<Vec<i64>> {
     if !(resolution.is_finite() && resolution > 0.0) {
         return Err(Error::InvalidArgument(format!(
             "resolution must be finite and > 0, got {resolution}"
@@ -33,11 +38,12 @@ pub fn voxel_codes(points: &[[f64; 3]], resolution: f64) -> Result<Vec<i64>> {
     const LIMIT: f64 = (1u64 << 20) as f64;
     points
         .iter()
-        .map(|p| {
+        .enumerate()
+        .map(|(i, p)| {
             let cell = p.map(|c| (c / resolution).floor());
             if !cell.iter().all(|c| c.abs() < LIMIT) {
                 return Err(Error::InvalidArgument(format!(
-                    "points must be finite and within 2^20 cells of size {resolution} of the origin (point {p:?})"
+                    "{what} must be finite and within 2^20 cells of size {resolution} of the origin ({what}[{i}] = {p:?})"
                 )));
             }
             let code = pack_cell(cell.map(|c| c as i64)).expect("cells within ±2^20 pack");
@@ -55,7 +61,7 @@ pub fn voxel_means(
     points: &[[f64; 3]],
     resolution: f64,
 ) -> Result<Vec<[f64; 3]>> {
-    let codes = voxel_codes(centres, resolution)?;
+    let codes = codes_of(centres, resolution, "centres")?;
     let mut slot_of: FxHashMap<i64, u32> = FxHashMap::default();
     slot_of.reserve(codes.len());
     let slots: Vec<u32> = codes
@@ -70,7 +76,7 @@ pub fn voxel_means(
     for (i, p) in points.iter().enumerate() {
         if !p.iter().all(|c| c.is_finite()) {
             return Err(Error::InvalidArgument(format!(
-                "points must be finite (point {i}: {p:?})"
+                "points must be finite (points[{i}] = {p:?})"
             )));
         }
         let cell = p.map(|c| (c / resolution).floor());
