@@ -3,15 +3,19 @@
 //!   ≤ 3 m): 1.5 m crop, 2 cm voxel grid, statistical outlier removal (k 20, 2σ);
 //! - NOctoSLAM's surface map: the update (insert + propagate, dynamic leaf depth) of a
 //!   VLP-16 scan of an 8 × 8 × 3.5 m room into the map of another scan from the same pose;
-//! - point-to-plane ICP of such a scan against the map of scans along a short path.
+//! - point-to-plane ICP of such a scan against the map of scans along a short path;
+//! - k-d tree queries as ICP's `PlaneTarget` makes them, 2 cm off the target in Morton
+//!   order (a scan against five merged scans; the benchmark frame's every 13th point
+//!   against the frame): the nearest two within 0.25 m (the fixed-array search) beside the
+//!   general sorted-vector search (`knn`, no limit), and the nearest one.
 //!
 //! Run: `cargo bench --bench cloud`. The Python benchmarks (`benches/bench_preprocess.py`,
 //! `bench_surface_map.py`) time the same stages from Python beside open3d and small_gicp.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use earcore_core::cloud::{
-    crop_sphere, icp_point_to_plane, statistical_outliers, voxel_downsample, IcpParams, Kernel,
-    OutlierParams,
+    crop_sphere, icp_point_to_plane, statistical_outliers, voxel_downsample, IcpParams, KdTree,
+    Kernel, OutlierParams,
 };
 use earcore_core::na::{Matrix4, Rotation3, Vector3};
 use earcore_core::octree::{SurfaceMap, SurfaceParams};
@@ -141,5 +145,57 @@ fn icp(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, preprocessing, surface_map, icp);
+fn kdtree(c: &mut Criterion) {
+    // Sparse rings: five VLP-16 scans, queries from a sixth.
+    let mut rings = Vec::new();
+    for k in 0..5 {
+        let at = pose([0.3 * k as f64, -0.7, 1.6], 0.3 + 0.2 * k as f64);
+        rings.extend(scan(&at, 20 + k));
+    }
+    let at = pose([0.65, -0.6, 1.6], 0.7);
+    let ring_queries = scan(&at, 98);
+    // A dense surface: the benchmark depth frame, queries from every 13th of its points.
+    let (camera, frame_pose, shapes) = benchmark_scene();
+    let frame = render_points(&camera, &frame_pose, &shapes);
+    let frame_queries: Vec<[f64; 3]> = frame.iter().step_by(13).copied().collect();
+    for (name, target, mut queries) in [
+        ("VLP-16 scans", rings, ring_queries),
+        ("depth frame", frame, frame_queries),
+    ] {
+        let tree = KdTree::new(&target);
+        for q in &mut queries {
+            q[0] += 0.02;
+        }
+        let order = earcore_core::geometry::morton_order(&queries);
+        let queries: Vec<[f64; 3]> = order.iter().map(|&i| queries[i as usize]).collect();
+        let mut group = c.benchmark_group(format!("kdtree, {name}, {} targets", target.len()));
+        group.throughput(Throughput::Elements(queries.len() as u64));
+        let mut out = Vec::new();
+        group.bench_function("nearest two within 0.25 m", |b| {
+            b.iter(|| {
+                for &q in &queries {
+                    tree.knn_within(q, 2, 0.0625, &mut out);
+                }
+            })
+        });
+        group.bench_function("nearest two, general search", |b| {
+            b.iter(|| {
+                for &q in &queries {
+                    tree.knn(q, 2, None, &mut out);
+                }
+            })
+        });
+        group.bench_function("nearest within 0.25 m", |b| {
+            b.iter(|| {
+                queries
+                    .iter()
+                    .filter_map(|&q| tree.nearest_within(q, 0.0625))
+                    .count()
+            })
+        });
+        group.finish();
+    }
+}
+
+criterion_group!(benches, preprocessing, surface_map, icp, kdtree);
 criterion_main!(benches);
