@@ -181,6 +181,17 @@ def test_tracker_follows_a_reach_that_speeds_up(ur5):
             assert np.linalg.norm(track.velocity_now) < 1.6 * 1.2
 
 
+def _steady_approaches(tool, speed, res, count=60):
+    """Straight approaches to `tool` at `speed` from 0.9 m away, in random directions and
+    sub-voxel offsets (seeded): per approach, (time, hand centre) over 12 frames at 15 Hz."""
+    rng = np.random.default_rng(3)
+    for _ in range(count):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        start = tool + 0.9 * d + rng.uniform(0, res, 3)
+        yield [(k / 15, start - speed * k / 15 * d) for k in range(12)]
+
+
 def test_the_velocity_window_reads_slow_hands_closer_to_their_speed(ur5):
     """Steady hands (an 18-voxel blob in 5 cm voxels at 15 Hz, 60 random directions and
     sub-voxel offsets, heading for the tool): the course's speed against the true one.
@@ -193,16 +204,11 @@ def test_the_velocity_window_reads_slow_hands_closer_to_their_speed(ur5):
     blob = np.array([[x, y, z] for x in (-res, 0, res) for y in (-res, 0, res) for z in (0, res)])
 
     def ratios(speed, **window):
-        rng = np.random.default_rng(3)
         out = []
-        for _ in range(60):
-            d = rng.normal(size=3)
-            d /= np.linalg.norm(d)
-            start = tool + 0.9 * d + rng.uniform(0, res, 3)
+        for approach in _steady_approaches(tool, speed, res):
             tracker = ObstacleTracker(ur5, res, **window)
-            for k in range(12):
-                centre = start - speed * k / 15 * d
-                tracker.update(k / 15, np.unique((np.floor((blob + centre) / res) + 0.5) * res, axis=0), A)
+            for k, (t, centre) in enumerate(approach):
+                tracker.update(t, np.unique((np.floor((blob + centre) / res) + 0.5) * res, axis=0), A)
                 if k >= tracker.window:
                     out.append(np.linalg.norm(tracker.tracks[0].course_velocity()) / speed)
         return np.array(out)
@@ -228,18 +234,13 @@ def test_the_frames_points_read_a_hand_closer_to_its_speed_than_voxel_centres(ur
     camera = np.array([1.0, 0.3, 1.5])
 
     def errors(speed, with_points):
-        rng = np.random.default_rng(3)
         out = []
-        for _ in range(60):
-            d = rng.normal(size=3)
-            d /= np.linalg.norm(d)
-            start = tool + 0.9 * d + rng.uniform(0, res, 3)
+        for approach in _steady_approaches(tool, speed, res):
             tracker = ObstacleTracker(ur5, res)
-            for k in range(12):
-                centre = start - speed * k / 15 * d
+            for k, (t, centre) in enumerate(approach):
                 seen = sphere[sphere @ (camera - centre) > 0] + centre
                 centres = np.unique((np.floor(seen / res) + 0.5) * res, axis=0)
-                tracker.update(k / 15, centres, A, points=seen if with_points else None)
+                tracker.update(t, centres, A, points=seen if with_points else None)
                 if k >= tracker.window:
                     out.append(abs(np.linalg.norm(tracker.tracks[0].course_velocity()) / speed - 1))
         return np.array(out)
