@@ -35,21 +35,27 @@ fn codes_of(points: &[[f64; 3]], resolution: f64, what: &str) -> Result<Vec<i64>
             "resolution must be finite and > 0, got {resolution}"
         )));
     }
-    const LIMIT: f64 = (1u64 << 20) as f64;
     points
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            let cell = p.map(|c| (c / resolution).floor());
-            if !cell.iter().all(|c| c.abs() < LIMIT) {
-                return Err(Error::InvalidArgument(format!(
+            cell_code(p, resolution).ok_or_else(|| {
+                Error::InvalidArgument(format!(
                     "{what} must be finite and within 2^20 cells of size {resolution} of the origin ({what}[{i}] = {p:?})"
-                )));
-            }
-            let code = pack_cell(cell.map(|c| c as i64)).expect("cells within ±2^20 pack");
-            Ok(code as i64)
+                ))
+            })
         })
         .collect()
+}
+
+/// The packed cell of `p` (cell `floor(p / resolution)`), or `None` for a non-finite
+/// point or one whose cell lies 2^20 or more from the origin on some axis.
+fn cell_code(p: &[f64; 3], resolution: f64) -> Option<i64> {
+    const LIMIT: f64 = (1u64 << 20) as f64;
+    let cell = p.map(|c| (c / resolution).floor());
+    cell.iter()
+        .all(|c| c.abs() < LIMIT)
+        .then(|| pack_cell(cell.map(|c| c as i64)).expect("cells within ±2^20 pack") as i64)
 }
 
 /// Per voxel named by a point inside it (`centres`, typically voxel centres, on the
@@ -72,18 +78,16 @@ pub fn voxel_means(
         })
         .collect();
     let mut sums = vec![([0.0f64; 3], 0u32); slot_of.len()];
-    const LIMIT: f64 = (1u64 << 20) as f64;
     for (i, p) in points.iter().enumerate() {
         if !p.iter().all(|c| c.is_finite()) {
             return Err(Error::InvalidArgument(format!(
                 "points must be finite (points[{i}] = {p:?})"
             )));
         }
-        let cell = p.map(|c| (c / resolution).floor());
-        if !cell.iter().all(|c| c.abs() < LIMIT) {
+        // A finite point beyond the grid lies in none of the voxels.
+        let Some(code) = cell_code(p, resolution) else {
             continue;
-        }
-        let code = pack_cell(cell.map(|c| c as i64)).expect("cells within ±2^20 pack") as i64;
+        };
         if let Some(&slot) = slot_of.get(&code) {
             let (sum, count) = &mut sums[slot as usize];
             for a in 0..3 {
