@@ -55,7 +55,11 @@ def init(device: torch.device) -> World:
 
 
 def shutdown() -> None:
+    """Leave the process group once every process has got here: a process that tears
+    its connections down while a peer still works (rank 0 writing the checkpoint) can
+    abort that peer's gloo threads."""
     if dist.is_available() and dist.is_initialized():
+        dist.barrier()
         dist.destroy_process_group()
 
 
