@@ -139,3 +139,65 @@ def test_predictive_planner_picks_the_cheapest_solution(ur5):
     assert choice.cost == pytest.approx(min(costs))
     assert np.array_equal(choice.path, choice.candidates[int(np.argmin(costs))][0].waypoints)
     assert choice.planning_time >= 0 and choice.optimisation_time > 0
+
+
+def _danger_column() -> tuple[earcore.OcTree, np.ndarray]:
+    """A map whose straight A-B motion is free but runs through a column where an
+    obstacle was: its voxels hit once (danger 0.999), then set free (danger stays)."""
+    import math
+
+    tree = earcore.OcTree(0.05)
+    column = np.array([[x, y, z] for x in (0.325, 0.375) for y in (0.375, 0.425) for z in np.arange(0.025, 0.9, 0.05)])
+    tree.insert_point_cloud(column, [0.35, -0.8, 0.5])
+    tree.end_frame(1 / 15)
+    tree.set_log_odds(column, -math.inf)
+    return tree, column
+
+
+def test_free_straight_motion_through_danger_is_weighed_against_detours(ur5):
+    """Eq. 4 needs alternatives to weigh: with the straight motion free but through
+    danger, the predictive planner adds detours that keep out of the dangerous voxels
+    and executes the cheapest; with detours off, only the straight motion."""
+    tree, column = _danger_column()
+    assert not ur5.check_motion(tree, A, B), "the straight motion must be free"
+    danger = earcore.OcTree(0.05)
+    danger.update_nodes(column)
+    assert dense_collides(ur5, danger, np.stack([A, B])), "and run through the danger"
+    choice = PredictivePlanner(ur5, tree, attempts=3, seed=5, detour_danger=0.5).plan(A, B)
+    (straight, _), *detours = choice.candidates
+    assert straight.waypoints.shape == (2, 6) and detours
+    for path, _ in detours:
+        assert np.allclose(path.waypoints[0], A) and np.allclose(path.waypoints[-1], B)
+        assert not dense_collides(ur5, tree, path.waypoints)
+        assert not dense_collides(ur5, danger, path.waypoints)
+    costs = [ur5.path_danger(tree, p.waypoints, 0.05) for p, _ in choice.candidates]
+    assert choice.cost == pytest.approx(min(costs))
+    assert costs[0] > ur5.path_danger(earcore.OcTree(0.05), straight.waypoints, 0.05)  # the straight pays for its danger
+    off = PredictivePlanner(ur5, tree, detour_danger=0.0).plan(A, B)
+    assert len(off.candidates) == 1 and off.path.shape == (2, 6)
+
+
+def test_no_detours_where_the_danger_is_off_the_straight_motion_or_below_the_threshold(ur5):
+    tree, column = _danger_column()
+    aside = earcore.OcTree(0.05)
+    aside.insert_point_cloud(column + [0.0, -1.0, 0.0], [0.35, -1.8, 0.5])  # a column behind the base
+    aside.end_frame(1 / 15)
+    aside.set_log_odds(column + [0.0, -1.0, 0.0], -np.inf)
+    for scene, threshold in ((aside, 0.5), (tree, 0.9995)):
+        planner = PredictivePlanner(ur5, scene, detour_danger=threshold)
+        choice = planner.plan(A, B)
+        assert len(choice.candidates) == 1 and choice.path.shape == (2, 6)
+        assert planner.rrt.checks["states"] == 0  # no search ran
+
+
+def test_avoided_voxels_join_the_keep_out_for_one_call(ur5):
+    """`plan(avoid=...)` keeps the robot out of the voxels and leaves the keep-out as it was."""
+    tree, column = _danger_column()
+    danger = earcore.OcTree(0.05)
+    danger.update_nodes(column)
+    planner = JointSpacePlanner(ur5, tree, seed=3)
+    for path in planner.plan(A, B, avoid=column, attempts=2):
+        assert not dense_collides(ur5, danger, path.waypoints)
+    assert planner.path_is_valid(np.stack([A, B]))  # the avoided voxels are gone again
+    (direct,) = planner.plan(A, B)
+    assert direct.waypoints.shape == (2, 6)
