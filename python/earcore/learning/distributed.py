@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
+from datetime import timedelta
 
 import torch
 import torch.distributed as dist
@@ -54,12 +55,17 @@ def init(device: torch.device) -> World:
     return world
 
 
-def shutdown() -> None:
-    """Leave the process group once every process has got here: a process that tears
-    its connections down while a peer still works (rank 0 writing the checkpoint) can
-    abort that peer's gloo threads."""
+def shutdown(wait: float = 60.0) -> None:
+    """Leave the process group. Under gloo, first wait up to `wait` seconds for every
+    process to get here: a process that tears its connections down while a peer still
+    works (rank 0 writing the checkpoint) can abort that peer's gloo threads. A peer
+    that never comes (it died) is not waited for longer."""
     if dist.is_available() and dist.is_initialized():
-        dist.barrier()
+        if dist.get_backend() == "gloo":
+            try:
+                dist.monitored_barrier(timeout=timedelta(seconds=wait))
+            except RuntimeError:
+                pass  # a peer is gone: leave anyway
         dist.destroy_process_group()
 
 

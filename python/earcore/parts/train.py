@@ -22,6 +22,7 @@ from typing import Any
 import torch
 
 from earcore.errors import ConfigError
+from earcore.learning import distributed
 from earcore.learning.checkpoint import CheckpointError, load_checkpoint
 from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import SCHEDULES, TrainConfig, key_values
@@ -167,7 +168,10 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
         config = config_from_args(args)
     except ConfigError as exc:
         parser.error(str(exc))
-    return run_command(prog, lambda: run(config, args.data, args.out, distance_unit=args.distance_unit, resume=args.resume, progress=not args.no_progress)[1])
+    try:
+        return run_command(prog, lambda: run(config, args.data, args.out, distance_unit=args.distance_unit, resume=args.resume, progress=not args.no_progress)[1])
+    finally:
+        distributed.shutdown()  # under torchrun: leave together, once rank 0 has written its files
 
 
 if __name__ == "__main__":

@@ -75,3 +75,37 @@ def test_two_processes_match_one(tmp_path):
     assert (tmp_path / "two" / "checkpoint.pt").is_file()
     start = TinyNet(dropout=0.0)
     assert not torch.allclose(start.state_dict()["body.1.weight"], single.state_dict()["body.1.weight"])
+
+
+def _leaver(rank: int, port: int, folder: str, dies: bool) -> None:
+    import time
+
+    import torch.distributed as dist
+
+    from earcore.learning.distributed import shutdown
+
+    os.environ.update({"RANK": str(rank), "WORLD_SIZE": "2", "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)})
+    dist.init_process_group("gloo", rank=rank, world_size=2)
+    dist.all_reduce(torch.ones(1))
+    if rank == 1 and dies:
+        os._exit(3)
+    if rank == 0:
+        time.sleep(1.0)  # still working (writing the checkpoint) while rank 1 is done
+        (Path(folder) / "rank0-done").touch()
+    shutdown(wait=30.0)
+    if rank == 1:
+        # Rank 1 left only once rank 0 had finished its work.
+        assert (Path(folder) / "rank0-done").is_file()
+
+
+@pytest.mark.skipif(not torch.distributed.is_available(), reason="torch without torch.distributed")
+@pytest.mark.parametrize("dies", [False, True], ids=["both-finish", "peer-dies"])
+def test_shutdown_waits_for_the_peer_but_not_for_a_dead_one(tmp_path, dies):
+    ctx = mp.get_context("spawn")
+    port = _free_port()
+    procs = [ctx.Process(target=_leaver, args=(r, port, str(tmp_path), dies)) for r in range(2)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(timeout=120)
+    assert [p.exitcode for p in procs] == ([0, 3] if dies else [0, 0])
