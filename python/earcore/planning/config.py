@@ -29,13 +29,6 @@ class PlanningConfig:
     #: a path cheaper by `replan_gain` (0 = only when the path is blocked).
     replan_period: float = 1.0
     replan_gain: float = 0.15
-    #: With a free straight motion the predictive planner also plans detours that keep
-    #: out of the voxels at least this dangerous (Eq. 1) and lets Eq. 4 choose among
-    #: them and the straight motion (`PredictivePlanner.detours`). 0 = off, the default:
-    #: straight whenever free. At 0.5, Exp. 3 (seeds 0-4) fired 12.4 reflexes per 15
-    #: trips in the stress scenario instead of 14.6, but took 9.19 s per return trip
-    #: against 9.04, and 7.74 s against 7.25 in Paper II's protocol.
-    detour_danger: float = 0.0
     #: Reflexes (Eqs. 2-3): risk D = |v|² / (β d) against the threshold T.
     reflexes: bool = True
     beta: float = 1.5
@@ -111,8 +104,6 @@ class PlanningConfig:
         v = finite(self.replan_gain, f"{where}.replan_gain")
         if not 0 <= v < 1:
             raise ConfigError(f"{where}.replan_gain must be in [0, 1), got {self.replan_gain!r}")
-        if not 0 <= finite(self.detour_danger, f"{where}.detour_danger") <= 1:
-            raise ConfigError(f"{where}.detour_danger must be in [0, 1], got {self.detour_danger!r}")
         positive(self.beta, f"{where}.beta")
         positive(self.threshold, f"{where}.threshold")
         one_of(self.reflex_rule, ("eq2", "prediction"), f"{where}.reflex_rule")

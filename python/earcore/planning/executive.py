@@ -132,7 +132,6 @@ class Executive:
             attempts=config.attempts,
             resolution=config.resolution,
             seed=seed,
-            detour_danger=config.detour_danger,
         )
         self.reflexes_on = config.mode == "predictive" and config.reflexes
         self.tracker = ObstacleTracker(self.robot, self.tree.resolution, beta=config.beta)

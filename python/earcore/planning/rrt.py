@@ -127,16 +127,13 @@ class JointSpacePlanner:
         chosen = voxels[keep]
         if not len(chosen):
             return None
-        key = (id(robot), chosen.tobytes())
+        key = chosen.tobytes()
         if key not in self._keep_out_cache:
             import earcore
 
             tree = earcore.OcTree(res)
             tree.update_nodes(chosen)
-            # Two maps at a time (the keep-out's and a call's `avoid`); each index is built once.
-            while len(self._keep_out_cache) >= 2:
-                del self._keep_out_cache[next(iter(self._keep_out_cache))]
-            self._keep_out_cache[key] = (robot, tree)
+            self._keep_out_cache = {key: (robot, tree)}  # one map at a time; its index is built once
         return self._keep_out_cache[key]
 
     def _active_keep_out(self) -> tuple | None:
@@ -291,29 +288,13 @@ class JointSpacePlanner:
         return start, goal
 
     def plan(
-        self, start, goal, *, time_limit: float = 1.0, attempts: int = 1, simplify: bool = True, avoid=None
+        self, start, goal, *, time_limit: float = 1.0, attempts: int = 1, simplify: bool = True
     ) -> list[PlannedPath]:
         """Up to `attempts` independent RRT-Connect solutions start → goal (a joint state,
         or a 4×4 end-effector pose: see `check_ends`), each found
         within `time_limit` seconds (Paper II, Table I: 1 s, 3 attempts). Raises
         `StartInCollision`, `GoalInCollision`, or `NoPathFound` when no attempt
-        succeeds; never runs longer than attempts × (time_limit + simplification).
-
-        `avoid`: centres of map voxels the robot keeps out of for this call, as it keeps
-        out of the keep-out's (`set_keep_out`; on the keep-out's grown robot where one is
-        set, else on the robot), e.g. where obstacles have been (`PredictivePlanner`)."""
-        if avoid is None or not len(avoid):
-            return self._plan(start, goal, time_limit, attempts, simplify)
-        avoid = np.asarray(avoid, dtype=np.float64).reshape(-1, 3)
-        source, keep_out = self._keep_out_source, self._keep_out
-        robot, voxels = (source[0], np.vstack([source[1], avoid])) if source is not None else (self.robot, avoid)
-        self.set_keep_out(robot, voxels, self.tree.resolution)
-        try:
-            return self._plan(start, goal, time_limit, attempts, simplify)
-        finally:
-            self._keep_out_source, self._keep_out = source, keep_out
-
-    def _plan(self, start, goal, time_limit: float, attempts: int, simplify: bool) -> list[PlannedPath]:
+        succeeds; never runs longer than attempts × (time_limit + simplification)."""
         start, goal = self.check_ends(start, goal)
         if not (time_limit > 0 and attempts >= 1):
             raise ValueError("time_limit must be > 0 and attempts >= 1")
