@@ -55,13 +55,17 @@ def init(device: torch.device) -> World:
     return world
 
 
-def shutdown(wait: float = 60.0) -> None:
-    """Leave the process group. Under gloo, first wait up to `wait` seconds for every
-    process to get here: a process that tears its connections down while a peer still
-    works (rank 0 writing the checkpoint) can abort that peer's gloo threads. A peer
-    that never comes (it died) is not waited for longer."""
+def shutdown(wait: float = 60.0, *, together: bool = True) -> None:
+    """Leave the process group. With `together` (this process's run ended well), under
+    gloo, first wait for every process to get here: a process that tears its
+    connections down while a peer still works (rank 0 writing the checkpoint) can
+    abort that peer's gloo threads. Rank 0 waits at most `wait` seconds, the others
+    for rank 0 as long as the group's timeout; a peer that has died is noticed at once.
+    A process whose run failed leaves at once (`together=False`): waiting there would
+    hang peers that are still training until the group's timeout, while its leaving
+    makes their next collective fail."""
     if dist.is_available() and dist.is_initialized():
-        if dist.get_backend() == "gloo":
+        if together and dist.get_backend() == "gloo":
             try:
                 dist.monitored_barrier(timeout=timedelta(seconds=wait))
             except RuntimeError:

@@ -375,15 +375,20 @@ def add_run_arguments(parser: Any, batches: str = "batches") -> None:
 def run_command(prog: str, call: Callable[[], Any]) -> int:
     """A trainer's command-line ending: `call()` (which returns a results table or None),
     its table printed; a setting that does not fit the data or the run exits 2, a bad
-    dataset, damaged checkpoint or existing run 1, each with its message."""
+    dataset, damaged checkpoint or existing run 1, each with its message. Under
+    torchrun the process then leaves the process group: with the others once it
+    succeeded, at once when it failed (`distributed.shutdown`)."""
+    code, table = 1, None
     try:
         table = call()
+        code = 0
     except ConfigError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
+        code = 2
     except (EarcoreError, ValueError, OSError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 1
+    finally:
+        distributed.shutdown(together=code == 0)
     if table is not None:
         print(table.markdown())
-    return 0
+    return code

@@ -26,6 +26,7 @@ import torch
 from torch import Tensor
 
 from earcore.errors import ConfigError
+from earcore.learning import distributed
 from earcore.learning.checkpoint import CheckpointError, load_checkpoint
 from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import TrainConfig, key_values
@@ -179,6 +180,8 @@ def run(
         progress=progress,
         log=log,
     )
+    if not distributed.from_environment().main:
+        return result, None  # under torchrun only rank 0 evaluates and writes
     trained, _ = load_oneshot(out)
     table = evaluate(trained, trials)
     text = f"One-shot segmenter after {result.steps} steps ({result.seconds / 60:.1f} training minutes)\n\n" + table.markdown()

@@ -152,8 +152,8 @@ def run(
         progress=progress,
         log=log,
     )
-    if not len(test_set):
-        return result, None
+    if not len(test_set) or not distributed.from_environment().main:
+        return result, None  # under torchrun only rank 0 evaluates and writes
     trained, _ = load_detector(out)
     table = evaluate(trained, test_set, train_set.classes)
     Path(out, "results.md").write_text(f"Parts detector after {result.steps} steps ({result.seconds / 60:.1f} training minutes), test split\n\n" + table.markdown())
@@ -168,10 +168,7 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
         config = config_from_args(args)
     except ConfigError as exc:
         parser.error(str(exc))
-    try:
-        return run_command(prog, lambda: run(config, args.data, args.out, distance_unit=args.distance_unit, resume=args.resume, progress=not args.no_progress)[1])
-    finally:
-        distributed.shutdown()  # under torchrun: leave together, once rank 0 has written its files
+    return run_command(prog, lambda: run(config, args.data, args.out, distance_unit=args.distance_unit, resume=args.resume, progress=not args.no_progress)[1])
 
 
 if __name__ == "__main__":

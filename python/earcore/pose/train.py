@@ -19,7 +19,6 @@ from typing import Any
 import torch
 
 from earcore.errors import ConfigError
-from earcore.learning import distributed
 from earcore.learning.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from earcore.learning.combiners import COMBINERS, combiner_for
 from earcore.learning.config import SCHEDULES, TrainConfig, key_values, load_config
@@ -330,13 +329,9 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
         config = config_from_args(args)
     except ConfigError as exc:
         parser.error(str(exc))
-    try:
-        return run_command(
-            prog,
-            lambda: run(config, args.data, args.out, robots=args.robots, extra=args.extra, join=args.join, resume=args.resume, progress=not args.no_progress)[1],
-        )
-    finally:
-        distributed.shutdown()  # under torchrun: leave together, once rank 0 has written its files
+    return run_command(
+        prog, lambda: run(config, args.data, args.out, robots=args.robots, extra=args.extra, join=args.join, resume=args.resume, progress=not args.no_progress)[1]
+    )
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import socket
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -64,9 +65,14 @@ def test_two_processes_match_one(tmp_path):
     procs = [ctx.Process(target=_worker, args=(r, 2, port, str(tmp_path / "two"))) for r in range(2)]
     for p in procs:
         p.start()
-    for p in procs:
-        p.join(timeout=180)
-        assert p.exitcode == 0
+    try:
+        for p in procs:
+            p.join(timeout=180)
+            assert p.exitcode == 0
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.kill()
     results = [torch.load(tmp_path / f"rank{r}.pt") for r in range(2)]
     for name, value in single.state_dict().items():
         assert torch.allclose(results[0][name], value, atol=1e-6), name
@@ -77,20 +83,30 @@ def test_two_processes_match_one(tmp_path):
     assert not torch.allclose(start.state_dict()["body.1.weight"], single.state_dict()["body.1.weight"])
 
 
-def _leaver(rank: int, port: int, folder: str, dies: bool) -> None:
-    import time
+def _leaver(rank: int, port: int, folder: str, case: str) -> None:
+    from datetime import timedelta
 
     import torch.distributed as dist
 
     from earcore.learning.distributed import shutdown
 
     os.environ.update({"RANK": str(rank), "WORLD_SIZE": "2", "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)})
-    dist.init_process_group("gloo", rank=rank, world_size=2)
+    # A group timeout shorter than the test's wait: a hang shows as a process still running.
+    dist.init_process_group("gloo", rank=rank, world_size=2, timeout=timedelta(seconds=90))
     dist.all_reduce(torch.ones(1))
-    if rank == 1 and dies:
+    if rank == 1 and case == "peer-dies":
         os._exit(3)
+    if rank == 1 and case == "peer-fails":
+        shutdown(together=False)  # its run failed: it leaves at once
+        os._exit(1)
     if rank == 0:
         time.sleep(1.0)  # still working (writing the checkpoint) while rank 1 is done
+        if case == "peer-fails":
+            try:
+                dist.all_reduce(torch.ones(1))  # the next training step
+            except RuntimeError:
+                shutdown(together=False)
+                os._exit(4)  # failed at once, not after the group's timeout
         (Path(folder) / "rank0-done").touch()
     shutdown(wait=30.0)
     if rank == 1:
@@ -99,13 +115,39 @@ def _leaver(rank: int, port: int, folder: str, dies: bool) -> None:
 
 
 @pytest.mark.skipif(not torch.distributed.is_available(), reason="torch without torch.distributed")
-@pytest.mark.parametrize("dies", [False, True], ids=["both-finish", "peer-dies"])
-def test_shutdown_waits_for_the_peer_but_not_for_a_dead_one(tmp_path, dies):
+@pytest.mark.parametrize(("case", "codes"), [("both-finish", [0, 0]), ("peer-dies", [0, 3]), ("peer-fails", [4, 1])])
+def test_shutdown_waits_for_the_peer_but_not_for_a_dead_or_failed_one(tmp_path, case, codes):
     ctx = mp.get_context("spawn")
     port = _free_port()
-    procs = [ctx.Process(target=_leaver, args=(r, port, str(tmp_path), dies)) for r in range(2)]
+    procs = [ctx.Process(target=_leaver, args=(r, port, str(tmp_path), case)) for r in range(2)]
     for p in procs:
         p.start()
-    for p in procs:
-        p.join(timeout=120)
-    assert [p.exitcode for p in procs] == ([0, 3] if dies else [0, 0])
+    try:
+        deadline = time.monotonic() + 45.0  # half the group's timeout: a hang shows as a process still running
+        for p in procs:
+            p.join(timeout=max(0.0, deadline - time.monotonic()))
+        assert [p.exitcode for p in procs] == codes
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.kill()
+
+
+@pytest.mark.parametrize(("outcome", "code", "together"), [("ok", 0, True), ("bad-setting", 2, False), ("bad-data", 1, False)])
+def test_a_training_command_leaves_the_group_together_only_when_it_succeeded(monkeypatch, capsys, outcome, code, together):
+    from earcore.errors import ConfigError
+    from earcore.learning import distributed
+    from earcore.learning.train import run_command
+
+    calls = []
+    monkeypatch.setattr(distributed, "shutdown", lambda **kw: calls.append(kw))
+
+    def call():
+        if outcome == "bad-setting":
+            raise ConfigError("batch_size too large")
+        if outcome == "bad-data":
+            raise ValueError("the training set is empty")
+        return None
+
+    assert run_command("prog", call) == code
+    assert calls == [{"together": together}]
