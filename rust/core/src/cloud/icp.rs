@@ -191,11 +191,9 @@ impl IcpTarget for PlaneTarget {
         cursor: &mut PlaneCursor,
         index: usize,
     ) -> Option<([f64; 3], [f64; 3])> {
-        let points = self.tree.points();
+        let surface = &self.surface;
         let limit = max_distance * max_distance;
-        let found = |(d, j): (f64, u32)| {
-            (d <= limit).then(|| (points[j as usize], self.normals[j as usize]))
-        };
+        let found = |(d, j): (f64, u32)| (d <= limit).then(|| surface[j as usize]);
         let known = cursor.memo.get(index).filter(|m| m.at[0].is_finite());
         if let Some(m) = known {
             let moved = crate::geometry::distance_squared(&p, &m.at).sqrt();
@@ -204,7 +202,7 @@ impl IcpTarget for PlaneTarget {
                 m.candidates[..m.count as usize]
                     .iter()
                     .fold((f64::INFINITY, u32::MAX), |b, &j| {
-                        let d = crate::geometry::distance_squared(&p, &points[j as usize]);
+                        let d = crate::geometry::distance_squared(&p, &surface[j as usize].0);
                         if d < b.0 || (d == b.0 && j < b.1) {
                             (d, j)
                         } else {
@@ -231,8 +229,19 @@ impl IcpTarget for PlaneTarget {
         // whose two did not last, typically far from the target where distances
         // crowd together, gets all of them.
         let k = if known.is_some() { CANDIDATES } else { 2 };
-        self.tree
-            .knn_within(p, k, reach * reach, &mut cursor.scratch);
+        // The previous point's search bounds this one's: its k nearest lay within
+        // `beyond` of where it was, so within that plus the gap of this point.
+        let mut limit = reach * reach;
+        if let Some(prev) = index
+            .checked_sub(1)
+            .and_then(|i| cursor.memo.get(i))
+            .filter(|m| m.at[0].is_finite() && m.count as usize >= k)
+        {
+            let gap = crate::geometry::distance_squared(&p, &prev.at).sqrt();
+            let bound = (prev.beyond + gap) * (1.0 + 1e-9) + 1e-12;
+            limit = limit.min(bound * bound);
+        }
+        self.tree.knn_within(p, k, limit, &mut cursor.scratch);
         let mut m = PlaneMemo {
             at: p,
             candidates: [0; CANDIDATES],
@@ -326,7 +335,9 @@ impl IcpTarget for crate::octree::SurfaceMap {
 #[derive(Clone, Debug)]
 pub struct PlaneTarget {
     tree: KdTree,
-    normals: Vec<[f64; 3]>,
+    /// Each point with its unit normal, side by side (one cache line for both), in
+    /// the tree's numbering.
+    surface: Vec<([f64; 3], [f64; 3])>,
 }
 
 impl PlaneTarget {
@@ -358,20 +369,24 @@ impl PlaneTarget {
             }
             unit.push(n.map(|c| c / len));
         }
-        Ok(PlaneTarget {
-            tree: KdTree::new(points),
-            normals: unit,
-        })
+        // Numbered in leaf order, the target points that neighbouring source points
+        // pair with lie near each other in memory.
+        let (tree, order) = KdTree::new(points).into_leaf_order();
+        let surface = order
+            .iter()
+            .map(|&i| (points[i as usize], unit[i as usize]))
+            .collect();
+        Ok(PlaneTarget { tree, surface })
     }
 
     /// Number of target points.
     pub fn len(&self) -> usize {
-        self.normals.len()
+        self.surface.len()
     }
 
     /// Whether the target has no points.
     pub fn is_empty(&self) -> bool {
-        self.normals.is_empty()
+        self.surface.is_empty()
     }
 }
 
@@ -833,7 +848,7 @@ mod tests {
             _: usize,
         ) -> Option<([f64; 3], [f64; 3])> {
             let (_, j) = self.0.tree.nearest_within(p, max_distance * max_distance)?;
-            Some((self.0.tree.points()[j as usize], self.0.normals[j as usize]))
+            Some(self.0.surface[j as usize])
         }
     }
 

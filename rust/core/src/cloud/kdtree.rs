@@ -103,6 +103,22 @@ impl KdTree {
         &self.points
     }
 
+    /// The same tree with its points renumbered in leaf order (depth first, so that
+    /// points near in space are near in memory); returns it with `order`, where
+    /// `order[new] = old`.
+    pub fn into_leaf_order(mut self) -> (Self, Vec<u32>) {
+        let mut order = Vec::with_capacity(self.points.len());
+        for block in &mut self.blocks {
+            // A leaf's indices ascend, and so do their new numbers.
+            for index in block.indices.iter_mut().filter(|i| **i != u32::MAX) {
+                order.push(*index);
+                *index = (order.len() - 1) as u32;
+            }
+        }
+        self.points = order.iter().map(|&i| self.points[i as usize]).collect();
+        (self, order)
+    }
+
     /// Build the subtree over the points `order` names (permuting it); returns its
     /// node index.
     fn build(&mut self, order: &mut [u32]) -> u32 {
@@ -436,6 +452,55 @@ mod tests {
             for limit in [1e-4, 4e-3, 0.05] {
                 let expected = brute.filter(|&(d2, _)| d2 <= limit);
                 assert_eq!(tree.nearest_within(q, limit), expected, "{q:?} {limit}");
+            }
+        }
+    }
+
+    /// Renumbered in leaf order, a tree answers as one built over its points in that
+    /// order: the same points, at their new numbers, by brute force.
+    #[test]
+    fn a_tree_in_leaf_order_equals_brute_force_over_the_reordered_points() {
+        let mut s = 4242u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        // A coarse grid, so that equally near points (ties by index) are common.
+        let pts: Vec<[f64; 3]> = (0..1500)
+            .map(|_| {
+                [
+                    (rnd() * 20.0).floor(),
+                    (rnd() * 20.0).floor(),
+                    (rnd() * 3.0).floor(),
+                ]
+            })
+            .collect();
+        let (tree, order) = KdTree::new(&pts).into_leaf_order();
+        let mut seen = order.clone();
+        seen.sort_unstable();
+        assert_eq!(seen, (0..pts.len() as u32).collect::<Vec<_>>());
+        let reordered: Vec<[f64; 3]> = order.iter().map(|&i| pts[i as usize]).collect();
+        assert_eq!(tree.points(), &reordered[..]);
+        let mut got = Vec::new();
+        for _ in 0..300 {
+            let q = [rnd() * 22.0 - 1.0, rnd() * 22.0 - 1.0, rnd() * 5.0 - 1.0];
+            let mut brute: Vec<(f64, u32)> = reordered
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (distance_squared(&q, p), i as u32))
+                .collect();
+            brute.sort_by(|a, b| a.partial_cmp(b).unwrap());
+            for k in [1, 2, 4, 9] {
+                tree.knn_within(q, k, 2.5, &mut got);
+                let expected: Vec<_> = brute
+                    .iter()
+                    .copied()
+                    .filter(|e| e.0 <= 2.5)
+                    .take(k)
+                    .collect();
+                assert_eq!(got, expected, "{q:?} {k}");
             }
         }
     }
