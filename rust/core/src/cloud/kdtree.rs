@@ -1,9 +1,9 @@
 //! A static k-d tree over 3D points for k-nearest-neighbour queries: built once
 //! (splits on the widest axis at the median rounded to whole leaves, so that leaves
-//! hold eight points), queried many times, from any number of threads.
+//! hold sixteen points), queried many times, from any number of threads.
 
 /// A leaf holds at most this many points.
-const LEAF_SIZE: usize = 8;
+const LEAF_SIZE: usize = 16;
 
 /// Up to this k, k-nearest-neighbour queries keep their best in a sorted array
 /// (fastest for small k); beyond it, in a heap.
@@ -42,7 +42,7 @@ const LEAF: u32 = 3;
 #[derive(Clone, Debug)]
 pub struct KdTree {
     points: Vec<[f64; 3]>,
-    /// Every leaf's points coordinate by coordinate, for distances eight at a time.
+    /// Every leaf's points coordinate by coordinate, for distances a leaf at a time.
     blocks: Vec<Block>,
     nodes: Vec<Packed>,
 }
@@ -505,13 +505,13 @@ mod tests {
         }
     }
 
-    /// Every tree size up to a few leaves (leaves are filled to eight, the last one
+    /// Every tree size up to a few leaves (leaves are filled to sixteen, the last one
     /// partly): each point is found, with its nearest others in order.
     #[test]
     fn small_trees_of_every_size_equal_brute_force() {
         let mut rng = crate::synthetic::Rng::new(4);
         let mut out = Vec::new();
-        for n in 1..=41 {
+        for n in 1..=4 * LEAF_SIZE + 1 {
             let points: Vec<[f64; 3]> = (0..n)
                 .map(|_| {
                     [
