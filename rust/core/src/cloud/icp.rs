@@ -335,8 +335,8 @@ impl IcpTarget for crate::octree::SurfaceMap {
 #[derive(Clone, Debug)]
 pub struct PlaneTarget {
     tree: KdTree,
-    /// Each point with its unit normal, side by side (one cache line for both), in
-    /// the tree's numbering.
+    /// Each point with its unit normal, side by side (adjacent in memory), in the
+    /// tree's numbering.
     surface: Vec<([f64; 3], [f64; 3])>,
 }
 
@@ -483,7 +483,7 @@ pub fn icp_point_to_plane_interruptible(
     if target.coarse_to_fine() && source.len() >= 2 * COARSE_POINTS && params.max_iterations > 1 {
         let coarse: Vec<[f64; 3]> = source
             .iter()
-            .step_by(source.len() / COARSE_POINTS)
+            .step_by(source.len() / (source.len() / COARSE_SHARE).max(COARSE_POINTS))
             .copied()
             .collect();
         // With no stopping test an adaptive kernel never starts, so neither may the
@@ -558,8 +558,13 @@ pub fn icp_point_to_plane_interruptible(
     Ok(Some(result))
 }
 
-/// Source points of the coarse stage (when the source has at least twice as many).
+/// Source points of the coarse stage, at least (when the source has at least twice as
+/// many)...
 const COARSE_POINTS: usize = 1024;
+
+/// ...and at least this share of the source: a large source's fine stage starts where
+/// its coarse stage ended, and a coarser start costs it more searches.
+const COARSE_SHARE: usize = 30;
 
 /// Pairs the coarse stage must end with for its pose to be kept (fewer fit noise).
 const COARSE_MIN_PAIRS: usize = 256;
@@ -896,6 +901,94 @@ mod tests {
         }
     }
 
+    /// Whatever bounds its searches, every memo says what a search without bounds would:
+    /// its candidates are the target points nearest to where it was (ties by index) and
+    /// every other lies at least its distance away; and the pair is the nearest within
+    /// reach. By brute force, on grids (equally near points everywhere) far from the
+    /// origin too, along lines that put a point's k-th nearest exactly at the previous
+    /// point's bound.
+    #[test]
+    fn memos_hold_what_brute_force_says() {
+        let mut rng = Rng::new(17);
+        let grids: Vec<(f64, f64)> = (0..40)
+            .map(|i| {
+                let spacing = 10f64.powf(rng.uniform(-5.0, -1.0));
+                (
+                    spacing,
+                    [0.0, 1e3, -1e5, 3e7][i % 4] * rng.uniform(0.5, 1.0),
+                )
+            })
+            .collect();
+        for (spacing, origin) in grids {
+            let mut points = Vec::new();
+            for (i, j, k) in
+                (0..14).flat_map(|i| (0..14).flat_map(move |j| (0..3).map(move |k| (i, j, k))))
+            {
+                points.push([i, j, k].map(|c| origin + spacing * c as f64));
+            }
+            let normals = vec![[0.0, 0.0, 1.0]; points.len()];
+            let target = PlaneTarget::new(&points, &normals).unwrap();
+            for max_distance in [0.7 * spacing, 3.0 * spacing] {
+                // Along a grid line from half-way between two points, then a random walk.
+                let mut path: Vec<[f64; 3]> = [0.25, 0.1, 0.3]
+                    .into_iter()
+                    .flat_map(|step| (0..20).map(move |i| [0.5 + step * i as f64, 3.0, 1.0]))
+                    .map(|p: [f64; 3]| p.map(|c| origin + spacing * c))
+                    .collect();
+                let mut at = [origin + 7.0 * spacing, origin + 7.0 * spacing, origin];
+                for _ in 0..120 {
+                    at = at.map(|c| c + spacing * rng.uniform(-0.8, 0.8));
+                    path.push(at);
+                }
+                let mut cursor = PlaneCursor::default();
+                for iteration in 0..5 {
+                    for (index, p) in path.iter().enumerate() {
+                        let got = target.pair(*p, max_distance, &mut cursor, index);
+                        let sorted = |from: &[f64; 3]| {
+                            let mut all: Vec<(f64, u32)> = (0..target.surface.len())
+                                .map(|j| {
+                                    (
+                                        crate::geometry::distance_squared(
+                                            from,
+                                            &target.surface[j].0,
+                                        ),
+                                        j as u32,
+                                    )
+                                })
+                                .collect();
+                            all.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                            all
+                        };
+                        let nearest = sorted(p)[0];
+                        let expected = (nearest.0 <= max_distance * max_distance)
+                            .then(|| target.surface[nearest.1 as usize]);
+                        assert_eq!(
+                            got, expected,
+                            "{spacing} {max_distance} {iteration} {index}"
+                        );
+                        let m = cursor.memo[index];
+                        let all = sorted(&m.at);
+                        let count = m.count as usize;
+                        let nearest: Vec<u32> = all[..count].iter().map(|e| e.1).collect();
+                        assert_eq!(&m.candidates[..count], &nearest[..], "{spacing} {index}");
+                        for &(d, j) in &all[count..] {
+                            assert!(
+                                d.sqrt() >= m.beyond * (1.0 - 1e-12),
+                                "{spacing} {max_distance} {iteration} {index}: point {j} at {} inside {}",
+                                d.sqrt(),
+                                m.beyond
+                            );
+                        }
+                    }
+                    // A small step, as ICP's: most memos last, some do not.
+                    for p in &mut path {
+                        p[0] += spacing * 0.05 * (iteration as f64 - 1.5);
+                    }
+                }
+            }
+        }
+    }
+
     /// An interrupt is asked after every iteration and stops the alignment there;
     /// one that never asks to stop changes nothing.
     #[test]
@@ -963,8 +1056,8 @@ mod tests {
         let offset = Translation3::new(0.02, -0.015, 0.01).to_homogeneous()
             * Rotation3::from_axis_angle(&Vector3::z_axis(), 2f64.to_radians()).to_homogeneous();
         let truth = offset.try_inverse().unwrap();
-        // 3000 and then 9000 corner points (the coarse stage runs on the larger).
-        for seen_points in [3000, 9000] {
+        // 1800 and then 9000 corner points (the coarse stage runs on the larger).
+        for seen_points in [1800, 9000] {
             let mut seen: Vec<[f64; 3]> = (0..seen_points)
                 .map(|i| {
                     let (u, v) = (rng.uniform(0.05, 0.95), rng.uniform(0.05, 0.95));

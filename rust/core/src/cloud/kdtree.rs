@@ -98,7 +98,8 @@ impl KdTree {
         self.points.is_empty()
     }
 
-    /// The points, in the order they were given.
+    /// The points, in the order they were given (or in leaf order, after
+    /// [`Self::into_leaf_order`]).
     pub fn points(&self) -> &[[f64; 3]] {
         &self.points
     }
