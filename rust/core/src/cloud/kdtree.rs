@@ -461,13 +461,8 @@ mod tests {
     /// order: the same points, at their new numbers, by brute force.
     #[test]
     fn a_tree_in_leaf_order_equals_brute_force_over_the_reordered_points() {
-        let mut s = 4242u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::synthetic::Rng::new(4242);
+        let mut rnd = || rng.uniform(0.0, 1.0);
         // A coarse grid, so that equally near points (ties by index) are common.
         let pts: Vec<[f64; 3]> = (0..1500)
             .map(|_| {
