@@ -168,12 +168,10 @@ const CANDIDATES: usize = 4;
 /// so that a point with nothing in reach keeps knowing so while it moves that much.
 const SEARCH_SLACK: f64 = 0.25;
 
-/// A [`PlaneTarget`] lookup's state: per source point what its last search found, and
-/// the search's scratch space.
+/// A [`PlaneTarget`] lookup's state: per source point what its last search found.
 #[derive(Default)]
 pub struct PlaneCursor {
     memo: Vec<PlaneMemo>,
-    scratch: Vec<(f64, u32)>,
 }
 
 impl IcpTarget for PlaneTarget {
@@ -241,20 +239,11 @@ impl IcpTarget for PlaneTarget {
             let bound = (prev.beyond + gap) * (1.0 + 1e-9) + 1e-12;
             limit = limit.min(bound * bound);
         }
-        self.tree.knn_within(p, k, limit, &mut cursor.scratch);
-        let mut m = PlaneMemo {
-            at: p,
-            candidates: [0; CANDIDATES],
-            count: cursor.scratch.len() as u8,
-            beyond: if cursor.scratch.len() == k {
-                cursor.scratch[k - 1].0.sqrt()
-            } else {
-                reach
-            },
+        let (nearest, m) = if k == 2 {
+            self.search::<2>(p, limit, reach)
+        } else {
+            self.search::<CANDIDATES>(p, limit, reach)
         };
-        for (slot, &(_, j)) in m.candidates.iter_mut().zip(&cursor.scratch) {
-            *slot = j;
-        }
         if index >= cursor.memo.len() {
             let unset = PlaneMemo {
                 at: [f64::NAN; 3],
@@ -263,7 +252,7 @@ impl IcpTarget for PlaneTarget {
             cursor.memo.resize(index + 1, unset);
         }
         cursor.memo[index] = m;
-        cursor.scratch.first().copied().and_then(found)
+        nearest.and_then(found)
     }
 }
 
@@ -377,6 +366,34 @@ impl PlaneTarget {
             .map(|&i| (points[i as usize], unit[i as usize]))
             .collect();
         Ok(PlaneTarget { tree, surface })
+    }
+
+    /// The `K` nearest target points to `p` within squared distance `limit` (in a
+    /// fixed array: no allocation), and what a point there remembers of them (`reach`:
+    /// how far the search looked).
+    #[inline]
+    fn search<const K: usize>(
+        &self,
+        p: [f64; 3],
+        limit: f64,
+        reach: f64,
+    ) -> (Option<(f64, u32)>, PlaneMemo) {
+        let best = self.tree.nearest_k::<K>(&p, limit);
+        let count = best.iter().filter(|b| b.1 != u32::MAX).count();
+        let mut m = PlaneMemo {
+            at: p,
+            candidates: [0; CANDIDATES],
+            count: count as u8,
+            beyond: if count == K {
+                best[K - 1].0.sqrt()
+            } else {
+                reach
+            },
+        };
+        for (slot, &(_, j)) in m.candidates.iter_mut().zip(&best[..count]) {
+            *slot = j;
+        }
+        ((count > 0).then_some(best[0]), m)
     }
 
     /// Number of target points.

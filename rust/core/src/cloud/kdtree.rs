@@ -245,6 +245,17 @@ impl KdTree {
         }
     }
 
+    /// The `K` nearest within squared distance `limit` (inclusive) of `q`, nearest
+    /// first (ties by index); slots not filled hold (`limit`, `u32::MAX`).
+    #[inline]
+    pub(crate) fn nearest_k<const K: usize>(&self, q: &[f64; 3], limit: f64) -> [(f64, u32); K] {
+        let mut best = [(limit, u32::MAX); K];
+        if !self.nodes.is_empty() {
+            self.search_fixed(0, q, &mut best);
+        }
+        best
+    }
+
     /// [`Self::knn_within`] for `k ≤ K`, the best kept in a fixed array on the stack:
     /// no calls per candidate (the hot path of ICP's pairing).
     fn knn_fixed<const K: usize>(
