@@ -161,6 +161,26 @@ pub struct PlaneMemo {
     beyond: f64,
 }
 
+/// How many source points ahead [`PlaneTarget`]'s pairing fetches remembered target
+/// points into the cache.
+const PREFETCH_AHEAD: usize = 8;
+
+/// Ask the CPU to bring `*at` (both cache lines a point and its normal may span) into
+/// the cache; a hint, with no effect on results.
+#[inline(always)]
+fn prefetch<T>(at: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let bytes = at as *const i8;
+        // SAFETY: prefetching is a hint that never faults, whatever the address.
+        unsafe {
+            _mm_prefetch(bytes, _MM_HINT_T0);
+            _mm_prefetch(bytes.wrapping_add(std::mem::size_of::<T>() - 1), _MM_HINT_T0);
+        }
+    }
+}
+
 /// Target points remembered per source point.
 const CANDIDATES: usize = 4;
 
@@ -192,6 +212,14 @@ impl IcpTarget for PlaneTarget {
         let surface = &self.surface;
         let limit = max_distance * max_distance;
         let found = |(d, j): (f64, u32)| (d <= limit).then(|| surface[j as usize]);
+        // The points a few steps on will check their remembered target points: fetch
+        // those into the cache now, while this one computes (they lie anywhere in
+        // memory; waiting for them was most of a settled iteration).
+        if let Some(ahead) = cursor.memo.get(index + PREFETCH_AHEAD) {
+            for &j in &ahead.candidates[..(ahead.count as usize).min(2)] {
+                prefetch(surface.as_ptr().wrapping_add(j as usize));
+            }
+        }
         let known = cursor.memo.get(index).filter(|m| m.at[0].is_finite());
         if let Some(m) = known {
             let moved = crate::geometry::distance_squared(&p, &m.at).sqrt();
