@@ -133,6 +133,9 @@ pub trait IcpTarget: Sync {
     /// iteration to the next, for one fixed run of source points (they come in Morton
     /// order, so a lookup can start where the last one ended).
     type Cursor: Default + Send;
+    /// A pair found but not read yet: ICP finds the pairs of a few source points before
+    /// it reads them, so that a target can fetch them in the meantime.
+    type Pair: Copy;
     /// `max_distance` bounds how far the pair may be from `p`; `index` is the point's
     /// place in the cursor's run (the same point keeps its index every iteration).
     fn pair(
@@ -141,7 +144,10 @@ pub trait IcpTarget: Sync {
         max_distance: f64,
         cursor: &mut Self::Cursor,
         index: usize,
-    ) -> Option<([f64; 3], [f64; 3])>;
+    ) -> Option<Self::Pair>;
+
+    /// The pair's reference point and unit normal.
+    fn resolve(&self, pair: Self::Pair) -> ([f64; 3], [f64; 3]);
 
     /// Whether ICP should first align a subset of a large source (cheap pairs far from
     /// the answer matter less for a target whose lookups cost the same anywhere).
@@ -176,7 +182,10 @@ fn prefetch<T>(at: *const T) {
         // SAFETY: prefetching is a hint that never faults, whatever the address.
         unsafe {
             _mm_prefetch(bytes, _MM_HINT_T0);
-            _mm_prefetch(bytes.wrapping_add(std::mem::size_of::<T>() - 1), _MM_HINT_T0);
+            _mm_prefetch(
+                bytes.wrapping_add(std::mem::size_of::<T>() - 1),
+                _MM_HINT_T0,
+            );
         }
     }
 }
@@ -196,6 +205,13 @@ pub struct PlaneCursor {
 
 impl IcpTarget for PlaneTarget {
     type Cursor = PlaneCursor;
+    /// The target point's number, its point and normal on their way into the cache.
+    type Pair = u32;
+
+    #[inline]
+    fn resolve(&self, pair: u32) -> ([f64; 3], [f64; 3]) {
+        self.surface[pair as usize]
+    }
 
     /// The nearest target point within `max_distance`, exactly as a fresh search finds
     /// it. A point remembers its nearest few target points; while it has moved less
@@ -208,10 +224,16 @@ impl IcpTarget for PlaneTarget {
         max_distance: f64,
         cursor: &mut PlaneCursor,
         index: usize,
-    ) -> Option<([f64; 3], [f64; 3])> {
+    ) -> Option<u32> {
         let surface = &self.surface;
         let limit = max_distance * max_distance;
-        let found = |(d, j): (f64, u32)| (d <= limit).then(|| surface[j as usize]);
+        // ICP reads the pair a few points later: fetch it meanwhile.
+        let found = |(d, j): (f64, u32)| {
+            (d <= limit).then(|| {
+                prefetch(surface.as_ptr().wrapping_add(j as usize));
+                j
+            })
+        };
         // The points a few steps on will check their remembered target points: fetch
         // those into the cache now, while this one computes (they lie anywhere in
         // memory; waiting for them was most of a settled iteration).
@@ -303,6 +325,11 @@ struct PairMemo {
 
 impl IcpTarget for crate::octree::SurfaceMap {
     type Cursor = SurfaceCursor;
+    type Pair = ([f64; 3], [f64; 3]);
+
+    fn resolve(&self, pair: Self::Pair) -> ([f64; 3], [f64; 3]) {
+        pair
+    }
 
     /// A descent costs about the same near the answer and far from it.
     fn coarse_to_fine(&self) -> bool {
@@ -719,6 +746,9 @@ fn iterate<T: IcpTarget>(
     Ok(true)
 }
 
+/// Source points whose pairs are found before the first of them is read.
+const AHEAD: usize = 8;
+
 /// Source points per parallel run (and cursor).
 const RUN: usize = 2048;
 
@@ -763,32 +793,42 @@ fn normal_equations<T: IcpTarget>(
         // Each run's cursor is locked by one thread only: never contended.
         let mut cursor = cursor.lock().unwrap_or_else(|e| e.into_inner());
         let run = &source[*start..(start + RUN).min(source.len())];
-        for (index, p) in run.iter().enumerate() {
-            let moved = r * Vector3::from(*p) + t;
-            let Some((q, n)) = target.pair(
-                [moved.x, moved.y, moved.z],
-                params.max_correspondence_distance,
-                &mut cursor,
-                index,
-            ) else {
-                continue;
-            };
-            let (q, n) = (Vector3::from(q), Vector3::from(n));
-            let residual = (moved - q).dot(&n);
-            let weight = match huber {
-                Some(delta) if residual.abs() > delta => delta / residual.abs(),
-                _ => 1.0,
-            };
-            if stride > 0 && (start + index) % stride == 0 {
-                magnitudes.push(residual.abs());
+        // A few points' pairs are found before the first of them is read (`IcpTarget::Pair`).
+        let mut found: [(Vector3<f64>, Option<T::Pair>); AHEAD] = [(Vector3::zeros(), None); AHEAD];
+        for (first, chunk) in (0..run.len()).step_by(AHEAD).zip(run.chunks(AHEAD)) {
+            for (offset, (slot, p)) in found.iter_mut().zip(chunk).enumerate() {
+                let moved = r * Vector3::from(*p) + t;
+                let pair = target.pair(
+                    [moved.x, moved.y, moved.z],
+                    params.max_correspondence_distance,
+                    &mut cursor,
+                    first + offset,
+                );
+                *slot = (moved, pair);
             }
-            let c = moved.cross(&n);
-            let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
-            acc.h += jac * jac.transpose() * weight;
-            acc.g += jac * (residual * weight);
-            acc.squared += residual * residual;
-            acc.weighted += weight * residual * residual;
-            acc.pairs += 1;
+            for (offset, &(moved, pair)) in found[..chunk.len()].iter().enumerate() {
+                let index = first + offset;
+                let Some(pair) = pair else {
+                    continue;
+                };
+                let (q, n) = target.resolve(pair);
+                let (q, n) = (Vector3::from(q), Vector3::from(n));
+                let residual = (moved - q).dot(&n);
+                let weight = match huber {
+                    Some(delta) if residual.abs() > delta => delta / residual.abs(),
+                    _ => 1.0,
+                };
+                if stride > 0 && (start + index) % stride == 0 {
+                    magnitudes.push(residual.abs());
+                }
+                let c = moved.cross(&n);
+                let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+                acc.h += jac * jac.transpose() * weight;
+                acc.g += jac * (residual * weight);
+                acc.squared += residual * residual;
+                acc.weighted += weight * residual * residual;
+                acc.pairs += 1;
+            }
         }
         (acc, magnitudes)
     });
@@ -834,6 +874,11 @@ mod tests {
 
     impl IcpTarget for FreshDescents<'_> {
         type Cursor = ();
+        type Pair = ([f64; 3], [f64; 3]);
+
+        fn resolve(&self, pair: Self::Pair) -> ([f64; 3], [f64; 3]) {
+            pair
+        }
 
         /// As the map it stands for.
         fn coarse_to_fine(&self) -> bool {
@@ -889,16 +934,15 @@ mod tests {
 
     impl IcpTarget for FreshSearches<'_> {
         type Cursor = ();
+        type Pair = u32;
 
-        fn pair(
-            &self,
-            p: [f64; 3],
-            max_distance: f64,
-            _: &mut (),
-            _: usize,
-        ) -> Option<([f64; 3], [f64; 3])> {
+        fn resolve(&self, pair: u32) -> ([f64; 3], [f64; 3]) {
+            self.0.surface[pair as usize]
+        }
+
+        fn pair(&self, p: [f64; 3], max_distance: f64, _: &mut (), _: usize) -> Option<u32> {
             let (_, j) = self.0.tree.nearest_within(p, max_distance * max_distance)?;
-            Some(self.0.surface[j as usize])
+            Some(j)
         }
     }
 
@@ -988,7 +1032,9 @@ mod tests {
                 let mut cursor = PlaneCursor::default();
                 for iteration in 0..5 {
                     for (index, p) in path.iter().enumerate() {
-                        let got = target.pair(*p, max_distance, &mut cursor, index);
+                        let got = target
+                            .pair(*p, max_distance, &mut cursor, index)
+                            .map(|j| target.resolve(j));
                         let sorted = |from: &[f64; 3]| {
                             let mut all: Vec<(f64, u32)> = (0..target.surface.len())
                                 .map(|j| {
