@@ -929,6 +929,71 @@ mod tests {
         assert_eq!(kept.fitness, fresh.fitness);
         assert!(kept.transform[(0, 3)].abs() < 1e-3, "{}", kept.transform);
     }
+    /// One Gauss-Newton step against a `PlaneTarget` is the step the pairs found by brute
+    /// force give: every source point paired and summed once, over runs and a last
+    /// partial group of points.
+    #[test]
+    fn one_step_equals_brute_force_normal_equations() {
+        let mut rng = Rng::new(21);
+        let (points, normals) = corner(&mut rng, 1500);
+        let target = PlaneTarget::new(&points, &normals).unwrap();
+        // 2 × RUN + 13 points near the walls (some far from any, unpaired), moved.
+        let source: Vec<[f64; 3]> = (0..2 * RUN + 13)
+            .map(|i| {
+                let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
+                let off = if i % 97 == 0 {
+                    0.3
+                } else {
+                    rng.uniform(-0.003, 0.003)
+                };
+                match i % 3 {
+                    0 => [off + 0.01, u, v],
+                    1 => [u, off - 0.008, v],
+                    _ => [u, v, off + 0.005],
+                }
+            })
+            .collect();
+        let params = IcpParams {
+            max_iterations: 1,
+            max_correspondence_distance: 0.05,
+            sigma_tolerance: 0.0,
+            kernel: Kernel::Squared,
+            ..IcpParams::default()
+        };
+        let fit = icp_point_to_plane(&source, &target, &Matrix4::identity(), params).unwrap();
+        let (mut h, mut g, mut squared, mut pairs) = (Matrix6::zeros(), Vector6::zeros(), 0.0, 0);
+        for p in &source {
+            let nearest = (0..points.len())
+                .map(|j| (crate::geometry::distance_squared(p, &points[j]), j))
+                .min_by(|a, b| a.partial_cmp(b).unwrap())
+                .unwrap();
+            if nearest.0 > 0.05 * 0.05 {
+                continue;
+            }
+            let (p, q) = (Vector3::from(*p), Vector3::from(points[nearest.1]));
+            let n = Vector3::from(normals[nearest.1]).normalize();
+            let r = (p - q).dot(&n);
+            let c = p.cross(&n);
+            let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+            h += jac * jac.transpose();
+            g += jac * r;
+            squared += r * r;
+            pairs += 1;
+        }
+        let step = h.cholesky().unwrap().solve(&-g);
+        let expected = Translation3::new(step[3], step[4], step[5]).to_homogeneous()
+            * Rotation3::new(Vector3::new(step[0], step[1], step[2])).to_homogeneous();
+        assert!(
+            (fit.transform - expected).abs().max() < 1e-9,
+            "{} {}",
+            fit.transform,
+            expected
+        );
+        assert_eq!(fit.fitness, pairs as f64 / source.len() as f64);
+        assert!((fit.rmse - (squared / pairs as f64).sqrt()).abs() < 1e-12);
+        assert!(pairs < source.len() && pairs > source.len() - 60, "{pairs}");
+    }
+
     /// A fresh nearest-neighbour search for every point, every iteration.
     struct FreshSearches<'a>(&'a PlaneTarget);
 
