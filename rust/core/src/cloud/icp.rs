@@ -154,6 +154,12 @@ pub trait IcpTarget: Sync {
     fn coarse_to_fine(&self) -> bool {
         true
     }
+
+    /// Pass on what `from` knows of its point `from_index` to `to`'s point `to_index`,
+    /// the same source point in a later stage (the coarse stage's points in the fine
+    /// stage). By default nothing is passed on.
+    fn hand_on(_from: &Self::Cursor, _from_index: usize, _to: &mut Self::Cursor, _to_index: usize) {
+    }
 }
 
 /// Per source point, what its last search found: where the point was, its
@@ -207,6 +213,22 @@ impl IcpTarget for PlaneTarget {
     type Cursor = PlaneCursor;
     /// The target point's number, its point and normal on their way into the cache.
     type Pair = u32;
+
+    /// A remembered search stays true wherever the point goes (its use checks how far
+    /// it moved), so the coarse stage's last searches spare the fine stage theirs.
+    fn hand_on(from: &PlaneCursor, from_index: usize, to: &mut PlaneCursor, to_index: usize) {
+        let Some(&m) = from.memo.get(from_index).filter(|m| m.at[0].is_finite()) else {
+            return;
+        };
+        if to_index >= to.memo.len() {
+            let unset = PlaneMemo {
+                at: [f64::NAN; 3],
+                ..m
+            };
+            to.memo.resize(to_index + 1, unset);
+        }
+        to.memo[to_index] = m;
+    }
 
     #[inline]
     fn resolve(&self, pair: u32) -> ([f64; 3], [f64; 3]) {
@@ -505,9 +527,9 @@ pub fn icp_point_to_plane(
 /// [`icp_point_to_plane`], asking `interrupt` on the calling thread after every
 /// iteration (one pass over the source, O(N) pair lookups); `Ok(None)` when it asked
 /// to stop. What `max_iterations` allows is thus stoppable however large it is.
-pub fn icp_point_to_plane_interruptible(
+pub fn icp_point_to_plane_interruptible<T: IcpTarget>(
     source: &[[f64; 3]],
-    target: &impl IcpTarget,
+    target: &T,
     initial: &Matrix4<f64>,
     params: IcpParams,
     interrupt: &mut threads::Interrupt<'_>,
@@ -547,17 +569,16 @@ pub fn icp_point_to_plane_interruptible(
         conditioning: 0.0,
     };
     let mut width = None;
+    let fine_runs = runs::<T>(source.len());
     // Coarse to fine: with many source points, a spread subset (a stride through the
     // Morton order) first, until its steps are within a standard deviation of what it
     // can resolve, with at most half the iterations; then every point from there.
     // Far from the answer each iteration costs most (every pair searched afresh, far
     // away), so those iterations run on few points.
     if target.coarse_to_fine() && source.len() >= 2 * COARSE_POINTS && params.max_iterations > 1 {
-        let coarse: Vec<[f64; 3]> = source
-            .iter()
-            .step_by(source.len() / (source.len() / COARSE_SHARE).max(COARSE_POINTS))
-            .copied()
-            .collect();
+        let stride = source.len() / (source.len() / COARSE_SHARE).max(COARSE_POINTS);
+        let coarse: Vec<[f64; 3]> = source.iter().step_by(stride).copied().collect();
+        let coarse_runs = runs::<T>(coarse.len());
         // With no stopping test an adaptive kernel never starts, so neither may the
         // coarse stage's (whose own test is fixed).
         let testless = params.sigma_tolerance == 0.0
@@ -587,6 +608,7 @@ pub fn icp_point_to_plane_interruptible(
             &mut trial,
             &mut coarse_width,
             interrupt,
+            &coarse_runs,
         ) {
             Ok(false) => return Ok(None),
             // Too few of the subset's points paired to decide anything: every point does.
@@ -598,6 +620,18 @@ pub fn icp_point_to_plane_interruptible(
                 width = coarse_width;
             }
             Ok(true) => {}
+        }
+        // What the subset's points last found, for their first fine iteration.
+        for (start, from) in &coarse_runs {
+            let from = from.lock().unwrap_or_else(|e| e.into_inner());
+            for i in 0..RUN.min(coarse.len() - start) {
+                let at = (start + i) * stride;
+                let mut to = fine_runs[at / RUN]
+                    .1
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner());
+                T::hand_on(&from, i, &mut to, at % RUN);
+            }
         }
     }
     let fine_params = IcpParams {
@@ -617,6 +651,7 @@ pub fn icp_point_to_plane_interruptible(
         &mut result,
         &mut width,
         interrupt,
+        &fine_runs,
     )? {
         return Ok(None);
     }
@@ -656,12 +691,8 @@ fn iterate<T: IcpTarget>(
     result: &mut IcpResult,
     width: &mut Option<f64>,
     interrupt: &mut threads::Interrupt<'_>,
+    runs: &Runs<T>,
 ) -> Result<bool> {
-    // One cursor per run of source points, kept across iterations.
-    let runs: Vec<(usize, std::sync::Mutex<T::Cursor>)> = (0..source.len())
-        .step_by(RUN)
-        .map(|start| (start, std::sync::Mutex::new(Default::default())))
-        .collect();
     result.converged = false;
     let mut sample = (source.len() / MEDIAN_SAMPLES).max(1);
     for iteration in 1..=params.max_iterations {
@@ -670,7 +701,7 @@ fn iterate<T: IcpTarget>(
             Kernel::Huber(delta) => Some(delta),
             Kernel::AdaptiveHuber(_) => *width,
         };
-        let system = normal_equations(source, target, transform, params, current, sample, &runs);
+        let system = normal_equations(source, target, transform, params, current, sample, runs);
         // The next median from about MEDIAN_SAMPLES pairs, however few points pair.
         sample = (system.pairs / MEDIAN_SAMPLES).max(1);
         let robust_width = match (params.kernel, system.median) {
@@ -744,6 +775,18 @@ fn iterate<T: IcpTarget>(
         }
     }
     Ok(true)
+}
+
+/// One cursor per run of [`RUN`] source points (with the run's first index), kept
+/// across iterations.
+type Runs<T> = Vec<(usize, std::sync::Mutex<<T as IcpTarget>::Cursor>)>;
+
+/// Fresh cursors for `len` source points.
+fn runs<T: IcpTarget>(len: usize) -> Runs<T> {
+    (0..len)
+        .step_by(RUN)
+        .map(|start| (start, std::sync::Mutex::new(Default::default())))
+        .collect()
 }
 
 /// Source points whose pairs are found before the first of them is read.
