@@ -209,6 +209,20 @@ pub struct PlaneCursor {
     memo: Vec<PlaneMemo>,
 }
 
+impl PlaneCursor {
+    /// Keep `m` for the point `index` (points not yet searched stay unset).
+    fn remember(&mut self, index: usize, m: PlaneMemo) {
+        if index >= self.memo.len() {
+            let unset = PlaneMemo {
+                at: [f64::NAN; 3],
+                ..m
+            };
+            self.memo.resize(index + 1, unset);
+        }
+        self.memo[index] = m;
+    }
+}
+
 impl IcpTarget for PlaneTarget {
     type Cursor = PlaneCursor;
     /// The target point's number, its point and normal on their way into the cache.
@@ -217,17 +231,9 @@ impl IcpTarget for PlaneTarget {
     /// A remembered search stays true wherever the point goes (its use checks how far
     /// it moved), so the coarse stage's last searches spare the fine stage theirs.
     fn hand_on(from: &PlaneCursor, from_index: usize, to: &mut PlaneCursor, to_index: usize) {
-        let Some(&m) = from.memo.get(from_index).filter(|m| m.at[0].is_finite()) else {
-            return;
-        };
-        if to_index >= to.memo.len() {
-            let unset = PlaneMemo {
-                at: [f64::NAN; 3],
-                ..m
-            };
-            to.memo.resize(to_index + 1, unset);
+        if let Some(&m) = from.memo.get(from_index).filter(|m| m.at[0].is_finite()) {
+            to.remember(to_index, m);
         }
-        to.memo[to_index] = m;
     }
 
     #[inline]
@@ -316,14 +322,7 @@ impl IcpTarget for PlaneTarget {
         } else {
             self.search::<CANDIDATES>(p, limit, reach)
         };
-        if index >= cursor.memo.len() {
-            let unset = PlaneMemo {
-                at: [f64::NAN; 3],
-                ..m
-            };
-            cursor.memo.resize(index + 1, unset);
-        }
-        cursor.memo[index] = m;
+        cursor.remember(index, m);
         nearest.and_then(found)
     }
 }
