@@ -180,6 +180,7 @@ const PREFETCH_AHEAD: usize = 8;
 /// Ask the CPU to bring `*at` (both cache lines a point and its normal may span) into
 /// the cache; a hint, with no effect on results.
 #[inline(always)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(unused_variables))]
 fn prefetch<T>(at: *const T) {
     #[cfg(target_arch = "x86_64")]
     {
@@ -189,7 +190,7 @@ fn prefetch<T>(at: *const T) {
         unsafe {
             _mm_prefetch(bytes, _MM_HINT_T0);
             _mm_prefetch(
-                bytes.wrapping_add(std::mem::size_of::<T>() - 1),
+                bytes.wrapping_add(std::mem::size_of::<T>().saturating_sub(1)),
                 _MM_HINT_T0,
             );
         }
@@ -1095,6 +1096,37 @@ mod tests {
                 icp_point_to_plane(&source, &FreshSearches(&target), &initial, params).unwrap();
             assert_eq!(kept, fresh, "offset {offset}, radius {radius}");
         }
+    }
+
+    /// A source large enough for a coarse stage of several runs hands every coarse
+    /// point's search on to the fine stage's right place: the same answer as fresh
+    /// searches, bit for bit, with the defaults (the adaptive kernel).
+    #[test]
+    fn a_large_source_hands_its_coarse_searches_on() {
+        let mut rng = Rng::new(23);
+        let (points, normals) = corner(&mut rng, 3000);
+        let target = PlaneTarget::new(&points, &normals).unwrap();
+        // 3 × 24000 points: a coarse stage of a thirtieth, 2400, over two runs.
+        let (source, _) = corner(&mut rng, 24000);
+        let source: Vec<[f64; 3]> = source
+            .iter()
+            .map(|p| p.map(|c| c + rng.uniform(-0.002, 0.002)))
+            .collect();
+        assert!(source.len() / COARSE_SHARE > RUN);
+        let mut initial = Matrix4::identity();
+        initial[(0, 3)] = 0.03;
+        initial[(1, 3)] = -0.02;
+        let params = IcpParams {
+            max_iterations: 20,
+            ..IcpParams::default()
+        };
+        let kept = icp_point_to_plane(&source, &target, &initial, params).unwrap();
+        let fresh = icp_point_to_plane(&source, &FreshSearches(&target), &initial, params).unwrap();
+        assert_eq!(kept, fresh);
+        assert!(
+            kept.converged && kept.transform[(0, 3)].abs() < 1e-3,
+            "{kept:?}"
+        );
     }
 
     /// Whatever bounds its searches, every memo says what a search without bounds would:
