@@ -200,12 +200,8 @@ impl KdTree {
     /// (ties go to the lower index). The limit prunes the walk, which matters for
     /// points with no near neighbour.
     pub fn nearest_within(&self, q: [f64; 3], limit: f64) -> Option<(f64, u32)> {
-        if self.nodes.is_empty() {
-            return None;
-        }
-        let mut best = [(limit, u32::MAX)];
-        self.search_fixed(0, &q, &mut best);
-        (best[0].1 != u32::MAX).then_some(best[0])
+        let [best] = self.nearest_k::<1>(&q, limit);
+        (best.1 != u32::MAX).then_some(best)
     }
 
     /// The `k` nearest points to `q` as (squared distance, index), nearest first
@@ -246,7 +242,9 @@ impl KdTree {
     }
 
     /// The `K` nearest within squared distance `limit` (inclusive) of `q`, nearest
-    /// first (ties by index); slots not filled hold (`limit`, `u32::MAX`).
+    /// first (ties by index), kept in a fixed array on the stack with no call per
+    /// candidate (the hot path of ICP's pairing); slots not filled hold (`limit`,
+    /// `u32::MAX`).
     #[inline]
     pub(crate) fn nearest_k<const K: usize>(&self, q: &[f64; 3], limit: f64) -> [(f64, u32); K] {
         let mut best = [(limit, u32::MAX); K];
@@ -256,8 +254,7 @@ impl KdTree {
         best
     }
 
-    /// [`Self::knn_within`] for `k ≤ K`, the best kept in a fixed array on the stack:
-    /// no calls per candidate (the hot path of ICP's pairing).
+    /// [`Self::knn_within`] for `k ≤ K`, through [`Self::nearest_k`].
     fn knn_fixed<const K: usize>(
         &self,
         q: [f64; 3],
@@ -265,8 +262,7 @@ impl KdTree {
         limit: f64,
         out: &mut Vec<(f64, u32)>,
     ) {
-        let mut best = [(limit, u32::MAX); K];
-        self.search_fixed(0, &q, &mut best);
+        let best = self.nearest_k::<K>(&q, limit);
         out.extend(best.iter().take(k).filter(|b| b.1 != u32::MAX));
     }
 
