@@ -836,6 +836,13 @@ fn normal_equations<T: IcpTarget>(
         // Each run's cursor is locked by one thread only: never contended.
         let mut cursor = cursor.lock().unwrap_or_else(|e| e.into_inner());
         let run = &source[*start..(start + RUN).min(source.len())];
+        // The run's next point (by index in the run) whose residual is sampled: every
+        // `stride`-th of the whole source.
+        let mut sampled = if stride > 0 {
+            start.next_multiple_of(stride) - start
+        } else {
+            usize::MAX
+        };
         // A few points' pairs are found before the first of them is read (`IcpTarget::Pair`).
         let mut found: [(Vector3<f64>, Option<T::Pair>); AHEAD] = [(Vector3::zeros(), None); AHEAD];
         for (first, chunk) in (0..run.len()).step_by(AHEAD).zip(run.chunks(AHEAD)) {
@@ -861,8 +868,13 @@ fn normal_equations<T: IcpTarget>(
                     Some(delta) if residual.abs() > delta => delta / residual.abs(),
                     _ => 1.0,
                 };
-                if stride > 0 && (start + index) % stride == 0 {
+                // (Points without a pair are passed over.)
+                while sampled < index {
+                    sampled += stride;
+                }
+                if index == sampled {
                     magnitudes.push(residual.abs());
+                    sampled += stride;
                 }
                 let c = moved.cross(&n);
                 let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
