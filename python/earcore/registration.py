@@ -52,12 +52,15 @@ def icp_point_to_plane(
     iteration) until a step passes it again, so that pairs on surfaces the target never
     saw (partial overlap) stop pulling the result off; with no stopping test it stays
     least squares. A number is a fixed Huber width in metres from the first iteration;
-    None is plain least squares throughout.
+    None is plain least squares throughout. Under a kernel each step is Newton's on the
+    kernel's loss (the curvature of the pairs within the width), reweighted least
+    squares' where the pairs beyond it would outweigh them along the step.
 
     It stops after `max_iterations`, or (with "auto", once the kernel runs) at the first
     step shorter than `sigma_tolerance` standard deviations of the pose estimate (the
     step's Mahalanobis length under the covariance σ²·H⁻¹ of the fit, σ² the pairs'
-    residual variance: a step the data cannot tell from noise), or at the first step
+    residual variance, under a kernel of the residuals clipped to its width: a step the
+    data cannot tell from noise), or at the first step
     that moves less than `translation_tolerance` metres and turns less than
     `rotation_tolerance` radians (small_gicp's `translation_epsilon` /
     `rotation_epsilon`, Open3D's step criteria).
