@@ -1,6 +1,7 @@
 //! Point-to-plane ICP (Chen & Medioni; NOctoSLAM Eqs. 6-7): minimise
-//! Σ w_i ((T·p_i − q_i)·n_i)² over rigid T by Gauss-Newton on the small-angle pose,
-//! re-orthonormalised (exponential map) after every step.
+//! Σ ρ((T·p_i − q_i)·n_i) over rigid T (ρ the square, or Huber's kernel) by Gauss-Newton
+//! (under Huber's kernel, Newton) steps on the small-angle pose, re-orthonormalised
+//! (exponential map) after every step.
 
 use super::kdtree::KdTree;
 use crate::error::{Error, Result};
@@ -21,8 +22,10 @@ pub struct IcpParams {
     pub rotation_tolerance: f64,
     /// Stop when a step is shorter than this many standard deviations of the pose
     /// estimate: its Mahalanobis length under the covariance σ²·H⁻¹, σ² the pairs'
-    /// residual variance and H the normal equations' matrix (under a Huber kernel,
-    /// Huber's: H of the pairs within the width, σ² of the residuals clipped to it).
+    /// residual variance and H the normal equations' matrix (for a Newton step under a
+    /// Huber kernel, about Huber's: H of the pairs within the width, σ² = Σψ² / (their
+    /// number − 6), ψ the residual clipped to the width; for a reweighted step, both
+    /// weighted by the kernel).
     /// A step the data cannot tell from noise changes nothing a user can measure (0
     /// turns this test off).
     pub sigma_tolerance: f64,
@@ -790,9 +793,9 @@ struct Step {
 
 /// The step from `system`, or `None` when none can be solved for. Least squares: the
 /// Gauss-Newton step. Under Huber's kernel (`newton` allowed): Newton's step on the
-/// kernel's loss, whose curvature is the inlier pairs' alone, unless the pairs beyond
-/// the width weigh more than [`OUTLIER_CURVATURE`] times as much along it as the
-/// inliers do (a step the inliers hardly constrain); else the reweighted (IRLS) step.
+/// kernel's loss, whose curvature is the inlier pairs' alone, unless the reweighted
+/// curvature of all pairs along it exceeds [`OUTLIER_CURVATURE`] times the inliers'
+/// (a step the inliers hardly constrain); else the reweighted (IRLS) step.
 /// Newton's steps converge in two or three iterations where the reweighted ones shrink
 /// by a constant factor each (to a quarter to a half at one standard deviation's width).
 fn gauss_newton_step(system: &NormalEquations, newton: bool) -> Option<Step> {
@@ -807,7 +810,7 @@ fn gauss_newton_step(system: &NormalEquations, newton: bool) -> Option<Step> {
             // δᵀ H_inliers δ = −δᵀg.
             let inlier_curvature = -delta.dot(&system.g);
             if delta.dot(&(reweighted * delta)) < OUTLIER_CURVATURE * inlier_curvature {
-                // Huber's covariance of the estimate: σ²·H⁻¹, H the inliers' and
+                // About Huber's covariance of the estimate: σ²·H⁻¹, H the inliers' and
                 // σ² = Σψ² / (inliers − 6), ψ the residual clipped to the width.
                 let variance = system.clipped / (system.inliers - 6) as f64;
                 return Some(Step {
@@ -929,10 +932,12 @@ fn normal_equations<T: IcpTarget>(
                 let (q, n) = target.resolve(pair);
                 let (q, n) = (Vector3::from(q), Vector3::from(n));
                 let residual = (moved - q).dot(&n);
-                let weight = match huber {
-                    Some(delta) if residual.abs() > delta => delta / residual.abs(),
-                    _ => 1.0,
+                let (weight, inlier) = match huber {
+                    Some(delta) if residual.abs() > delta => (delta / residual.abs(), false),
+                    _ => (1.0, true),
                 };
+                // The residual clipped to the kernel's width: the loss's gradient.
+                let psi = residual * weight;
                 // (Points without a pair are passed over.)
                 while sampled < index {
                     sampled += stride;
@@ -943,15 +948,14 @@ fn normal_equations<T: IcpTarget>(
                 }
                 let c = moved.cross(&n);
                 let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
-                if weight == 1.0 {
+                if inlier {
                     acc.h_inliers += jac * jac.transpose();
-                    acc.clipped += residual * residual;
                     acc.inliers += 1;
                 } else {
                     acc.h_outliers += jac * jac.transpose() * weight;
-                    acc.clipped += weight * weight * residual * residual;
                 }
-                acc.g += jac * (residual * weight);
+                acc.g += jac * psi;
+                acc.clipped += psi * psi;
                 acc.squared += residual * residual;
                 acc.weighted += weight * residual * residual;
                 acc.pairs += 1;
@@ -1122,6 +1126,77 @@ mod tests {
         assert_eq!(fit.fitness, pairs as f64 / source.len() as f64);
         assert!((fit.rmse - (squared / pairs as f64).sqrt()).abs() < 1e-12);
         assert!(pairs < source.len() && pairs > source.len() - 60, "{pairs}");
+    }
+
+    /// One step under Huber's kernel against normal equations built from brute-force
+    /// nearest neighbours: Newton's (the inliers' curvature alone) where the inliers
+    /// constrain it, the reweighted one where they do not (a wall seen only beyond the
+    /// width, which leaves the inliers nothing along its normal).
+    #[test]
+    fn a_huber_step_is_newtons_where_the_inliers_constrain_it() {
+        let mut rng = Rng::new(22);
+        let (points, normals) = corner(&mut rng, 1500);
+        let target = PlaneTarget::new(&points, &normals).unwrap();
+        let width = 0.002;
+        let damped = |h: Matrix6<f64>| h + Matrix6::identity() * (1e-12 * h.trace());
+        for (first_wall, newton) in [(0.0, true), (0.012, false)] {
+            let source: Vec<[f64; 3]> = (0..3000)
+                .map(|i| {
+                    let (u, v) = (rng.uniform(0.05, 1.0), rng.uniform(0.05, 1.0));
+                    let noise = rng.uniform(-0.004, 0.004);
+                    match i % 3 {
+                        0 => [noise + 0.003 + first_wall, u, v],
+                        1 => [u, noise - 0.002, v],
+                        _ => [u, v, noise + 0.001],
+                    }
+                })
+                .collect();
+            let params = IcpParams {
+                max_iterations: 1,
+                max_correspondence_distance: 0.05,
+                sigma_tolerance: 0.0,
+                kernel: Kernel::Huber(width),
+                ..IcpParams::default()
+            };
+            let fit = icp_point_to_plane(&source, &target, &Matrix4::identity(), params).unwrap();
+            let (mut inliers, mut outliers, mut g) =
+                (Matrix6::zeros(), Matrix6::zeros(), Vector6::zeros());
+            for p in &source {
+                let nearest = (0..points.len())
+                    .map(|j| (crate::geometry::distance_squared(p, &points[j]), j))
+                    .min_by(|a, b| a.partial_cmp(b).unwrap())
+                    .unwrap();
+                let (p, q) = (Vector3::from(*p), Vector3::from(points[nearest.1]));
+                let n = Vector3::from(normals[nearest.1]).normalize();
+                let r = (p - q).dot(&n);
+                let c = p.cross(&n);
+                let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+                if r.abs() <= width {
+                    inliers += jac * jac.transpose();
+                    g += jac * r;
+                } else {
+                    outliers += jac * jac.transpose() * (width / r.abs());
+                    g += jac * (width * r.signum());
+                }
+            }
+            let reweighted = inliers + outliers;
+            let newtons = damped(inliers).cholesky().unwrap().solve(&-g);
+            let ratio = newtons.dot(&(reweighted * newtons)) / -newtons.dot(&g);
+            assert_eq!(ratio < OUTLIER_CURVATURE, newton, "{ratio}");
+            let step = if newton {
+                newtons
+            } else {
+                reweighted.cholesky().unwrap().solve(&-g)
+            };
+            let expected = Translation3::new(step[3], step[4], step[5]).to_homogeneous()
+                * Rotation3::new(Vector3::new(step[0], step[1], step[2])).to_homogeneous();
+            assert!(
+                (fit.transform - expected).abs().max() < 1e-9,
+                "{} {}",
+                fit.transform,
+                expected
+            );
+        }
     }
 
     /// A fresh nearest-neighbour search for every point, every iteration.
