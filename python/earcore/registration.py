@@ -53,8 +53,8 @@ def icp_point_to_plane(
     saw (partial overlap) stop pulling the result off; with no stopping test it stays
     least squares. A number is a fixed Huber width in metres from the first iteration;
     None is plain least squares throughout. Under a kernel each step is Newton's on the
-    kernel's loss (the curvature of the pairs within the width), reweighted least
-    squares' where those pairs hardly constrain the step.
+    kernel's loss (the curvature of the pairs within the width) where it provably lowers
+    the loss, else reweighted least squares'.
 
     It stops after `max_iterations`, or (with "auto", once the kernel runs) at the first
     step shorter than `sigma_tolerance` standard deviations of the pose estimate (the
