@@ -34,8 +34,8 @@ pub struct IcpParams {
 }
 
 /// The robust kernel of [`icp_point_to_plane`]: how much a pair's residual counts.
-/// Under Huber's kernel each step is Newton's on the kernel's loss where the pairs within
-/// the width constrain it (see `gauss_newton_step`).
+/// Under Huber's kernel each step is Newton's on the kernel's loss where that provably
+/// lowers the loss, else reweighted least squares' (see `gauss_newton_step`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Kernel {
     /// Plain least squares: every pair counts with the square of its residual.
