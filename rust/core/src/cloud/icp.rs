@@ -1073,51 +1073,27 @@ mod tests {
         let (points, normals) = corner(&mut rng, 1500);
         let target = PlaneTarget::new(&points, &normals).unwrap();
         // 2 × RUN + 13 points near the walls (some far from any, unpaired), moved.
-        let source: Vec<[f64; 3]> = (0..2 * RUN + 13)
-            .map(|i| {
-                let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
-                let off = if i % 97 == 0 {
-                    0.3
-                } else {
-                    rng.uniform(-0.003, 0.003)
-                };
-                match i % 3 {
-                    0 => [off + 0.01, u, v],
-                    1 => [u, off - 0.008, v],
-                    _ => [u, v, off + 0.005],
-                }
-            })
-            .collect();
-        let params = IcpParams {
-            max_iterations: 1,
-            max_correspondence_distance: 0.05,
-            sigma_tolerance: 0.0,
-            kernel: Kernel::Squared,
-            ..IcpParams::default()
-        };
+        let source = near_walls(&mut rng, 2 * RUN + 13, [0.01, -0.008, 0.005], |rng, i| {
+            if i % 97 == 0 {
+                0.3
+            } else {
+                rng.uniform(-0.003, 0.003)
+            }
+        });
+        let params = one_step(Kernel::Squared);
         let fit = icp_point_to_plane(&source, &target, &Matrix4::identity(), params).unwrap();
         let (mut h, mut g, mut squared, mut pairs) = (Matrix6::zeros(), Vector6::zeros(), 0.0, 0);
         for p in &source {
-            let nearest = (0..points.len())
-                .map(|j| (crate::geometry::distance_squared(p, &points[j]), j))
-                .min_by(|a, b| a.partial_cmp(b).unwrap())
-                .unwrap();
-            if nearest.0 > 0.05 * 0.05 {
+            let (distance, r, jac) = brute_force_pair(&points, &normals, p);
+            if distance > 0.05 * 0.05 {
                 continue;
             }
-            let (p, q) = (Vector3::from(*p), Vector3::from(points[nearest.1]));
-            let n = Vector3::from(normals[nearest.1]).normalize();
-            let r = (p - q).dot(&n);
-            let c = p.cross(&n);
-            let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
             h += jac * jac.transpose();
             g += jac * r;
             squared += r * r;
             pairs += 1;
         }
-        let step = h.cholesky().unwrap().solve(&-g);
-        let expected = Translation3::new(step[3], step[4], step[5]).to_homogeneous()
-            * Rotation3::new(Vector3::new(step[0], step[1], step[2])).to_homogeneous();
+        let expected = step_transform(h.cholesky().unwrap().solve(&-g));
         assert!(
             (fit.transform - expected).abs().max() < 1e-9,
             "{} {}",
@@ -1127,6 +1103,62 @@ mod tests {
         assert_eq!(fit.fitness, pairs as f64 / source.len() as f64);
         assert!((fit.rmse - (squared / pairs as f64).sqrt()).abs() < 1e-12);
         assert!(pairs < source.len() && pairs > source.len() - 60, "{pairs}");
+    }
+
+    /// The nearest of `points` to `p` by brute force (its squared distance), and the
+    /// point-to-plane residual and Jacobian row [p × n, n] of that pair.
+    fn brute_force_pair(
+        points: &[[f64; 3]],
+        normals: &[[f64; 3]],
+        p: &[f64; 3],
+    ) -> (f64, f64, Vector6<f64>) {
+        let (squared, j) = (0..points.len())
+            .map(|j| (crate::geometry::distance_squared(p, &points[j]), j))
+            .min_by(|a, b| a.partial_cmp(b).unwrap())
+            .unwrap();
+        let (p, q) = (Vector3::from(*p), Vector3::from(points[j]));
+        let n = Vector3::from(normals[j]).normalize();
+        let c = p.cross(&n);
+        let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+        (squared, (p - q).dot(&n), jac)
+    }
+
+    /// `n` points near the corner's three walls (a third on each, in turn), wall `w`'s
+    /// `shift[w]` plus `off(i)` off it.
+    fn near_walls(
+        rng: &mut Rng,
+        n: usize,
+        shift: [f64; 3],
+        mut off: impl FnMut(&mut Rng, usize) -> f64,
+    ) -> Vec<[f64; 3]> {
+        (0..n)
+            .map(|i| {
+                let (u, v) = (rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0));
+                let d = off(rng, i) + shift[i % 3];
+                match i % 3 {
+                    0 => [d, u, v],
+                    1 => [u, d, v],
+                    _ => [u, v, d],
+                }
+            })
+            .collect()
+    }
+
+    /// One Gauss-Newton step under `kernel`, pairs within 5 cm, no stopping test.
+    fn one_step(kernel: Kernel) -> IcpParams {
+        IcpParams {
+            max_iterations: 1,
+            max_correspondence_distance: 0.05,
+            sigma_tolerance: 0.0,
+            kernel,
+            ..IcpParams::default()
+        }
+    }
+
+    /// The transform of the small-angle step (ω, t) applied on the left.
+    fn step_transform(step: Vector6<f64>) -> Matrix4<f64> {
+        Translation3::new(step[3], step[4], step[5]).to_homogeneous()
+            * Rotation3::new(Vector3::new(step[0], step[1], step[2])).to_homogeneous()
     }
 
     /// One step under Huber's kernel against normal equations built from brute-force
@@ -1141,37 +1173,15 @@ mod tests {
         let width = 0.002;
         let damped = |h: Matrix6<f64>| h + Matrix6::identity() * (1e-12 * h.trace());
         for (first_wall, newton) in [(0.0, true), (0.012, false)] {
-            let source: Vec<[f64; 3]> = (0..3000)
-                .map(|i| {
-                    let (u, v) = (rng.uniform(0.05, 1.0), rng.uniform(0.05, 1.0));
-                    let noise = rng.uniform(-0.004, 0.004);
-                    match i % 3 {
-                        0 => [noise + 0.003 + first_wall, u, v],
-                        1 => [u, noise - 0.002, v],
-                        _ => [u, v, noise + 0.001],
-                    }
-                })
-                .collect();
-            let params = IcpParams {
-                max_iterations: 1,
-                max_correspondence_distance: 0.05,
-                sigma_tolerance: 0.0,
-                kernel: Kernel::Huber(width),
-                ..IcpParams::default()
-            };
+            let shift = [0.003 + first_wall, -0.002, 0.001];
+            let source = near_walls(&mut rng, 3000, shift, |rng, _| rng.uniform(-0.004, 0.004));
+            let params = one_step(Kernel::Huber(width));
             let fit = icp_point_to_plane(&source, &target, &Matrix4::identity(), params).unwrap();
             let (mut inliers, mut outliers, mut g) =
                 (Matrix6::zeros(), Matrix6::zeros(), Vector6::zeros());
             for p in &source {
-                let nearest = (0..points.len())
-                    .map(|j| (crate::geometry::distance_squared(p, &points[j]), j))
-                    .min_by(|a, b| a.partial_cmp(b).unwrap())
-                    .unwrap();
-                let (p, q) = (Vector3::from(*p), Vector3::from(points[nearest.1]));
-                let n = Vector3::from(normals[nearest.1]).normalize();
-                let r = (p - q).dot(&n);
-                let c = p.cross(&n);
-                let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+                let (distance, r, jac) = brute_force_pair(&points, &normals, p);
+                assert!(distance < 0.05 * 0.05);
                 if r.abs() <= width {
                     inliers += jac * jac.transpose();
                     g += jac * r;
@@ -1189,8 +1199,7 @@ mod tests {
             } else {
                 reweighted.cholesky().unwrap().solve(&-g)
             };
-            let expected = Translation3::new(step[3], step[4], step[5]).to_homogeneous()
-                * Rotation3::new(Vector3::new(step[0], step[1], step[2])).to_homogeneous();
+            let expected = step_transform(step);
             assert!(
                 (fit.transform - expected).abs().max() < 1e-9,
                 "{} {}",
