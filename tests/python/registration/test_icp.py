@@ -145,17 +145,23 @@ def test_multi_camera_fine_alignment():
         assert dt <= 0.003 and dr <= 0.2, (dt, dr, start)
 
 
-def pose_covariance(source, target_points, target_normals, transform, radius):
-    """σ²·H⁻¹ of the point-to-plane fit at `transform`, from the pairs recomputed with
-    scipy's k-d tree (independent of the core): J = [p' × n, n], σ² the residuals'
-    variance."""
+def scipy_pairs(source, target_points, target_normals, transform, radius):
+    """The source moved by `transform` and its nearest target points within `radius`
+    with their unit normals, from scipy's k-d tree (independent of the core): the
+    paired source points, target points and normals."""
     from scipy.spatial import cKDTree
 
     moved = source @ transform[:3, :3].T + transform[:3, 3]
     d, j = cKDTree(target_points).query(moved, distance_upper_bound=radius)
     keep = np.isfinite(d)
-    p, q, n = moved[keep], target_points[j[keep]], target_normals[j[keep]]
-    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    n = target_normals[j[keep]]
+    return moved[keep], target_points[j[keep]], n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def pose_covariance(source, target_points, target_normals, transform, radius):
+    """σ²·H⁻¹ of the point-to-plane fit at `transform`, from the pairs recomputed with
+    scipy (`scipy_pairs`): J = [p' × n, n], σ² the residuals' variance."""
+    p, q, n = scipy_pairs(source, target_points, target_normals, transform, radius)
     r = np.einsum("ij,ij->i", p - q, n)
     jac = np.hstack([np.cross(p, n), n])
     sigma2 = r @ r / (len(r) - 6)
@@ -195,14 +201,9 @@ def huber_m_estimate(source, target_points, target_normals, transform, radius, w
     `transform` to it, and its covariance σ²·H⁻¹ (H over the pairs within the width,
     σ² = Σψ² / (those − 6), ψ the residual clipped to the width)."""
     from scipy.optimize import least_squares
-    from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
 
-    moved = source @ transform[:3, :3].T + transform[:3, 3]
-    d, j = cKDTree(target_points).query(moved, distance_upper_bound=radius)
-    keep = np.isfinite(d)
-    p, q, n = moved[keep], target_points[j[keep]], target_normals[j[keep]]
-    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    p, q, n = scipy_pairs(source, target_points, target_normals, transform, radius)
 
     def residuals(x):
         return np.einsum("ij,ij->i", p @ Rotation.from_rotvec(x[:3]).as_matrix().T + x[3:] - q, n)

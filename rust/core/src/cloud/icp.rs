@@ -733,7 +733,7 @@ fn iterate<T: IcpTarget>(
                 system.pairs, params.max_correspondence_distance
             )));
         }
-        let mut balanced = system.h_inliers + system.h_outliers;
+        let mut balanced = system.reweighted();
         for r in 0..6 {
             for c in 0..6 {
                 balanced[(r, c)] /=
@@ -805,7 +805,7 @@ fn gauss_newton_step(system: &NormalEquations, newton: bool) -> Option<Step> {
         let damped = h + Matrix6::identity() * (1e-12 * h.trace().max(1e-300));
         damped.cholesky().map(|c| c.solve(&-system.g))
     };
-    let reweighted = system.h_inliers + system.h_outliers;
+    let reweighted = system.reweighted();
     if newton && system.inliers > 6 {
         if let Some(delta) = solve(system.h_inliers) {
             // δᵀ H_inliers δ = −δᵀg.
@@ -877,6 +877,13 @@ struct NormalEquations {
     inliers: usize,
     /// The median |residual| of a stride through the pairs (an adaptive kernel's only).
     median: Option<f64>,
+}
+
+impl NormalEquations {
+    /// Σ w JJᵀ over all pairs: the reweighted (IRLS) normal equations' matrix.
+    fn reweighted(&self) -> Matrix6<f64> {
+        self.h_inliers + self.h_outliers
+    }
 }
 
 /// JᵀWJ and JᵀWr of the point-to-plane residuals at `transform`, with
