@@ -149,8 +149,13 @@ fn in_key_range(scaled: f64) -> bool {
 /// (|scaled| ≤ 2^15 there), which vectorises.
 #[inline(always)]
 fn key_in_range(scaled: f64) -> u16 {
-    let toward_zero = scaled as i32;
-    let floor = toward_zero - i32::from(toward_zero as f64 > scaled);
+    // Clamped (a NaN to the low end) so that the truncation below is defined for any
+    // input; within the key range it changes nothing.
+    let clamped = scaled.max(-(TREE_MAX_VAL as f64)).min(TREE_MAX_VAL as f64);
+    // SAFETY: `clamped` is finite and within ±2^15, so its truncation fits an i32.
+    // (A checked `as` cast here keeps insertion's key pass from vectorising.)
+    let toward_zero: i32 = unsafe { clamped.to_int_unchecked() };
+    let floor = toward_zero - i32::from(toward_zero as f64 > clamped);
     (floor + TREE_MAX_VAL) as u16
 }
 
@@ -402,6 +407,18 @@ mod tests {
                 c.coord_to_key_checked_f64(*p),
                 "{p:?}"
             );
+            // Insertion's keys, of the point as OctoMap's float point.
+            let p32 = p.map(|x| x as f32);
+            if c.has_key(p32) {
+                let key32 =
+                    p32.map(|x| ((c.resolution_factor * f64::from(x)).floor() + 32768.0) as u16);
+                assert_eq!(c.key_of_checked_point(p32), OcTreeKey(key32), "{p:?}");
+            }
+        }
+        // Defined for points without a key too (its truncation is clamped), if meaningless.
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e30, -1e30] {
+            assert!(!c.has_key([bad, 0.0, 0.0]));
+            let _ = c.key_of_checked_point([bad, bad, 0.0]);
         }
         // The first point without a key is named: beyond the edge, NaN, infinite.
         for bad in [1638.4, f64::NAN, f64::NEG_INFINITY, -1638.41] {
