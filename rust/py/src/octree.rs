@@ -19,6 +19,7 @@ use pyo3::types::PyType;
 
 use crate::convert::{points, rows_to_array, vec_to_array, vector3};
 use crate::errors::IntoPyResult;
+use crate::interrupt::detach_interruptible;
 
 type Voxels<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>);
 /// Centres, sizes and a float32 value per voxel.
@@ -205,6 +206,20 @@ impl PyOcTree {
         })
     }
 
+    /// Same, for a call that asks `stop` between bounded steps (Ctrl-C stops it: the
+    /// signal handler's exception is returned instead of the call's result).
+    fn with_write_interruptible<R: Send>(
+        &self,
+        py: Python<'_>,
+        f: impl FnOnce(&mut OcTree, &mut earcore_core::threads::Interrupt<'_>) -> R + Send,
+    ) -> PyResult<R> {
+        detach_interruptible(py, |stop| {
+            let mut tree = self.inner.write();
+            self.revision.fetch_add(1, Ordering::Relaxed);
+            f(&mut tree, stop)
+        })
+    }
+
     /// (tree id, revision): changes whenever the tree's contents may have changed.
     pub(crate) fn version(&self) -> (u64, u64) {
         (self.uid, self.revision.load(Ordering::Relaxed))
@@ -330,7 +345,8 @@ impl PyOcTree {
     /// Cells along a ray become more likely free, end cells more likely occupied (and
     /// dangerous); rays longer than `max_range` are cut there and mark no hit;
     /// `discretize` merges points that fall in the same cell. Invalid input raises
-    /// before anything changes.
+    /// before anything changes; Ctrl-C stops a long insertion while its rays are
+    /// traced, the map unchanged.
     #[pyo3(signature = (points, sensor_origin, max_range=None, discretize=false))]
     fn insert_point_cloud(
         &self,
@@ -344,11 +360,11 @@ impl PyOcTree {
         let origin = vector3(sensor_origin, "sensor_origin")?;
         let slice = pts.as_slice()?;
         let report = self
-            .with_write(py, |t| {
-                t.insert_point_cloud(slice, origin, max_range, discretize)
-            })
+            .with_write_interruptible(py, |t, stop| {
+                t.insert_point_cloud_interruptible(slice, origin, max_range, discretize, stop)
+            })?
             .py()?;
-        Ok(report.into())
+        interrupted_or(report)
     }
 
     /// Rays that only clear space: the cells each ray from `sensor_origin` to a point
@@ -367,9 +383,11 @@ impl PyOcTree {
         let origin = vector3(sensor_origin, "sensor_origin")?;
         let slice = pts.as_slice()?;
         let report = self
-            .with_write(py, |t| t.insert_free_rays(slice, origin, max_range))
+            .with_write_interruptible(py, |t, stop| {
+                t.insert_free_rays_interruptible(slice, origin, max_range, stop)
+            })?
             .py()?;
-        Ok(report.into())
+        interrupted_or(report)
     }
 
     /// Occupancy per point: -1 unknown, 0 free, 1 occupied (int8, shape (N,)).
@@ -972,4 +990,14 @@ fn collect_leaves(tree: &OcTree, (kmin, kmax): (OcTreeKey, OcTreeKey)) -> Vec<Le
 fn lookup(tree: &OcTree, p: [f64; 3]) -> Option<f32> {
     let key = tree.key_converter().coord_to_key_checked_f64(p)?;
     tree.search(key, 0)
+}
+
+/// An insertion's report, or `KeyboardInterrupt` when it was stopped (only ever when a
+/// signal handler raised, which `detach_interruptible` returned first).
+fn interrupted_or(report: Option<earcore_core::octree::InsertReport>) -> PyResult<PyInsertReport> {
+    report.map(Into::into).ok_or_else(|| {
+        pyo3::exceptions::PyKeyboardInterrupt::new_err(
+            "the insertion was interrupted; the map is unchanged",
+        )
+    })
 }

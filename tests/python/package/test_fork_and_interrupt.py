@@ -186,6 +186,15 @@ LONG_CALLS = {
         src = np.random.default_rng(3).uniform(-1, 1, (50_000, 3))
         call = lambda: earcore.rigid_fit_ransac(src, src + 0.1, 0.01, iterations=10**12)
         """,
+    "map insertion of a long scan": """
+        # 0.1 mm cells: each ray from the origin takes 30,000 steps (about 30 s in all).
+        octree = earcore.OcTree(1e-4)
+        blob = lambda n, seed: np.random.default_rng(seed).normal(0, 2e-4, (n, 3)) + (3.0, 0.0, 0.0)
+        octree.insert_point_cloud(blob(1000, 6), (0.0, 0.0, 0.0))
+        octree_before = pickle.dumps(octree)
+        scan = blob(4_000_000, 7)
+        call = lambda: octree.insert_point_cloud(scan, (0.0, 0.0, 0.0))
+        """,
     "outlier removal with k near N": """
         points = np.random.default_rng(4).uniform(-1, 1, (150_000, 3))
         call = lambda: earcore.remove_statistical_outliers(points, len(points) - 1)
@@ -211,6 +220,8 @@ def test_ctrl_c_stops_a_long_call(name):
         if "surface" in globals():
             after = surface.nodes()
             assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(before, after))
+        if "octree" in globals():
+            assert pickle.dumps(octree) == octree_before, "the interrupted insertion changed the map"
         small = earcore.icp_point_to_plane(corner + (0.02, 0, 0), earcore.PlaneTarget(corner, np.repeat(np.eye(3), 900, axis=0)))
         assert abs(small.transform[0, 3] + 0.02) < 1e-6, small.transform
         assert earcore.estimate_normals(corner, 10).shape == corner.shape
