@@ -71,19 +71,6 @@ impl CellBytes {
         let k = |a: usize| usize::from(key.0[a] - self.lo[a]);
         k(0) + self.dims[0] * (k(1) + self.dims[1] * k(2))
     }
-
-    /// Whether every cell a walk from `origin` to `end` can visit lies in the box: the
-    /// two end cells' box, one cell wider on every side, since rounding can carry a walk
-    /// one cell past its end on an axis but never two (the next border is a whole cell
-    /// beyond the end).
-    #[inline]
-    fn holds(&self, origin: OcTreeKey, end: OcTreeKey) -> bool {
-        (0..3).all(|a| {
-            let (o, e) = (origin.0[a], end.0[a]);
-            let (lo, hi) = (i64::from(o.min(e)) - 1, i64::from(o.max(e)) + 1);
-            lo >= i64::from(self.lo[a]) && hi < i64::from(self.lo[a]) + self.dims[a] as i64
-        })
-    }
 }
 
 /// Which batched walk a CPU runs.
@@ -163,16 +150,55 @@ impl LaneRays {
         self.len = 0;
     }
 
-    #[inline]
-    fn push(&mut self, end: Point3f, cell: i64, steps: u32, ray: u32) {
-        let j = self.len;
-        self.x[j] = end[0];
-        self.y[j] = end[1];
-        self.z[j] = end[2];
-        self.end[j] = cell;
-        self.steps[j] = i64::from(steps);
-        self.ray[j] = ray;
-        self.len += 1;
+    /// Take the rays from `origin` to `ends` whose walks stay in `cells`' box, with
+    /// their end cells and step counts; the indices of
+    /// the others go to `rest`. Rays that visit nothing (an end off the map, or in the
+    /// origin's cell) are skipped. `reset` made room for every ray.
+    fn gather(
+        &mut self,
+        origin: OcTreeKey,
+        ends: &[Point3f],
+        end_keys: &[Option<OcTreeKey>],
+        cells: &CellBytes,
+        rest: &mut Vec<usize>,
+    ) {
+        // Every cell a walk can visit lies in the box when the origin and the end each lie
+        // a cell or more inside it on every axis: rounding can carry a walk one cell past
+        // its end on an axis but never two (the next border is a whole cell beyond).
+        let lo = cells.lo.map(i32::from);
+        let dims = cells.dims.map(|d| d as i32);
+        let o = origin.0.map(i32::from);
+        let within = |k: [i32; 3]| (0..3).all(|a| k[a] > lo[a] && k[a] < lo[a] + dims[a] - 1);
+        let origin_within = within(o);
+        let [nx, ny, _] = cells.dims.map(|d| d as i64);
+        let n = ends.len().min(end_keys.len());
+        // Slices of the rays' length, so that their stores need no bounds check.
+        let (x, y, z) = (&mut self.x[..n], &mut self.y[..n], &mut self.z[..n]);
+        let (end, steps, ray) = (&mut self.end[..n], &mut self.steps[..n], &mut self.ray[..n]);
+        let mut len = 0;
+        for (i, (point, key)) in ends[..n].iter().zip(&end_keys[..n]).enumerate() {
+            let Some(key) = *key else { continue };
+            if key == origin {
+                continue;
+            }
+            let k = key.0.map(i32::from);
+            if !(origin_within && within(k)) {
+                rest.push(i);
+                continue;
+            }
+            // At most one ray per point, so `len` ≤ i < n.
+            let j = len.min(n - 1);
+            x[j] = point[0];
+            y[j] = point[1];
+            z[j] = point[2];
+            end[j] = i64::from(k[0] - lo[0])
+                + nx * (i64::from(k[1] - lo[1]) + ny * i64::from(k[2] - lo[2]));
+            // A ray reaches its end cell after one step per cell border crossed.
+            steps[j] = i64::from((k[0] - o[0]).abs() + (k[1] - o[1]).abs() + (k[2] - o[2]).abs());
+            ray[j] = i as u32;
+            len += 1;
+        }
+        self.len = len;
     }
 
     /// Idle rays (at the origin, ending on the spare byte, no steps) after the rays,
@@ -239,22 +265,7 @@ pub(crate) fn walk_rays_with(
     // number of steps, so consecutive rays walk together with little waiting.
     let mut lanes = std::mem::take(&mut cells.lanes);
     lanes.reset(ends.len());
-    for (i, (end, key)) in ends.iter().zip(end_keys).enumerate() {
-        match *key {
-            Some(key) if key != key_origin => {
-                if cells.holds(key_origin, key) {
-                    // A ray reaches its end cell after one step per cell border crossed.
-                    let steps = (0..3)
-                        .map(|a| u32::from(key_origin.0[a].abs_diff(key.0[a])))
-                        .sum();
-                    lanes.push(*end, cells.index(key) as i64, steps, i as u32);
-                } else {
-                    rest.push(i);
-                }
-            }
-            _ => {}
-        }
-    }
+    lanes.gather(key_origin, ends, end_keys, cells, &mut rest);
     if lanes.len == 0 {
         cells.lanes = lanes;
         return rest;
@@ -938,6 +949,62 @@ mod tests {
                         }
                     }
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn rays_are_walked_in_the_box_only_when_their_walk_stays_in_it() {
+        // A 6 × 5 × 4 box; origins inside it, on its faces and one cell in; ends on
+        // every key from one cell outside the box to one cell beyond it.
+        let lo = [100u16, 200, 300];
+        let dims = [6usize, 5, 4];
+        let cells = CellBytes::new(lo, dims);
+        let span = |a: usize| (lo[a] - 1)..=(lo[a] + dims[a] as u16);
+        let keys: Vec<OcTreeKey> = span(0)
+            .flat_map(|x| span(1).flat_map(move |y| span(2).map(move |z| OcTreeKey([x, y, z]))))
+            .collect();
+        // The reference: every cell of the walk's box (the two end cells', one cell wider
+        // on every side) lies in the box.
+        let holds = |o: OcTreeKey, e: OcTreeKey| {
+            (0..3).all(|a| {
+                let (least, most) = (
+                    i64::from(o.0[a].min(e.0[a])) - 1,
+                    i64::from(o.0[a].max(e.0[a])) + 1,
+                );
+                least >= i64::from(lo[a]) && most < i64::from(lo[a]) + dims[a] as i64
+            })
+        };
+        let ends: Vec<Point3f> = (0..keys.len()).map(|i| [i as f32, 0.0, 0.0]).collect();
+        let mut end_keys: Vec<Option<OcTreeKey>> = keys.iter().copied().map(Some).collect();
+        end_keys[3] = None; // off the map: skipped
+        for origin in [
+            keys[0],
+            OcTreeKey([101, 201, 301]),
+            OcTreeKey([102, 202, 301]),
+            OcTreeKey([105, 202, 302]),
+        ] {
+            let mut lanes = LaneRays::default();
+            lanes.reset(ends.len());
+            let mut rest = Vec::new();
+            lanes.gather(origin, &ends, &end_keys, &cells, &mut rest);
+            let taken: Vec<usize> = lanes.ray[..lanes.len].iter().map(|&i| i as usize).collect();
+            let want_taken: Vec<usize> = (0..keys.len())
+                .filter(|&i| end_keys[i].is_some_and(|e| e != origin && holds(origin, e)))
+                .collect();
+            let want_rest: Vec<usize> = (0..keys.len())
+                .filter(|&i| end_keys[i].is_some_and(|e| e != origin && !holds(origin, e)))
+                .collect();
+            assert_eq!(taken, want_taken, "origin {origin:?}");
+            assert_eq!(rest, want_rest, "origin {origin:?}");
+            for (j, &i) in taken.iter().enumerate() {
+                let e = keys[i];
+                assert_eq!(lanes.end[j], cells.index(e) as i64);
+                let steps: u32 = (0..3)
+                    .map(|a| u32::from(origin.0[a].abs_diff(e.0[a])))
+                    .sum();
+                assert_eq!(lanes.steps[j], i64::from(steps));
+                assert_eq!(lanes.x[j], ends[i][0]);
             }
         }
     }
