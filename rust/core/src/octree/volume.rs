@@ -245,7 +245,13 @@ impl KeyVolume {
         let mut outside = Vec::new();
         match self.dense.as_mut() {
             Some(d) => {
+                // Neighbouring points often share a cell: its bit is set once.
+                let mut last = None;
                 for key in keys {
+                    if last == Some(key) {
+                        continue;
+                    }
+                    last = Some(key);
                     match d.bit(key) {
                         Some(i) => d.occupied[i >> 6] |= 1 << (i & 63),
                         None => outside.push(key),
