@@ -9,7 +9,8 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use earcore_core::octree::{
-    DangerParams, DecayMode, FrameReport, InsertReport, Leaf, OcTree, OcTreeKey, OccupancyParams,
+    trace_scan, DangerParams, DecayMode, FrameReport, InsertReport, KeyConverter, Leaf, OcTree,
+    OcTreeKey, OccupancyParams, TracedScan,
 };
 use numpy::{PyArray1, PyArray2};
 use parking_lot::RwLock;
@@ -206,18 +207,28 @@ impl PyOcTree {
         })
     }
 
-    /// Same, for a call that asks `stop` between bounded steps (Ctrl-C stops it: the
-    /// signal handler's exception is returned instead of the call's result).
-    fn with_write_interruptible<R: Send>(
+    /// Insert a scan `trace` traces (ray casting, the long part) for this tree's key
+    /// converter: traced with no lock on the tree held (its resolution never changes),
+    /// so that the signal handlers run between rounds (Ctrl-C stops it) may use the
+    /// tree, then applied under the write lock.
+    fn insert_traced(
         &self,
         py: Python<'_>,
-        f: impl FnOnce(&mut OcTree, &mut earcore_core::threads::Interrupt<'_>) -> R + Send,
-    ) -> PyResult<R> {
-        detach_interruptible(py, |stop| {
-            let mut tree = self.inner.write();
-            self.revision.fetch_add(1, Ordering::Relaxed);
-            f(&mut tree, stop)
-        })
+        trace: impl FnOnce(
+                &KeyConverter,
+                &mut earcore_core::threads::Interrupt<'_>,
+            ) -> earcore_core::Result<Option<TracedScan>>
+            + Send,
+    ) -> PyResult<PyInsertReport> {
+        let conv = self.with_read(py, |tree| *tree.key_converter());
+        let Some(scan) = detach_interruptible(py, |stop| trace(&conv, stop))?.py()? else {
+            // Stopped only when a signal handler raised, which detach_interruptible returned.
+            return Err(pyo3::exceptions::PyKeyboardInterrupt::new_err(
+                "the insertion was interrupted; the map is unchanged",
+            ));
+        };
+        let report = self.with_write(py, |tree| tree.apply_scan(scan)).py()?;
+        Ok(report.into())
     }
 
     /// (tree id, revision): changes whenever the tree's contents may have changed.
@@ -359,12 +370,9 @@ impl PyOcTree {
         let pts = self::points(points, "points")?;
         let origin = vector3(sensor_origin, "sensor_origin")?;
         let slice = pts.as_slice()?;
-        let report = self
-            .with_write_interruptible(py, |t, stop| {
-                t.insert_point_cloud_interruptible(slice, origin, max_range, discretize, stop)
-            })?
-            .py()?;
-        interrupted_or(report)
+        self.insert_traced(py, |conv, stop| {
+            trace_scan(conv, slice, origin, max_range, discretize, true, stop)
+        })
     }
 
     /// Rays that only clear space: the cells each ray from `sensor_origin` to a point
@@ -382,12 +390,9 @@ impl PyOcTree {
         let pts = self::points(points, "points")?;
         let origin = vector3(sensor_origin, "sensor_origin")?;
         let slice = pts.as_slice()?;
-        let report = self
-            .with_write_interruptible(py, |t, stop| {
-                t.insert_free_rays_interruptible(slice, origin, max_range, stop)
-            })?
-            .py()?;
-        interrupted_or(report)
+        self.insert_traced(py, |conv, stop| {
+            trace_scan(conv, slice, origin, max_range, false, false, stop)
+        })
     }
 
     /// Occupancy per point: -1 unknown, 0 free, 1 occupied (int8, shape (N,)).
@@ -990,14 +995,4 @@ fn collect_leaves(tree: &OcTree, (kmin, kmax): (OcTreeKey, OcTreeKey)) -> Vec<Le
 fn lookup(tree: &OcTree, p: [f64; 3]) -> Option<f32> {
     let key = tree.key_converter().coord_to_key_checked_f64(p)?;
     tree.search(key, 0)
-}
-
-/// An insertion's report, or `KeyboardInterrupt` when it was stopped (only ever when a
-/// signal handler raised, which `detach_interruptible` returned first).
-fn interrupted_or(report: Option<earcore_core::octree::InsertReport>) -> PyResult<PyInsertReport> {
-    report.map(Into::into).ok_or_else(|| {
-        pyo3::exceptions::PyKeyboardInterrupt::new_err(
-            "the insertion was interrupted; the map is unchanged",
-        )
-    })
 }

@@ -161,6 +161,36 @@ def test_a_forked_child_of_a_parent_with_a_busy_thread_builds_its_own_pool():
     assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stdout + result.stderr[-3000:]
 
 
+def test_the_map_stays_usable_while_a_long_insertion_runs():
+    """An insertion traces its rays holding no lock on the map, so that another thread,
+    and a signal handler run between its rounds, can read and change the map meanwhile
+    (with the tree locked while Python ran, a getter on another thread waited for the
+    lock holding the GIL, and the insertion for the GIL: a deadlock)."""
+    script = WORK + textwrap.dedent(
+        """
+        import threading
+        octree = earcore.OcTree(1e-4)
+        scan = np.random.default_rng(7).normal(0, 2e-4, (200_000, 3)) + (3.0, 0.0, 0.0)
+        seen = []
+        signal.signal(signal.SIGUSR1, lambda *_: seen.append(octree.resolution))
+        inserting = threading.Thread(target=lambda: octree.insert_point_cloud(scan, (0.0, 0.0, 0.0)))
+        inserting.start()
+        time.sleep(0.3)
+        assert inserting.is_alive(), "the insertion ended too soon to test anything"
+        assert octree.resolution == 1e-4 and octree.prob_hit == 0.7
+        octree.danger_alpha = 0.5
+        inserting.join()
+        threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGUSR1)).start()
+        octree.insert_point_cloud(scan, (0.0, 0.0, 0.0))  # the handler runs during it
+        assert seen == [1e-4], seen
+        assert octree.danger_alpha == 0.5 and octree.occupied_voxels()[0].shape[0] > 0
+        print("ok")
+        """
+    )
+    result = run_script(script, timeout=300)
+    assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stdout + result.stderr[-3000:]
+
+
 # Each call below is sized to run for many minutes (or hours) if it is not stopped.
 LONG_CALLS = {
     "normals with k near N": """
@@ -187,7 +217,8 @@ LONG_CALLS = {
         call = lambda: earcore.rigid_fit_ransac(src, src + 0.1, 0.01, iterations=10**12)
         """,
     "map insertion of a long scan": """
-        # 0.1 mm cells: each ray from the origin takes 30,000 steps (about 30 s in all).
+        # 0.1 mm cells: each ray from the origin takes 30,000 steps (a minute in all on
+        # two cores).
         octree = earcore.OcTree(1e-4)
         blob = lambda n, seed: np.random.default_rng(seed).normal(0, 2e-4, (n, 3)) + (3.0, 0.0, 0.0)
         octree.insert_point_cloud(blob(1000, 6), (0.0, 0.0, 0.0))

@@ -193,6 +193,23 @@ impl KeyConverter {
         (self.resolution_factor * coordinate).floor() as i64 + TREE_MAX_VAL as i64
     }
 
+    /// The key of a metric point, or an error naming it (`what`) when it is not
+    /// finite or off the map.
+    pub fn checked_key(&self, what: &'static str, p: [f64; 3]) -> crate::error::Result<OcTreeKey> {
+        if !p.iter().all(|c| c.is_finite()) {
+            return Err(crate::error::Error::InvalidArgument(format!(
+                "{what} {} is not finite",
+                crate::geometry::fmt_point(&p)
+            )));
+        }
+        self.coord_to_key_checked_f64(p)
+            .ok_or(crate::error::Error::OutOfBounds {
+                what,
+                point: p,
+                limit: self.metric_limits().1,
+            })
+    }
+
     /// OctoMap's `coordToKeyChecked` for one axis.
     #[inline]
     pub fn coord_to_key_axis_checked(&self, coordinate: f64) -> Option<u16> {

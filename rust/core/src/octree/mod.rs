@@ -19,6 +19,6 @@ pub use key::{
 };
 pub use occupancy::{logodds, probability, KeyUpdate, Leaf, OcTree, OccupancyParams};
 pub use ray::{cast_ray, compute_ray_keys, walk_ray, Point3f, RayCells, RayHit};
-pub use scan::InsertReport;
+pub use scan::{trace_scan, InsertReport, TracedScan};
 pub use surface::{Descent, SurfaceMap, SurfaceNode, SurfaceParams, SurfaceSample};
 pub use volume::{DenseMarker, KeyVolume};

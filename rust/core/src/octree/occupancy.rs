@@ -721,19 +721,7 @@ impl OcTree {
 
     /// Key of a metric point, or an error naming the point when it is off the map.
     pub fn key_of(&self, what: &'static str, p: [f64; 3]) -> Result<OcTreeKey> {
-        if !p.iter().all(|c| c.is_finite()) {
-            return Err(Error::InvalidArgument(format!(
-                "{what} {} is not finite",
-                fmt_point(&p)
-            )));
-        }
-        self.conv
-            .coord_to_key_checked_f64(p)
-            .ok_or(Error::OutOfBounds {
-                what,
-                point: p,
-                limit: self.conv.metric_limits().1,
-            })
+        self.conv.checked_key(what, p)
     }
 
     /// The per-voxel danger kept alongside the occupancy.

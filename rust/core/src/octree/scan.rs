@@ -24,6 +24,48 @@ pub struct InsertReport {
     pub occupied_cells: usize,
 }
 
+/// A scan's rays traced into the cells they update (OctoMap's `computeUpdate`), for
+/// trees of one resolution: [`trace_scan`] makes it without touching a tree,
+/// [`OcTree::apply_scan`] updates a tree with it.
+pub struct TracedScan {
+    volume: KeyVolume,
+    rays: usize,
+    resolution: f64,
+}
+
+/// Trace one scan taken from `origin` (all in metres, map frame) for trees whose keys
+/// `conv` gives: every ray marks the cells it crosses free (its end cell excluded) and,
+/// with `hits`, its end cell occupied; a cell both free and occupied in one scan counts
+/// as occupied. Rays longer than `max_range` are cut there and mark no hit. With
+/// `discretize`, points falling in the same cell are merged into one ray to the cell's
+/// centre. The whole input is checked first. Asks `interrupt` on the calling thread
+/// between rounds of rays (about every tenth of a second); `Ok(None)` when it asked to
+/// stop.
+pub fn trace_scan(
+    conv: &KeyConverter,
+    points: &[[f64; 3]],
+    origin: [f64; 3],
+    max_range: Option<f64>,
+    discretize: bool,
+    hits: bool,
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Result<Option<TracedScan>> {
+    let (origin, bounds) = checked_scan(conv, points, origin, max_range)?;
+    let centres;
+    let rays = if discretize {
+        centres = discretized(conv, points);
+        &centres
+    } else {
+        points
+    };
+    let traced = trace(conv, rays, origin, bounds, max_range, hits, interrupt);
+    Ok(traced.map(|volume| TracedScan {
+        volume,
+        rays: rays.len(),
+        resolution: conv.resolution(),
+    }))
+}
+
 impl OcTree {
     /// Integrate one scan taken from `origin` (all in metres, map frame).
     ///
@@ -39,25 +81,19 @@ impl OcTree {
         max_range: Option<f64>,
         discretize: bool,
     ) -> Result<InsertReport> {
-        let report =
-            self.insert_scan(points, origin, max_range, discretize, true, &mut || false)?;
-        // Never asked to stop, so always a report.
-        report.ok_or_else(|| Error::InvalidArgument("the insertion was interrupted".into()))
-    }
-
-    /// [`insert_point_cloud`](Self::insert_point_cloud), asking `interrupt` on the calling
-    /// thread while the rays are traced (every few ten thousand rays a thread);
-    /// `Ok(None)` when it asked to stop, with the map as it was. The tree is updated
-    /// after the last question, uninterrupted.
-    pub fn insert_point_cloud_interruptible(
-        &mut self,
-        points: &[[f64; 3]],
-        origin: [f64; 3],
-        max_range: Option<f64>,
-        discretize: bool,
-        interrupt: &mut threads::Interrupt<'_>,
-    ) -> Result<Option<InsertReport>> {
-        self.insert_scan(points, origin, max_range, discretize, true, interrupt)
+        let scan = trace_scan(
+            &self.conv,
+            points,
+            origin,
+            max_range,
+            discretize,
+            true,
+            &mut || false,
+        )?;
+        // Never asked to stop, so always traced.
+        self.apply_scan(
+            scan.ok_or_else(|| Error::InvalidArgument("the scan was interrupted".into()))?,
+        )
     }
 
     /// Like `insert_point_cloud`, but the rays only clear space: every cell a ray
@@ -70,42 +106,32 @@ impl OcTree {
         origin: [f64; 3],
         max_range: Option<f64>,
     ) -> Result<InsertReport> {
-        let report = self.insert_scan(points, origin, max_range, false, false, &mut || false)?;
-        report.ok_or_else(|| Error::InvalidArgument("the insertion was interrupted".into()))
+        let scan = trace_scan(
+            &self.conv,
+            points,
+            origin,
+            max_range,
+            false,
+            false,
+            &mut || false,
+        )?;
+        self.apply_scan(
+            scan.ok_or_else(|| Error::InvalidArgument("the scan was interrupted".into()))?,
+        )
     }
 
-    /// [`insert_free_rays`](Self::insert_free_rays), interruptible as
-    /// [`insert_point_cloud_interruptible`](Self::insert_point_cloud_interruptible).
-    pub fn insert_free_rays_interruptible(
-        &mut self,
-        points: &[[f64; 3]],
-        origin: [f64; 3],
-        max_range: Option<f64>,
-        interrupt: &mut threads::Interrupt<'_>,
-    ) -> Result<Option<InsertReport>> {
-        self.insert_scan(points, origin, max_range, false, false, interrupt)
-    }
-
-    fn insert_scan(
-        &mut self,
-        points: &[[f64; 3]],
-        origin: [f64; 3],
-        max_range: Option<f64>,
-        discretize: bool,
-        hits: bool,
-        interrupt: &mut threads::Interrupt<'_>,
-    ) -> Result<Option<InsertReport>> {
-        let (origin, bounds) = self.checked_scan(points, origin, max_range)?;
-        let centres;
-        let rays = if discretize {
-            centres = self.discretized(points);
-            &centres
-        } else {
-            points
-        };
-        let Some(volume) = self.trace(rays, origin, bounds, max_range, hits, interrupt) else {
-            return Ok(None);
-        };
+    /// Update the tree with a scan [`trace_scan`] traced for its resolution: each
+    /// cell once, as `insert_point_cloud` does. Errors, leaving the tree as it was, for
+    /// a scan traced for another resolution.
+    pub fn apply_scan(&mut self, scan: TracedScan) -> Result<InsertReport> {
+        if scan.resolution.to_bits() != self.conv.resolution().to_bits() {
+            return Err(Error::InvalidArgument(format!(
+                "the scan was traced for a map of {} m cells, this map's are {} m",
+                fmt_num(scan.resolution),
+                fmt_num(self.conv.resolution())
+            )));
+        }
+        let volume = scan.volume;
         let mut updates: Vec<KeyUpdate> = Vec::with_capacity(volume.marked_bound());
         let mut hits = Vec::new();
         let (hit, miss) = (self.lo.hit, self.lo.miss);
@@ -121,157 +147,164 @@ impl OcTree {
                 .record_seen_free(|code| volume.is_free(OcTreeKey::from_morton(code)));
         }
         self.apply_sorted_updates(&updates);
-        Ok(Some(InsertReport {
-            rays: rays.len(),
+        Ok(InsertReport {
+            rays: scan.rays,
             free_cells: updates.len() - hits.len(),
             occupied_cells: hits.len(),
-        }))
+        })
     }
+}
 
-    /// Validate a scan; returns the sensor origin as OctoMap's float point and the key
-    /// box of the scan (`key_bounds`).
-    fn checked_scan(
-        &self,
-        points: &[[f64; 3]],
-        origin: [f64; 3],
-        max_range: Option<f64>,
-    ) -> Result<(Point3f, (OcTreeKey, OcTreeKey))> {
-        if let Some(r) = max_range {
-            if !(r.is_finite() && r > 0.0) {
-                return Err(Error::InvalidArgument(format!(
-                    "max_range must be a positive distance in metres, got {}",
-                    fmt_num(r)
-                )));
-            }
+/// Validate a scan; returns the sensor origin as OctoMap's float point and the key
+/// box of the scan (`key_bounds`).
+fn checked_scan(
+    conv: &KeyConverter,
+    points: &[[f64; 3]],
+    origin: [f64; 3],
+    max_range: Option<f64>,
+) -> Result<(Point3f, (OcTreeKey, OcTreeKey))> {
+    if let Some(r) = max_range {
+        if !(r.is_finite() && r > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "max_range must be a positive distance in metres, got {}",
+                fmt_num(r)
+            )));
         }
-        if points.is_empty() {
-            return Err(Error::InvalidArgument(
-                "points is empty: a scan needs at least one point (skip frames without valid depth)".into(),
+    }
+    if points.is_empty() {
+        return Err(Error::InvalidArgument(
+            "points is empty: a scan needs at least one point (skip frames without valid depth)"
+                .into(),
+        ));
+    }
+    let origin32 = to_f32(origin);
+    conv.checked_key("sensor origin", origin)?;
+    if conv.coord_to_key_checked(origin32).is_none() {
+        return Err(out_of_bounds(conv, "sensor origin", origin));
+    }
+    // One pass that vectorises (no early exit) tests every point and takes the
+    // scan's bounds; the loop below only names the first bad point.
+    let mut lo = origin32;
+    let mut hi = origin32;
+    let mut ok = true;
+    for &p in points {
+        let p = to_f32(p);
+        ok &= conv.has_key(p);
+        for a in 0..3 {
+            // Comparisons, not `f32::min`, so that the loop vectorises (a NaN
+            // fails `has_key` anyway).
+            lo[a] = if p[a] < lo[a] { p[a] } else { lo[a] };
+            hi[a] = if p[a] > hi[a] { p[a] } else { hi[a] };
+        }
+    }
+    if ok {
+        return Ok((origin32, key_bounds(conv, lo, hi)));
+    }
+    for (i, &p) in points.iter().enumerate() {
+        if !p.iter().all(|c| c.is_finite()) {
+            return Err(Error::InvalidArgument(format!(
+                "point {i} {} is not finite",
+                fmt_point(&p)
+            )));
+        }
+        if !conv.has_key(to_f32(p)) {
+            return Err(out_of_bounds(
+                conv,
+                if i == 0 { "point 0" } else { "a point" },
+                p,
             ));
         }
-        let origin32 = to_f32(origin);
-        self.key_of("sensor origin", origin)?;
-        if self.conv.coord_to_key_checked(origin32).is_none() {
-            return Err(self.out_of_bounds("sensor origin", origin));
-        }
-        // One pass that vectorises (no early exit) tests every point and takes the
-        // scan's bounds; the loop below only names the first bad point.
-        let mut lo = origin32;
-        let mut hi = origin32;
-        let mut ok = true;
-        for &p in points {
-            let p = to_f32(p);
-            ok &= self.conv.has_key(p);
-            for a in 0..3 {
-                // Comparisons, not `f32::min`, so that the loop vectorises (a NaN
-                // fails `has_key` anyway).
-                lo[a] = if p[a] < lo[a] { p[a] } else { lo[a] };
-                hi[a] = if p[a] > hi[a] { p[a] } else { hi[a] };
-            }
-        }
-        if ok {
-            return Ok((origin32, key_bounds(&self.conv, lo, hi)));
-        }
-        for (i, &p) in points.iter().enumerate() {
-            if !p.iter().all(|c| c.is_finite()) {
-                return Err(Error::InvalidArgument(format!(
-                    "point {i} {} is not finite",
-                    fmt_point(&p)
-                )));
-            }
-            if !self.conv.has_key(to_f32(p)) {
-                return Err(self.out_of_bounds(if i == 0 { "point 0" } else { "a point" }, p));
-            }
-        }
-        // Not reached: the loop repeats the batch's test point by point.
-        Err(Error::InvalidArgument("a point is outside the map".into()))
     }
+    // Not reached: the loop repeats the batch's test point by point.
+    Err(Error::InvalidArgument("a point is outside the map".into()))
+}
 
-    fn out_of_bounds(&self, what: &'static str, point: [f64; 3]) -> Error {
-        Error::OutOfBounds {
-            what,
-            point,
-            limit: self.conv.metric_limits().1,
-        }
+fn out_of_bounds(conv: &KeyConverter, what: &'static str, point: [f64; 3]) -> Error {
+    Error::OutOfBounds {
+        what,
+        point,
+        limit: conv.metric_limits().1,
     }
+}
 
-    /// OctoMap's `computeDiscreteUpdate`: one ray per distinct end cell, to its centre
-    /// (a float point, widened without loss). The cells are those of the scan, so its
-    /// key box still holds.
-    fn discretized(&self, points: &[[f64; 3]]) -> Vec<[f64; 3]> {
-        let mut codes: Vec<u64> = points
-            .iter()
-            .filter_map(|&p| self.conv.coord_to_key_checked(to_f32(p)))
-            .map(OcTreeKey::morton)
-            .collect();
-        codes.sort_unstable();
-        codes.dedup();
-        codes
-            .into_iter()
-            .map(|m| {
-                self.conv
-                    .key_to_point(OcTreeKey::from_morton(m))
-                    .map(f64::from)
-            })
-            .collect()
-    }
+/// OctoMap's `computeDiscreteUpdate`: one ray per distinct end cell, to its centre
+/// (a float point, widened without loss). The cells are those of the scan, so its
+/// key box still holds.
+fn discretized(conv: &KeyConverter, points: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let mut codes: Vec<u64> = points
+        .iter()
+        .filter_map(|&p| conv.coord_to_key_checked(to_f32(p)))
+        .map(OcTreeKey::morton)
+        .collect();
+    codes.sort_unstable();
+    codes.dedup();
+    codes
+        .into_iter()
+        .map(|m| conv.key_to_point(OcTreeKey::from_morton(m)).map(f64::from))
+        .collect()
+}
 
-    /// Mark the cells of every ray (OctoMap's `computeUpdate`), split over threads,
-    /// asking `interrupt` between rounds; `None` when it asked to stop.
-    fn trace(
-        &self,
-        points: &[[f64; 3]],
-        origin: Point3f,
-        (lo, hi): (OcTreeKey, OcTreeKey),
-        max_range: Option<f64>,
-        hits: bool,
-        interrupt: &mut threads::Interrupt<'_>,
-    ) -> Option<KeyVolume> {
-        // One volume per thread (each covers the whole scan's box, so fewer is
-        // cheaper to zero and merge); threads take interleaved chunks of the image
-        // rows, which balances long and short rays between them. A chunk's buffers
-        // (float points, keys, lanes) stay in the cache (4096 and 8192 ran alike).
-        const CHUNK: usize = 8192;
-        // Chunks a thread traces between two questions to `interrupt`: a round takes
-        // milliseconds on camera frames, about a second for 30,000-step rays (3 m at
-        // 0.1 mm cells).
-        const ROUND: usize = 8;
-        let chunks = points.len().div_ceil(CHUNK).max(1);
-        let count = threads::num_threads().clamp(1, chunks);
-        let parts: Vec<std::sync::Mutex<(KeyVolume, TraceScratch)>> = (0..count)
-            .map(|_| {
-                std::sync::Mutex::new((KeyVolume::with_bounds(lo, hi), TraceScratch::default()))
-            })
-            .collect();
-        let conv = &self.conv;
-        // Part `p` takes chunks p, p + count, p + 2 count, ..., ROUND of them a round.
-        let per_part = chunks.div_ceil(count);
-        for round in (0..per_part).step_by(ROUND) {
-            threads::map_parts(&(0..count).collect::<Vec<_>>(), |&part| {
-                // Each part's state is locked by one thread only: never contended.
-                let mut state = parts[part].lock().unwrap_or_else(|e| e.into_inner());
-                let (volume, scratch) = &mut *state;
-                for chunk in points
-                    .chunks(CHUNK)
-                    .skip(part + round * count)
-                    .step_by(count)
-                    .take(ROUND)
-                {
-                    trace_part(conv, origin, chunk, max_range, hits, volume, scratch);
-                }
-            });
-            if interrupt() {
-                return None;
+/// Seconds a round of [`trace`] aims at: how long Ctrl-C may wait, about.
+const ROUND_SECONDS: f64 = 0.1;
+
+/// Mark the cells of every ray (OctoMap's `computeUpdate`), split over threads,
+/// asking `interrupt` between rounds; `None` when it asked to stop.
+fn trace(
+    conv: &KeyConverter,
+    points: &[[f64; 3]],
+    origin: Point3f,
+    (lo, hi): (OcTreeKey, OcTreeKey),
+    max_range: Option<f64>,
+    hits: bool,
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Option<KeyVolume> {
+    // One volume per thread (each covers the whole scan's box, so fewer is
+    // cheaper to zero and merge); threads take interleaved chunks of the image
+    // rows, which balances long and short rays between them. A chunk's buffers
+    // (float points, keys, lanes) stay in the cache (4096 and 8192 ran alike).
+    const CHUNK: usize = 8192;
+    let chunks = points.len().div_ceil(CHUNK).max(1);
+    let count = threads::num_threads().clamp(1, chunks);
+    let parts: Vec<std::sync::Mutex<(KeyVolume, TraceScratch)>> = (0..count)
+        .map(|_| std::sync::Mutex::new((KeyVolume::with_bounds(lo, hi), TraceScratch::default())))
+        .collect();
+    let indices: Vec<usize> = (0..count).collect();
+    // Part `p` takes chunks p, p + count, p + 2 count, ...: `done` of them so far,
+    // `round` more in the next round. A first round of one chunk a part times the
+    // rays; the next rounds are sized to take about ROUND_SECONDS (the results do not
+    // depend on the rounds).
+    let per_part = chunks.div_ceil(count);
+    let (mut done, mut round) = (0, 1);
+    while done < per_part {
+        let start = std::time::Instant::now();
+        let take = round.min(per_part - done);
+        threads::map_parts(&indices, |&part| {
+            // Each part's state is locked by one thread only: never contended.
+            let mut state = parts[part].lock().unwrap_or_else(|e| e.into_inner());
+            let (volume, scratch) = &mut *state;
+            for chunk in points
+                .chunks(CHUNK)
+                .skip(part + done * count)
+                .step_by(count)
+                .take(take)
+            {
+                trace_part(conv, origin, chunk, max_range, hits, volume, scratch);
             }
-        }
-        let volumes = threads::map_parts(&parts, |state| {
-            let mut state = state.lock().unwrap_or_else(|e| e.into_inner());
-            let mut volume = std::mem::take(&mut state.0);
-            volume.settle();
-            volume
         });
-        volumes.into_iter().reduce(KeyVolume::merge)
+        done += take;
+        if interrupt() {
+            return None;
+        }
+        let per_chunk = start.elapsed().as_secs_f64() / take as f64;
+        round = (ROUND_SECONDS / per_chunk.max(1e-9)).clamp(1.0, per_part as f64) as usize;
     }
+    let volumes = threads::map_parts(&parts, |state| {
+        let mut state = state.lock().unwrap_or_else(|e| e.into_inner());
+        let mut volume = std::mem::take(&mut state.0);
+        volume.settle();
+        volume
+    });
+    volumes.into_iter().reduce(KeyVolume::merge)
 }
 
 /// Key box of the metric box `[lo, hi]` (which holds the origin and every point), one
@@ -390,6 +423,7 @@ fn to_f32(p: [f64; 3]) -> Point3f {
 mod tests {
     use super::*;
     use crate::synthetic::Rng;
+    use std::collections::BTreeSet;
 
     /// `n` points scattered over a box in front of the origin (0, 0, 1).
     fn scan(n: usize, seed: u64) -> Vec<[f64; 3]> {
@@ -406,49 +440,91 @@ mod tests {
     }
 
     #[test]
-    fn an_interrupted_insertion_leaves_the_map_as_it_was() {
+    fn a_scan_traced_in_rounds_is_the_scan_traced_at_once() {
         let origin = [0.0, 0.0, 1.0];
         for threads in [1, 2] {
             threads::set_local_num_threads(Some(threads));
             let mut tree = OcTree::new(0.1).unwrap();
             tree.insert_point_cloud(&scan(5_000, 1), origin, None, false)
                 .unwrap();
-            // Three rounds a thread: 8 chunks of 8192 rays each, and a few over.
-            let points = scan(threads * 2 * 8 * 8192 + 100, 2);
-            let before = tree.write_state_bytes();
+            // A few chunks of 8192 rays a thread: several rounds.
+            let points = scan(threads * 5 * 8192 + 100, 2);
+            let conv = *tree.key_converter();
+            // Stopped at the first or the second question: nothing traced is returned.
             for (hits, stop_at) in [(true, 1), (true, 2), (false, 2)] {
                 let mut asked = 0;
-                let mut stop = || {
+                let traced = trace_scan(&conv, &points, origin, None, false, hits, &mut || {
                     asked += 1;
                     asked == stop_at
-                };
-                let report = if hits {
-                    tree.insert_point_cloud_interruptible(&points, origin, None, false, &mut stop)
-                } else {
-                    tree.insert_free_rays_interruptible(&points, origin, None, &mut stop)
-                };
-                assert_eq!(report.unwrap(), None);
+                })
+                .unwrap();
+                assert!(traced.is_none());
                 assert_eq!(asked, stop_at);
-                assert!(
-                    tree.write_state_bytes() == before,
-                    "{threads} threads, stopped at {stop_at}"
-                );
             }
-            // Never stopped: asked once a round, and the same map as without asking.
+            // Never stopped: asked at least twice (the first round is a chunk a thread),
+            // and applied, the same map as the plain insertion's.
             let mut plain = tree.clone();
             let expected = plain
                 .insert_point_cloud(&points, origin, None, false)
                 .unwrap();
             let mut asked = 0;
-            let report = tree
-                .insert_point_cloud_interruptible(&points, origin, None, false, &mut || {
-                    asked += 1;
-                    false
-                })
-                .unwrap();
-            assert_eq!(report, Some(expected));
-            assert_eq!(asked, 3);
+            let traced = trace_scan(&conv, &points, origin, None, false, true, &mut || {
+                asked += 1;
+                false
+            })
+            .unwrap()
+            .unwrap();
+            assert!(asked >= 2, "{asked}");
+            // The cells are the union of the chunks' traced one by one (a chunk is a
+            // single round), a cell hit in any of them occupied.
+            let (mut occupied, mut free) = (BTreeSet::new(), BTreeSet::new());
+            for piece in points.chunks(8192) {
+                let one = trace_scan(&conv, piece, origin, None, false, true, &mut || false)
+                    .unwrap()
+                    .unwrap();
+                one.volume.for_each_sorted(|code, hit| {
+                    if hit {
+                        occupied.insert(code)
+                    } else {
+                        free.insert(code)
+                    };
+                });
+            }
+            let free: BTreeSet<u64> = free.difference(&occupied).copied().collect();
+            let (mut got_occupied, mut got_free) = (BTreeSet::new(), BTreeSet::new());
+            traced.volume.for_each_sorted(|code, hit| {
+                if hit {
+                    got_occupied.insert(code)
+                } else {
+                    got_free.insert(code)
+                };
+            });
+            assert!(
+                got_occupied == occupied && got_free == free,
+                "{threads} threads"
+            );
+            assert_eq!(tree.apply_scan(traced).unwrap(), expected);
             assert!(tree.write_state_bytes() == plain.write_state_bytes());
+            // A scan traced for another resolution is refused, the tree unchanged.
+            let other = OcTree::new(0.05).unwrap();
+            let traced = trace_scan(
+                other.key_converter(),
+                &points,
+                origin,
+                None,
+                false,
+                true,
+                &mut || false,
+            )
+            .unwrap()
+            .unwrap();
+            let before = tree.write_state_bytes();
+            let error = tree.apply_scan(traced).unwrap_err().to_string();
+            assert!(
+                error.contains("0.05 m cells") && error.contains("0.1 m"),
+                "{error}"
+            );
+            assert!(tree.write_state_bytes() == before);
             threads::set_local_num_threads(None);
         }
     }
