@@ -9,7 +9,10 @@ Scenes (each a list of scans, every scan a point cloud with its sensor origin):
   seeds, ~3 m range);
 - outdoor: a depth camera 1.6 m above open ground with boxes and spheres 2-8 m away,
   depth up to 8 m;
-- lidar: one sweep of a 64-ring lidar (1024 columns) in NOctoSLAM's 8 × 8 m room.
+- lidar: one sweep of a 64-ring lidar (1024 columns) in NOctoSLAM's 8 × 8 m room;
+- close: rooms seen from close by (a camera 0.7-1.2 m from the objects, depth up to
+  1.2-2 m, as a wrist or table-side camera sees them), three seeds: short rays, where
+  the per-ray costs weigh most.
 
 Each scan set is inserted into an empty tree by OctoMap, by earcore on one thread and
 by earcore on two; the maps must be byte-identical (.ot). The contenders take turns,
@@ -19,7 +22,7 @@ drifts in bursts that hit neighbouring runs alike). Before each insertion the pr
 result is dropped and glibc's heap consolidated, outside the clock, so that no
 contender pays for freeing another's nodes.
 
-    python benches/bench_vs_octomap.py [--repeats 15] [--scenes benchmark,cell,rooms,outdoor,lidar]
+    python benches/bench_vs_octomap.py [--repeats 15] [--scenes benchmark,cell,rooms,outdoor,lidar,close]
 """
 
 from __future__ import annotations
@@ -72,6 +75,18 @@ def rooms_scans() -> list[list[Scan]]:
     return out
 
 
+def close_scans() -> list[list[Scan]]:
+    out = []
+    for seed, distance, depth in ((11, 0.9, 1.5), (12, 1.2, 2.0), (13, 0.7, 1.2)):
+        rng = np.random.default_rng(seed)
+        spheres, boxes = random_scene(rng, n_shapes=14, extent=1.6)
+        a = rng.uniform(0, 2 * np.pi)
+        eye = np.array([distance * np.cos(a), distance * np.sin(a), rng.uniform(0.8, 1.4)])
+        pose = look_at(eye, np.array([0.0, 0.0, 0.4]))
+        out.append([(render_depth_points(pose, spheres, boxes, 0.0, max_depth=depth), eye)])
+    return out
+
+
 def outdoor_scans() -> list[list[Scan]]:
     rng = np.random.default_rng(4)
     n = 30
@@ -96,7 +111,7 @@ def lidar_scans() -> list[list[Scan]]:
     return [[(pts + pose[:3, 3], pose[:3, 3].copy())]]
 
 
-SCENES = {"benchmark": benchmark_scans, "cell": cell_scans, "rooms": rooms_scans, "outdoor": outdoor_scans, "lidar": lidar_scans}
+SCENES = {"benchmark": benchmark_scans, "cell": cell_scans, "rooms": rooms_scans, "outdoor": outdoor_scans, "lidar": lidar_scans, "close": close_scans}
 
 
 def _heap_tidy():
