@@ -131,7 +131,7 @@ pub fn icp_point_to_plane_raw(
     } else if let Ok(m) = target.cast::<PySurfaceMap>() {
         let m = m.get();
         detach_interruptible(py, |stop| {
-            icp_point_to_plane_interruptible(src, &*m.read(), &initial, params, stop)
+            icp_point_to_plane_interruptible(src, &*m.hold(), &initial, params, stop)
         })?
     } else {
         return Err(pyo3::exceptions::PyTypeError::new_err(

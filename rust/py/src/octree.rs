@@ -289,66 +289,72 @@ impl PyOcTree {
 
     /// Edge length of the finest voxels, in metres.
     #[getter]
-    fn resolution(&self) -> f64 {
-        self.inner.read().resolution()
+    fn resolution(&self, py: Python<'_>) -> f64 {
+        self.with_read(py, |tree| tree.resolution())
     }
 
     #[getter]
-    fn prob_hit(&self) -> f64 {
-        self.inner.read().params().prob_hit
+    fn prob_hit(&self, py: Python<'_>) -> f64 {
+        self.with_read(py, |tree| tree.params().prob_hit)
     }
 
     #[getter]
-    fn prob_miss(&self) -> f64 {
-        self.inner.read().params().prob_miss
+    fn prob_miss(&self, py: Python<'_>) -> f64 {
+        self.with_read(py, |tree| tree.params().prob_miss)
     }
 
     #[getter]
-    fn clamping_min(&self) -> f64 {
-        self.inner.read().params().clamping_min
+    fn clamping_min(&self, py: Python<'_>) -> f64 {
+        self.with_read(py, |tree| tree.params().clamping_min)
     }
 
     #[getter]
-    fn clamping_max(&self) -> f64 {
-        self.inner.read().params().clamping_max
+    fn clamping_max(&self, py: Python<'_>) -> f64 {
+        self.with_read(py, |tree| tree.params().clamping_max)
     }
 
     #[getter]
-    fn occupancy_threshold(&self) -> f64 {
-        self.inner.read().params().occupancy_threshold
+    fn occupancy_threshold(&self, py: Python<'_>) -> f64 {
+        self.with_read(py, |tree| tree.params().occupancy_threshold)
     }
 
     /// Decay speed α of the danger rule (Paper II, Eq. 1).
     #[getter]
-    fn get_danger_alpha(&self) -> f64 {
-        self.inner.read().danger_map().params().alpha
+    fn get_danger_alpha(&self, py: Python<'_>) -> f64 {
+        self.with_read(py, |tree| tree.danger_map().params().alpha)
     }
 
     #[setter]
-    fn set_danger_alpha(&self, alpha: f64) -> PyResult<()> {
-        let mut tree = self.inner.write();
-        let params = DangerParams {
-            alpha,
-            ..tree.danger_map().params()
-        };
-        tree.danger_map_mut().set_params(params).py()
+    fn set_danger_alpha(&self, py: Python<'_>, alpha: f64) -> PyResult<()> {
+        py.detach(|| {
+            let mut tree = self.inner.write();
+            let params = DangerParams {
+                alpha,
+                ..tree.danger_map().params()
+            };
+            tree.danger_map_mut().set_params(params)
+        })
+        .py()
     }
 
     /// 'observed' (decay only where a ray saw the voxel free) or 'always'.
     #[getter]
-    fn get_decay_mode(&self) -> &'static str {
-        mode_name(self.inner.read().danger_map().params().mode)
+    fn get_decay_mode(&self, py: Python<'_>) -> &'static str {
+        mode_name(self.with_read(py, |tree| tree.danger_map().params().mode))
     }
 
     #[setter]
-    fn set_decay_mode(&self, mode: &str) -> PyResult<()> {
+    fn set_decay_mode(&self, py: Python<'_>, mode: &str) -> PyResult<()> {
         let mode = parse_mode(mode)?;
-        let mut tree = self.inner.write();
-        let params = DangerParams {
-            mode,
-            ..tree.danger_map().params()
-        };
-        tree.danger_map_mut().set_params(params).py()
+        py.detach(|| {
+            let mut tree = self.inner.write();
+            let params = DangerParams {
+                mode,
+                ..tree.danger_map().params()
+            };
+            tree.danger_map_mut().set_params(params)
+        })
+        .py()
     }
 
     /// Integrate a scan: rays from `sensor_origin` to each point (N, 3).

@@ -22,10 +22,76 @@ pub struct PySurfaceMap {
     inner: RwLock<SurfaceMap>,
 }
 
+thread_local! {
+    /// The maps a long call on this thread (ICP) holds for reading while it runs
+    /// Python's signal handlers between iterations: a handler on this thread may read
+    /// them (recursively, past a writer waiting on another thread) but not write them.
+    static HELD: std::cell::RefCell<Vec<usize>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// A map held for reading by a long call on this thread (`PySurfaceMap::hold`).
+pub(crate) struct Held<'a> {
+    guard: parking_lot::RwLockReadGuard<'a, SurfaceMap>,
+    id: usize,
+}
+
+impl std::ops::Deref for Held<'_> {
+    type Target = SurfaceMap;
+    fn deref(&self) -> &SurfaceMap {
+        &self.guard
+    }
+}
+
+impl Drop for Held<'_> {
+    fn drop(&mut self) {
+        HELD.with(|held| {
+            let mut held = held.borrow_mut();
+            if let Some(at) = held.iter().rposition(|&id| id == self.id) {
+                held.remove(at);
+            }
+        });
+    }
+}
+
 impl PySurfaceMap {
-    /// The map under its read lock (for ICP against it).
-    pub(crate) fn read(&self) -> parking_lot::RwLockReadGuard<'_, SurfaceMap> {
-        self.inner.read()
+    fn id(&self) -> usize {
+        self as *const Self as usize
+    }
+
+    fn held_here(&self) -> bool {
+        HELD.with(|held| held.borrow().contains(&self.id()))
+    }
+
+    /// The map under its read lock for a long call on this thread that runs Python's
+    /// signal handlers (ICP against it).
+    pub(crate) fn hold(&self) -> Held<'_> {
+        let guard = self.read();
+        HELD.with(|held| held.borrow_mut().push(self.id()));
+        Held {
+            guard,
+            id: self.id(),
+        }
+    }
+
+    /// The map under its read lock: recursively where this thread already holds it.
+    fn read(&self) -> parking_lot::RwLockReadGuard<'_, SurfaceMap> {
+        if self.held_here() {
+            self.inner.read_recursive()
+        } else {
+            self.inner.read()
+        }
+    }
+
+    /// A `RuntimeError` where this thread holds the map for reading (a signal handler
+    /// run by ICP against it): its write lock would wait forever.
+    fn check_writable(&self) -> PyResult<()> {
+        if self.held_here() {
+            return Err(pyo3::exceptions::PyRuntimeError::new_err(
+                "the surface map is being read by ICP on this thread (e.g. in a signal handler it runs): \
+                 change it after the ICP returns",
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -52,8 +118,8 @@ impl PySurfaceMap {
     }
 
     #[getter]
-    fn resolution(&self) -> f64 {
-        self.inner.read().resolution()
+    fn resolution(&self, py: Python<'_>) -> f64 {
+        py.detach(|| self.read().resolution())
     }
 
     /// Insert end points (N, 3) and propagate positions and normals up the tree;
@@ -70,6 +136,7 @@ impl PySurfaceMap {
         beam_spacing: Option<f64>,
         max_leaf_size: f64,
     ) -> PyResult<usize> {
+        self.check_writable()?;
         let sensor_origin = sensor_origin
             .map(|o| crate::convert::vector3(o, "sensor_origin"))
             .transpose()?;
@@ -78,9 +145,7 @@ impl PySurfaceMap {
         py.detach(|| {
             let depths = match (sensor_origin, beam_spacing) {
                 (None, None) => None,
-                (Some(o), Some(b)) => {
-                    Some(self.inner.read().leaf_depths(slice, o, b, max_leaf_size)?)
-                }
+                (Some(o), Some(b)) => Some(self.read().leaf_depths(slice, o, b, max_leaf_size)?),
                 _ => {
                     return Err(earcore_core::Error::InvalidArgument(
                         "dynamic leaf depth needs both sensor_origin and beam_spacing".into(),
@@ -110,7 +175,7 @@ impl PySurfaceMap {
             ));
         }
         let (p, n, d) = py.detach(|| {
-            let map = self.inner.read();
+            let map = self.read();
             let (mut p, mut n, mut d) = (Vec::new(), Vec::new(), Vec::new());
             map.for_each_node(depth, |s| {
                 if leaves_only && !s.leaf {
@@ -144,7 +209,7 @@ impl PySurfaceMap {
         let pts = self::points(points, "points")?;
         let slice = pts.as_slice()?;
         let (p, n, d) = py.detach(|| {
-            let map = self.inner.read();
+            let map = self.read();
             let mut cursor = earcore_core::octree::Descent::default();
             let (mut p, mut n, mut d) = (Vec::new(), Vec::new(), Vec::new());
             for &q in slice {
@@ -171,16 +236,16 @@ impl PySurfaceMap {
     }
 
     /// Number of nodes.
-    fn size(&self) -> usize {
-        self.inner.read().size()
+    fn size(&self, py: Python<'_>) -> usize {
+        py.detach(|| self.read().size())
     }
 
-    fn __len__(&self) -> usize {
-        self.size()
+    fn __len__(&self, py: Python<'_>) -> usize {
+        self.size(py)
     }
 
-    fn memory_usage(&self) -> usize {
-        self.inner.read().memory_usage()
+    fn memory_usage(&self, py: Python<'_>) -> usize {
+        py.detach(|| self.read().memory_usage())
     }
 
     /// A surface map has no file format to pickle through; say so rather than fail
@@ -192,12 +257,14 @@ impl PySurfaceMap {
         ))
     }
 
-    fn __repr__(&self) -> String {
-        let map = self.inner.read();
-        format!(
-            "SurfaceMap(resolution={}, nodes={})",
-            map.resolution(),
-            map.size()
-        )
+    fn __repr__(&self, py: Python<'_>) -> String {
+        py.detach(|| {
+            let map = self.read();
+            format!(
+                "SurfaceMap(resolution={}, nodes={})",
+                map.resolution(),
+                map.size()
+            )
+        })
     }
 }

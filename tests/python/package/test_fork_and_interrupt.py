@@ -191,6 +191,53 @@ def test_the_map_stays_usable_while_a_long_insertion_runs():
     assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stdout + result.stderr[-3000:]
 
 
+def test_a_surface_map_stays_usable_during_icp_against_it():
+    """ICP against a SurfaceMap holds it for reading while Python's signal handlers run
+    between iterations: another thread's getter must not wait for the lock holding the
+    GIL (it deadlocked with a writer queued), a handler may read the map, and a handler
+    that writes it gets a RuntimeError instead of waiting on its own thread forever."""
+    script = WORK + textwrap.dedent(
+        """
+        import threading
+        surface = earcore.SurfaceMap(0.02)
+        surface.insert(corner)
+        surface.insert(corner)
+        source = np.repeat(corner, 20, axis=0) + np.random.default_rng(2).normal(0, 0.003, (54_000, 3))
+        long_icp = lambda n: earcore.icp_point_to_plane(source, surface, max_iterations=n, sigma_tolerance=0.0)
+
+        # A writer queued behind the ICP, then a getter on the main thread.
+        aligning = threading.Thread(target=lambda: long_icp(300))
+        aligning.start()
+        time.sleep(0.3)
+        writing = threading.Thread(target=lambda: surface.insert(corner))
+        writing.start()
+        time.sleep(0.05)
+        assert surface.resolution == 0.02
+        aligning.join()
+        writing.join()
+
+        # Signal handlers run by ICP on this thread: reading works, writing is refused.
+        sizes = []
+        def handler(*_):
+            sizes.append(surface.size())
+            surface.insert(corner)
+        signal.signal(signal.SIGUSR1, handler)
+        threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGUSR1)).start()
+        try:
+            long_icp(10**9)
+        except RuntimeError as e:
+            assert "being read by ICP on this thread" in str(e), e
+        else:
+            sys.exit("the ICP ended without the handler's error")
+        assert len(sizes) == 1 and sizes[0] == surface.size()
+        surface.insert(corner)  # after the ICP: allowed again
+        print("ok")
+        """
+    )
+    result = run_script(script, timeout=300)
+    assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stdout + result.stderr[-3000:]
+
+
 # Each call below is sized to run for many minutes (or hours) if it is not stopped.
 LONG_CALLS = {
     "normals with k near N": """
