@@ -778,7 +778,8 @@ impl PyOcTree {
         self.with_read(py, |t| t.memory_usage())
     }
 
-    /// Forget everything (occupancy and danger).
+    /// Forget every voxel's occupancy and danger; the sensor model, `danger_alpha` and
+    /// `decay_mode` stay.
     fn clear(&self, py: Python<'_>) {
         self.with_write(py, |t| t.clear())
     }

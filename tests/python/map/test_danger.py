@@ -170,3 +170,32 @@ def test_free_rays_clear_space_without_hits():
     tree.insert_free_rays(behind[None], origin)
     tree.end_frame(1 / 15)
     assert 0 < tree.danger(blob)[0] < 0.999
+
+
+def test_clear_forgets_the_danger_but_keeps_its_parameters():
+    """After `clear` a map behaves as a fresh one with the same sensor model and danger
+    parameters (`danger_alpha`, `decay_mode` set by the user stay)."""
+    rng = np.random.default_rng(4)
+    origin = np.array([0.0, 0.0, 1.5])
+    scans = [rng.uniform([-1, -1, 0], [1, 1, 0.3], (500, 3)) for _ in range(3)]
+
+    def configured():
+        tree = earcore.OcTree(0.05, prob_hit=0.8)
+        tree.danger_alpha, tree.decay_mode = 0.9, "always"
+        return tree
+
+    used = configured()
+    for scan in scans:
+        used.insert_point_cloud(scan, origin)
+        used.end_frame(0.5)
+    used.clear()
+    assert used.size() == 0 and len(used.danger_voxels()[0]) == 0 and len(used.current_obstacles()[0]) == 0
+    assert (used.danger_alpha, used.decay_mode, used.prob_hit) == (0.9, "always", 0.8)
+    fresh = configured()
+    for tree in (used, fresh):
+        tree.insert_point_cloud(scans[0], origin)
+        tree.end_frame(0.5)
+        tree.insert_point_cloud(scans[1][:100], origin)
+        tree.end_frame(2.0)
+    a, b = used.danger_voxels(), fresh.danger_voxels()
+    assert all(np.array_equal(x, y) for x, y in zip(a, b)) and len(a[0]) > 0

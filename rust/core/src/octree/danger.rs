@@ -96,6 +96,14 @@ impl DangerMap {
         Ok(())
     }
 
+    /// Forget every cell's danger and the open frame; the parameters stay.
+    pub fn clear(&mut self) {
+        *self = DangerMap {
+            params: self.params,
+            ..DangerMap::default()
+        };
+    }
+
     /// Mark cells as hit in the current frame (their danger becomes 0.999 at once).
     pub fn record_hits(&mut self, cells: impl IntoIterator<Item = u64>) {
         for m in cells {

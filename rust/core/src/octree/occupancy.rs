@@ -207,11 +207,12 @@ impl OcTree {
         self.arena.len()
     }
 
-    /// Remove every node and all danger.
+    /// Remove every node and all danger; the sensor model and the danger's parameters
+    /// stay.
     pub fn clear(&mut self) {
         self.arena.clear();
         self.root = NONE;
-        self.danger = DangerMap::default();
+        self.danger.clear();
     }
 
     /// Bytes held by the tree (nodes, child blocks, danger map), spare capacity included.
