@@ -194,8 +194,9 @@ def test_the_map_stays_usable_while_a_long_insertion_runs():
 def test_a_surface_map_stays_usable_during_icp_against_it():
     """ICP against a SurfaceMap holds it for reading while Python's signal handlers run
     between iterations: another thread's getter must not wait for the lock holding the
-    GIL (it deadlocked with a writer queued), a handler may read the map, and a handler
-    that writes it gets a RuntimeError instead of waiting on its own thread forever."""
+    GIL (it deadlocked with a writer queued), a handler may read the map past a queued
+    writer, and a handler that writes it gets a RuntimeError instead of waiting on its
+    own thread forever."""
     script = WORK + textwrap.dedent(
         """
         import threading
@@ -203,33 +204,48 @@ def test_a_surface_map_stays_usable_during_icp_against_it():
         surface.insert(corner)
         surface.insert(corner)
         source = np.repeat(corner, 20, axis=0) + np.random.default_rng(2).normal(0, 0.003, (54_000, 3))
-        long_icp = lambda n: earcore.icp_point_to_plane(source, surface, max_iterations=n, sigma_tolerance=0.0)
+        # Runs until interrupted.
+        long_icp = lambda: earcore.icp_point_to_plane(source, surface, max_iterations=10**12, sigma_tolerance=0.0)
+        queue_writer = lambda: threading.Thread(target=lambda: (time.sleep(0.2), surface.insert(corner)))
 
-        # A writer queued behind the ICP, then a getter on the main thread.
-        aligning = threading.Thread(target=lambda: long_icp(300))
-        aligning.start()
-        time.sleep(0.3)
-        writing = threading.Thread(target=lambda: surface.insert(corner))
-        writing.start()
-        time.sleep(0.05)
-        assert surface.resolution == 0.02
-        aligning.join()
-        writing.join()
+        # A writer queued behind the ICP, then a getter on another thread (which waits for
+        # the writer), then Ctrl-C, which the ICP must still be able to take.
+        got = []
+        def getter():
+            time.sleep(0.5)
+            got.append(surface.resolution)
+        threads = [queue_writer(), threading.Thread(target=getter)]
+        for t in threads:
+            t.start()
+        threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        try:
+            long_icp()
+        except KeyboardInterrupt:
+            pass
+        else:
+            sys.exit("the ICP ended without the interrupt")
+        for t in threads:
+            t.join()
+        assert got == [0.02], got
 
-        # Signal handlers run by ICP on this thread: reading works, writing is refused.
+        # Signal handlers run by ICP on this thread, a writer queued on another: reading
+        # works, writing is refused.
         sizes = []
         def handler(*_):
             sizes.append(surface.size())
             surface.insert(corner)
         signal.signal(signal.SIGUSR1, handler)
+        writer = queue_writer()
+        writer.start()
         threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGUSR1)).start()
         try:
-            long_icp(10**9)
+            long_icp()
         except RuntimeError as e:
             assert "being read by ICP on this thread" in str(e), e
         else:
             sys.exit("the ICP ended without the handler's error")
-        assert len(sizes) == 1 and sizes[0] == surface.size()
+        writer.join()
+        assert len(sizes) == 1 and sizes[0] > 0
         surface.insert(corner)  # after the ICP: allowed again
         print("ok")
         """

@@ -50,6 +50,39 @@ pub fn trace_scan(
     hits: bool,
     interrupt: &mut threads::Interrupt<'_>,
 ) -> Result<Option<TracedScan>> {
+    let scan = Scan {
+        points,
+        origin,
+        max_range,
+        discretize,
+        hits,
+    };
+    trace_scan_in_rounds(conv, scan, ROUND, interrupt)
+}
+
+/// A scan to trace: [`trace_scan`]'s arguments.
+#[derive(Clone, Copy)]
+struct Scan<'a> {
+    points: &'a [[f64; 3]],
+    origin: [f64; 3],
+    max_range: Option<f64>,
+    discretize: bool,
+    hits: bool,
+}
+
+/// [`trace_scan`] with rounds of `round`.
+fn trace_scan_in_rounds(
+    conv: &KeyConverter,
+    Scan {
+        points,
+        origin,
+        max_range,
+        discretize,
+        hits,
+    }: Scan<'_>,
+    round: std::time::Duration,
+    interrupt: &mut threads::Interrupt<'_>,
+) -> Result<Option<TracedScan>> {
     let (origin, bounds) = checked_scan(conv, points, origin, max_range)?;
     let centres;
     let rays = if discretize {
@@ -58,7 +91,9 @@ pub fn trace_scan(
     } else {
         points
     };
-    let traced = trace(conv, rays, origin, bounds, max_range, hits, interrupt);
+    let traced = trace(
+        conv, rays, origin, bounds, max_range, hits, round, interrupt,
+    );
     Ok(traced.map(|volume| TracedScan {
         volume,
         rays: rays.len(),
@@ -244,11 +279,26 @@ fn discretized(conv: &KeyConverter, points: &[[f64; 3]]) -> Vec<[f64; 3]> {
         .collect()
 }
 
-/// Seconds a round of [`trace`] aims at: how long Ctrl-C may wait, about.
-const ROUND_SECONDS: f64 = 0.1;
+/// How long a round of [`trace_scan`] runs before `interrupt` is asked, give or take
+/// one chunk of rays a thread.
+const ROUND: std::time::Duration = std::time::Duration::from_millis(100);
+
+/// Rays per chunk: a chunk's buffers (float points, keys, lanes) stay in the cache
+/// (4096 and 8192 ran alike).
+const CHUNK: usize = 8192;
+
+/// What one thread's share of a scan has traced so far.
+struct TracePart {
+    volume: KeyVolume,
+    scratch: TraceScratch,
+    /// Its chunks traced (the part's `k`-th chunk is the scan's `part + k × parts`).
+    done: usize,
+}
 
 /// Mark the cells of every ray (OctoMap's `computeUpdate`), split over threads,
-/// asking `interrupt` between rounds; `None` when it asked to stop.
+/// asking `interrupt` between rounds of `round` (give or take a chunk); `None` when it
+/// asked to stop.
+#[allow(clippy::too_many_arguments)]
 fn trace(
     conv: &KeyConverter,
     points: &[[f64; 3]],
@@ -256,52 +306,61 @@ fn trace(
     (lo, hi): (OcTreeKey, OcTreeKey),
     max_range: Option<f64>,
     hits: bool,
+    round: std::time::Duration,
     interrupt: &mut threads::Interrupt<'_>,
 ) -> Option<KeyVolume> {
-    // One volume per thread (each covers the whole scan's box, so fewer is
-    // cheaper to zero and merge); threads take interleaved chunks of the image
-    // rows, which balances long and short rays between them. A chunk's buffers
-    // (float points, keys, lanes) stay in the cache (4096 and 8192 ran alike).
-    const CHUNK: usize = 8192;
-    let chunks = points.len().div_ceil(CHUNK).max(1);
-    let count = threads::num_threads().clamp(1, chunks);
-    let parts: Vec<std::sync::Mutex<(KeyVolume, TraceScratch)>> = (0..count)
-        .map(|_| std::sync::Mutex::new((KeyVolume::with_bounds(lo, hi), TraceScratch::default())))
+    // One volume per thread (each covers the whole scan's box, so fewer is cheaper to
+    // zero and merge); threads take interleaved chunks of the image rows, which
+    // balances long and short rays between them. In a round each thread traces its
+    // next chunks until `round` has passed; camera frames take one. Which thread
+    // traces a chunk never changes, and the volumes are merged in order: the results
+    // do not depend on the rounds.
+    let chunks: Vec<&[[f64; 3]]> = points.chunks(CHUNK).collect();
+    let count = threads::num_threads().clamp(1, chunks.len().max(1));
+    let parts: Vec<std::sync::Mutex<TracePart>> = (0..count)
+        .map(|_| {
+            std::sync::Mutex::new(TracePart {
+                volume: KeyVolume::with_bounds(lo, hi),
+                scratch: TraceScratch::default(),
+                done: 0,
+            })
+        })
         .collect();
     let indices: Vec<usize> = (0..count).collect();
-    // Part `p` takes chunks p, p + count, p + 2 count, ...: `done` of them so far,
-    // `round` more in the next round. A first round of one chunk a part times the
-    // rays; each next round is sized from the last to take about ROUND_SECONDS, at
-    // most four times as many chunks (cheap chunks, e.g. rays cut short, must not
-    // size a round of long ones). The results do not depend on the rounds.
-    let per_part = chunks.div_ceil(count);
-    let (mut done, mut round) = (0, 1);
-    while done < per_part {
+    let left = |part: usize, done: usize| part + done * count < chunks.len();
+    loop {
         let start = std::time::Instant::now();
-        let take = round.min(per_part - done);
         threads::map_parts(&indices, |&part| {
             // Each part's state is locked by one thread only: never contended.
             let mut state = parts[part].lock().unwrap_or_else(|e| e.into_inner());
-            let (volume, scratch) = &mut *state;
-            for chunk in points
-                .chunks(CHUNK)
-                .skip(part + done * count)
-                .step_by(count)
-                .take(take)
-            {
+            let TracePart {
+                volume,
+                scratch,
+                done,
+            } = &mut *state;
+            while left(part, *done) {
+                let chunk = chunks[part + *done * count];
                 trace_part(conv, origin, chunk, max_range, hits, volume, scratch);
+                *done += 1;
+                if start.elapsed() >= round {
+                    break;
+                }
             }
         });
-        done += take;
+        let finished = parts.iter().enumerate().all(|(part, state)| {
+            let state = state.lock().unwrap_or_else(|e| e.into_inner());
+            !left(part, state.done)
+        });
+        if finished {
+            break;
+        }
         if interrupt() {
             return None;
         }
-        let per_chunk = start.elapsed().as_secs_f64() / take as f64;
-        round = (ROUND_SECONDS / per_chunk.max(1e-9)).clamp(1.0, (4 * take) as f64) as usize;
     }
     let volumes = threads::map_parts(&parts, |state| {
         let mut state = state.lock().unwrap_or_else(|e| e.into_inner());
-        let mut volume = std::mem::take(&mut state.0);
+        let mut volume = std::mem::take(&mut state.volume);
         volume.settle();
         volume
     });
@@ -443,42 +502,53 @@ mod tests {
     #[test]
     fn a_scan_traced_in_rounds_is_the_scan_traced_at_once() {
         let origin = [0.0, 0.0, 1.0];
+        // Rounds of no time: each thread traces one chunk a round.
+        let in_rounds = |conv: &KeyConverter,
+                         points: &[[f64; 3]],
+                         hits: bool,
+                         stop: &mut threads::Interrupt<'_>| {
+            let scan = Scan {
+                points,
+                origin,
+                max_range: None,
+                discretize: false,
+                hits,
+            };
+            trace_scan_in_rounds(conv, scan, std::time::Duration::ZERO, stop).unwrap()
+        };
         for threads in [1, 2] {
             threads::set_local_num_threads(Some(threads));
             let mut tree = OcTree::new(0.1).unwrap();
             tree.insert_point_cloud(&scan(5_000, 1), origin, None, false)
                 .unwrap();
-            // 22 chunks of 8192 rays a thread: rounds of 1, at most 4 and at most 16 chunks
-            // leave some for a fourth.
-            let points = scan(threads * 21 * 8192 + 100, 2);
+            // 5 chunks of 8192 rays a thread and one more: 6 rounds, asked after 5.
+            let points = scan(threads * 5 * 8192 + 100, 2);
             let conv = *tree.key_converter();
             // Stopped at the first or the second question: nothing traced is returned.
             for (hits, stop_at) in [(true, 1), (true, 2), (false, 2)] {
                 let mut asked = 0;
-                let traced = trace_scan(&conv, &points, origin, None, false, hits, &mut || {
+                let traced = in_rounds(&conv, &points, hits, &mut || {
                     asked += 1;
                     asked == stop_at
-                })
-                .unwrap();
+                });
                 assert!(traced.is_none());
                 assert_eq!(asked, stop_at);
             }
-            // Never stopped: asked once a round, and applied, the same map as the plain
-            // insertion's.
+            // Never stopped: asked after every round but the last, and applied, the same
+            // map as the plain insertion's.
             let mut plain = tree.clone();
             let expected = plain
                 .insert_point_cloud(&points, origin, None, false)
                 .unwrap();
             let mut asked = 0;
-            let traced = trace_scan(&conv, &points, origin, None, false, true, &mut || {
+            let traced = in_rounds(&conv, &points, true, &mut || {
                 asked += 1;
                 false
             })
-            .unwrap()
             .unwrap();
-            assert!(asked >= 4, "{asked}");
-            // The cells are the union of the chunks' traced one by one (a chunk is a
-            // single round), a cell hit in any of them occupied.
+            assert_eq!(asked, 5);
+            // The cells are the union of the chunks' traced one by one (a cell hit in any
+            // of them occupied).
             let (mut occupied, mut free) = (BTreeSet::new(), BTreeSet::new());
             for piece in points.chunks(8192) {
                 let one = trace_scan(&conv, piece, origin, None, false, true, &mut || false)
