@@ -231,6 +231,21 @@ impl PyOcTree {
         Ok(report.into())
     }
 
+    /// Replace the danger's parameters by `change` of them (the map's contents stay, so
+    /// the revision does too).
+    fn change_danger_params(
+        &self,
+        py: Python<'_>,
+        change: impl FnOnce(DangerParams) -> DangerParams + Send,
+    ) -> PyResult<()> {
+        py.detach(|| {
+            let mut tree = self.inner.write();
+            let params = change(tree.danger_map().params());
+            tree.danger_map_mut().set_params(params)
+        })
+        .py()
+    }
+
     /// (tree id, revision): changes whenever the tree's contents may have changed.
     pub(crate) fn version(&self) -> (u64, u64) {
         (self.uid, self.revision.load(Ordering::Relaxed))
@@ -326,15 +341,7 @@ impl PyOcTree {
 
     #[setter]
     fn set_danger_alpha(&self, py: Python<'_>, alpha: f64) -> PyResult<()> {
-        py.detach(|| {
-            let mut tree = self.inner.write();
-            let params = DangerParams {
-                alpha,
-                ..tree.danger_map().params()
-            };
-            tree.danger_map_mut().set_params(params)
-        })
-        .py()
+        self.change_danger_params(py, |p| DangerParams { alpha, ..p })
     }
 
     /// 'observed' (decay only where a ray saw the voxel free) or 'always'.
@@ -346,15 +353,7 @@ impl PyOcTree {
     #[setter]
     fn set_decay_mode(&self, py: Python<'_>, mode: &str) -> PyResult<()> {
         let mode = parse_mode(mode)?;
-        py.detach(|| {
-            let mut tree = self.inner.write();
-            let params = DangerParams {
-                mode,
-                ..tree.danger_map().params()
-            };
-            tree.danger_map_mut().set_params(params)
-        })
-        .py()
+        self.change_danger_params(py, |p| DangerParams { mode, ..p })
     }
 
     /// Integrate a scan: rays from `sensor_origin` to each point (N, 3).
