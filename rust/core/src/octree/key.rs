@@ -203,11 +203,16 @@ impl KeyConverter {
             )));
         }
         self.coord_to_key_checked_f64(p)
-            .ok_or(crate::error::Error::OutOfBounds {
-                what,
-                point: p,
-                limit: self.metric_limits().1,
-            })
+            .ok_or_else(|| self.out_of_bounds(what, p))
+    }
+
+    /// The error for `point` (named `what`) off the map.
+    pub fn out_of_bounds(&self, what: &'static str, point: [f64; 3]) -> crate::error::Error {
+        crate::error::Error::OutOfBounds {
+            what,
+            point,
+            limit: self.metric_limits().1,
+        }
     }
 
     /// OctoMap's `coordToKeyChecked` for one axis.

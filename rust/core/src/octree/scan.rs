@@ -116,19 +116,13 @@ impl OcTree {
         max_range: Option<f64>,
         discretize: bool,
     ) -> Result<InsertReport> {
-        let scan = trace_scan(
-            &self.conv,
+        self.insert_whole(Scan {
             points,
             origin,
             max_range,
             discretize,
-            true,
-            &mut || false,
-        )?;
-        // Never asked to stop, so always traced.
-        self.apply_scan(
-            scan.ok_or_else(|| Error::InvalidArgument("the scan was interrupted".into()))?,
-        )
+            hits: true,
+        })
     }
 
     /// Like `insert_point_cloud`, but the rays only clear space: every cell a ray
@@ -141,17 +135,21 @@ impl OcTree {
         origin: [f64; 3],
         max_range: Option<f64>,
     ) -> Result<InsertReport> {
-        let scan = trace_scan(
-            &self.conv,
+        self.insert_whole(Scan {
             points,
             origin,
             max_range,
-            false,
-            false,
-            &mut || false,
-        )?;
+            discretize: false,
+            hits: false,
+        })
+    }
+
+    /// Trace `scan` with no one to stop it and apply it.
+    fn insert_whole(&mut self, scan: Scan<'_>) -> Result<InsertReport> {
+        let traced = trace_scan_in_rounds(&self.conv, scan, ROUND, &mut || false)?;
+        // Never asked to stop, so always traced.
         self.apply_scan(
-            scan.ok_or_else(|| Error::InvalidArgument("the scan was interrupted".into()))?,
+            traced.ok_or_else(|| Error::InvalidArgument("the scan was interrupted".into()))?,
         )
     }
 
@@ -215,7 +213,7 @@ fn checked_scan(
     let origin32 = to_f32(origin);
     conv.checked_key("sensor origin", origin)?;
     if conv.coord_to_key_checked(origin32).is_none() {
-        return Err(out_of_bounds(conv, "sensor origin", origin));
+        return Err(conv.out_of_bounds("sensor origin", origin));
     }
     // One pass that vectorises (no early exit) tests every point and takes the
     // scan's bounds; the loop below only names the first bad point.
@@ -243,23 +241,11 @@ fn checked_scan(
             )));
         }
         if !conv.has_key(to_f32(p)) {
-            return Err(out_of_bounds(
-                conv,
-                if i == 0 { "point 0" } else { "a point" },
-                p,
-            ));
+            return Err(conv.out_of_bounds(if i == 0 { "point 0" } else { "a point" }, p));
         }
     }
     // Not reached: the loop repeats the batch's test point by point.
     Err(Error::InvalidArgument("a point is outside the map".into()))
-}
-
-fn out_of_bounds(conv: &KeyConverter, what: &'static str, point: [f64; 3]) -> Error {
-    Error::OutOfBounds {
-        what,
-        point,
-        limit: conv.metric_limits().1,
-    }
 }
 
 /// OctoMap's `computeDiscreteUpdate`: one ray per distinct end cell, to its centre
