@@ -365,9 +365,47 @@ def _primitive_vertices(geometry: ET.Element, what: str) -> np.ndarray:
         return np.concatenate([np.column_stack([circle, np.full(len(ring), z)]) for z in (-ends[0], ends[0])])
     if shape.tag == "sphere":
         (r,) = _sizes(shape.get("radius"), 1, f"{what} sphere radius")
-        # The six axis points: their smallest enclosing capsule is the sphere itself.
-        return r * np.vstack([np.eye(3), -np.eye(3)])
+        return r * _UNIT_SPHERE_HULL
     raise UrdfError(f"{what}: unsupported geometry <{shape.tag}>")
+
+
+def _sphere_hull(splits: int = 3) -> np.ndarray:
+    """Vertices of a polyhedron that encloses the unit sphere: an icosahedron with each
+    face split in four `splits` times, pushed out until its nearest face plane touches
+    the sphere, so that any body enclosing the vertices encloses the sphere in any pose
+    and beside other geometry (the six axis points do only alone)."""
+    g = (1 + 5**0.5) / 2
+    vertices = [np.array(v, float) for v in [(-1, g, 0), (1, g, 0), (-1, -g, 0), (1, -g, 0), (0, -1, g), (0, 1, g),
+                                             (0, -1, -g), (0, 1, -g), (g, 0, -1), (g, 0, 1), (-g, 0, -1), (-g, 0, 1)]]
+    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6),
+             (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
+             (8, 6, 7), (9, 8, 1)]
+    vertices = [v / np.linalg.norm(v) for v in vertices]
+    for _ in range(splits):
+        middle: dict[tuple[int, int], int] = {}
+
+        def between(a: int, b: int) -> int:
+            key = (min(a, b), max(a, b))
+            if key not in middle:
+                m = vertices[a] + vertices[b]
+                vertices.append(m / np.linalg.norm(m))
+                middle[key] = len(vertices) - 1
+            return middle[key]
+
+        split = []
+        for a, b, c in faces:
+            ab, bc, ca = between(a, b), between(b, c), between(c, a)
+            split += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        faces = split
+    points = np.array(vertices)
+    # The distance from the centre to each face's plane; the nearest sets the push.
+    normals = np.cross(points[[f[1] for f in faces]] - points[[f[0] for f in faces]],
+                       points[[f[2] for f in faces]] - points[[f[0] for f in faces]])
+    inradius = np.min(np.abs(np.sum(normals * points[[f[0] for f in faces]], axis=1)) / np.linalg.norm(normals, axis=1))
+    return points / inradius
+
+
+_UNIT_SPHERE_HULL = _sphere_hull()
 
 
 def parse_urdf(path: str | Path, *, geometry: str = "collision") -> UrdfRobot:

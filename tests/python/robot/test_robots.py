@@ -8,6 +8,7 @@ import pytest
 
 import earcore
 import earcore.robots as robots
+import earcore.urdf as urdf_module
 from earcore.synthetic import robot_cell_voxels
 from reference import motion_danger_reference
 
@@ -571,6 +572,37 @@ def test_bad_urdfs(tmp_path):
     assert issubclass(robots.UrdfError, earcore.EarcoreError)
 
 
+#: How far out the corners of the polyhedron standing in for a URDF sphere lie.
+SPHERE_HULL = float(np.linalg.norm(urdf_module._UNIT_SPHERE_HULL, axis=1).max())
+
+
+def test_a_sphere_is_inside_its_body_in_any_pose_and_beside_other_geometry(tmp_path):
+    """Every point of a URDF sphere lies in its link's body: rotated by its origin's rpy,
+    and sharing a link with a box (the six axis points a sphere once stood for were
+    enclosed while the sphere was not: a cylinder of 0.091 m round a 0.1 m sphere)."""
+    path = tmp_path / "spheres.urdf"
+    path.write_text(
+        """<robot name="s">
+  <link name="base"><collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision></link>
+  <link name="tip">
+    <collision><origin xyz="0 0 0.2" rpy="0.3 0.6 0.9"/><geometry><sphere radius="0.1"/></geometry></collision>
+    <collision><origin xyz="0 0 0.05"/><geometry><box size="0.02 0.02 0.1"/></geometry></collision>
+  </link>
+  <joint name="j" type="revolute"><parent link="base"/><child link="tip"/><origin xyz="0 0 0.05"/>
+    <axis xyz="1 0 0"/><limit lower="-1" upper="1"/></joint>
+</robot>"""
+    )
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(4000, 3))
+    surface = directions / np.linalg.norm(directions, axis=1, keepdims=True) * 0.1 * (1 - 1e-9)
+    for shape in ("auto", "capsule", "cylinder"):
+        arm = robots.RobotModel.from_urdf(path, padding=0.0, shape=shape)
+        for q in (-0.7, 0.0, 0.4):
+            tip = arm.fk([q])[1]
+            points = (surface + [0, 0, 0.2]) @ tip[:3, :3].T + tip[:3, 3]
+            assert not np.asarray(arm.self_filter(points, [q], 0.0)).any(), (shape, q)
+
+
 def _two_link_arm(tmp_path):
     """A base box, a 0.5 m cylinder on a pitch joint, a 3 cm sphere at its tip (no padding)."""
     path = tmp_path / "arm.urdf"
@@ -594,7 +626,9 @@ def test_primitive_geometry_and_a_two_link_arm(tmp_path):
     tool = arm.fk([np.pi / 2])[2][:3, 3]
     assert np.allclose(tool, [0.5, 0, 0.05], atol=1e-12)
     a, b, r, shape = arm.link_bodies[2]
-    assert shape in ("capsule", "cylinder") and r == pytest.approx(0.03, abs=1e-9)
+    # The sphere is enclosed by a polyhedron whose faces touch it (0.45 % out at the corners).
+    assert shape in ("capsule", "cylinder") and r == pytest.approx(0.03 * SPHERE_HULL, abs=1e-9)
+    assert 1.0 < SPHERE_HULL < 1.005
     a, b, r, shape = arm.link_bodies[1]
     assert r == pytest.approx(0.04 / np.cos(np.pi / 64), rel=1e-6)  # circumscribed 64-gon
     assert np.linalg.norm(np.subtract(b, a)) == pytest.approx(0.5, abs=1e-6)
@@ -603,7 +637,8 @@ def test_primitive_geometry_and_a_two_link_arm(tmp_path):
 def test_a_sphere_body_is_checked_against_the_map(tmp_path):
     """A URDF sphere becomes a zero-length body; checks of it once never returned (its
     free-space step was infinite and wrapped to zero). Verdicts against the analytic
-    distance from the sphere's centre to the one voxel, which only the sphere can reach."""
+    distance from the sphere's centre to the one voxel, which only the sphere can reach
+    (its body: the sphere grown to the corners of the polyhedron enclosing it)."""
     import threading
 
     arm = _two_link_arm(tmp_path)
@@ -613,8 +648,9 @@ def test_a_sphere_body_is_checked_against_the_map(tmp_path):
     qs = np.linspace(-2.0, 2.0, 801)[:, None]
     centres = np.array([arm.fk(q)[2][:3, 3] for q in qs])
     gap = np.linalg.norm(centres - np.clip(centres, lo, hi), axis=1)
-    assert np.any(gap <= 0.03 - 1e-4) and np.any(gap > 0.05)
-    decided = np.abs(gap - 0.03) > 1e-6
+    radius = 0.03 * SPHERE_HULL
+    assert np.any(gap <= radius - 1e-4) and np.any(gap > 0.05)
+    decided = np.abs(gap - radius) > 1e-6
     result = {}
 
     def check():
@@ -625,5 +661,5 @@ def test_a_sphere_body_is_checked_against_the_map(tmp_path):
     worker.start()
     worker.join(timeout=60)
     assert not worker.is_alive(), "the check of a sphere body did not return"
-    assert np.array_equal(result["hits"][decided], (gap <= 0.03)[decided])
+    assert np.array_equal(result["hits"][decided], (gap <= radius)[decided])
     assert result["motions"] == [False, True]  # 0 → 1.3 rad stays clear; 0 → 2 passes the voxel
