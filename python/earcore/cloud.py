@@ -146,8 +146,7 @@ def incidence_angles(depth: npt.ArrayLike, fx: float, fy: float) -> np.ndarray:
 def voxel_codes(points, resolution: float) -> np.ndarray:
     """One int64 per point naming its voxel (cells of size `resolution`, ±1 M cells per
     axis around the origin), for set operations on voxels with numpy (`np.isin`)."""
-    # np.reshape keeps a masked or complex array what it is, for the binding to refuse.
-    return _earcore.voxel_codes(np.reshape(points, (-1, 3)), resolution)
+    return _earcore.voxel_codes(_empty_as_rows(points), resolution)
 
 
 def voxel_means(centres, points, resolution: float) -> np.ndarray:
@@ -155,7 +154,14 @@ def voxel_means(centres, points, resolution: float) -> np.ndarray:
     `voxel_codes` has them), the mean of the `points` that fall in it, or the centre
     itself where none does: where within its voxel a surface was seen, to follow it by
     less than a voxel. (M, 3)."""
-    return _earcore.voxel_means(np.reshape(centres, (-1, 3)), np.reshape(points, (-1, 3)), resolution)
+    return _earcore.voxel_means(_empty_as_rows(centres), _empty_as_rows(points), resolution)
+
+
+def _empty_as_rows(points):
+    """`points` for the binding, which checks their (N, 3) shape; an empty list or
+    array of any shape as no points (0, 3). (np.reshape keeps a masked or complex array
+    what it is, for the binding to refuse.)"""
+    return np.reshape(points, (0, 3)) if np.size(points) == 0 else points
 
 
 def box_voxel_centres(box_min, box_max, resolution: float) -> np.ndarray:

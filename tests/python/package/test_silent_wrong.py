@@ -288,6 +288,14 @@ def test_cloud_helpers_refuse_what_the_binding_would_misread():
         cloud.voxel_downsample(points, 0.5, values=np.ones(10) * 1j)
     with pytest.raises(TypeError, match="points is a masked array"):
         cloud.voxel_codes(np.ma.masked_array(points), 0.1)
+    # Rows of three are points; a transposed or wider array is not read as some.
+    for shape_wrong in (points.T, np.zeros((30, 4))):
+        with pytest.raises(ValueError, match=r"points must be an \(N, 3\) array"):
+            cloud.voxel_codes(shape_wrong, 0.1)
+        with pytest.raises(ValueError, match=r"centres must be an \(N, 3\) array"):
+            cloud.voxel_means(shape_wrong, points, 0.1)
+    assert cloud.voxel_codes([], 0.1).shape == (0,)
+    assert cloud.voxel_means([], points, 0.1).shape == (0, 3)
     with pytest.raises(TypeError, match="box_min must be real numbers"):
         cloud.box_voxel_centres(np.zeros(3, dtype=complex), np.ones(3), 0.5)
     # Plain input is read as before: the unmasked image gives every pixel's point.
