@@ -34,6 +34,47 @@ def test_rrt_connect_paths_are_collision_free(ur5):
     assert planner.checks["states"] + planner.checks["motions"] > 0
 
 
+class _Path:
+    """OMPL's path as the planner reads it: states that slice to joint values."""
+
+    def __init__(self, waypoints):
+        self.waypoints = [np.asarray(q, dtype=np.float64) for q in waypoints]
+
+    def getStates(self):  # noqa: N802 (OMPL's name)
+        return self.waypoints
+
+
+def test_a_smoothed_path_that_collides_gives_way_to_a_less_simplified_one(ur5):
+    """OMPL checks the edges it makes whole; splitting them (B-spline smoothing) samples
+    them elsewhere, where a piece may collide. The planner returns the first of the
+    smoothed, shortcut and raw solutions whose edges are all free at its resolution."""
+    tree = pillar_tree()
+    planner = JointSpacePlanner(ur5, tree, seed=7)
+    planner.check_ends(A, B)
+    (good,) = planner.plan(A, B, time_limit=1.0)
+    assert planner.path_is_valid(good.waypoints)
+    through = _Path([A, B])  # straight through the pillars
+    assert not planner.path_is_valid(through.waypoints)
+    chosen = planner._first_free([through, _Path(good.waypoints)])
+    assert np.array_equal(chosen, good.waypoints)
+    assert planner._first_free([through]) is None
+    # Among cluttered pillars, every path returned passes the planner's own check.
+    rng = np.random.default_rng(0)
+    cells = [[x, y, z] for x, y in rng.uniform(-0.7, 0.7, (8, 2)) if np.hypot(x, y) >= 0.25
+             for z in np.arange(0.025, 1.0, 0.05)]
+    clutter = earcore.OcTree(0.05)
+    clutter.update_nodes(np.array(cells))
+    planner = JointSpacePlanner(ur5, clutter, seed=1)
+    qs = ur5.random_configurations(200, seed=5)
+    free = qs[~np.asarray(ur5.check_configurations(clutter, qs), dtype=bool)]
+    for start, goal in zip(free[0:40:2], free[1:40:2]):
+        try:
+            (path,) = planner.plan(start, goal, time_limit=0.3)
+        except NoPathFound:
+            continue
+        assert planner.path_is_valid(path.waypoints)
+
+
 def test_ends_farther_apart_than_the_search_window_are_planned(ur5):
     """A joint that must turn farther than `max_joint_span`: the window around the ends'
     middle is widened to hold both (OMPL cannot start outside its space)."""
