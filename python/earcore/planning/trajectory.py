@@ -395,7 +395,12 @@ def time_parameterize(
     d2 = np.zeros_like(q)
     d2[1:-1] = (dq_seg[1:] - dq_seg[:-1]) / (0.5 * (ds[:-1] + ds[1:]))[:, None]
     with np.errstate(divide="ignore"):
+        # A knot's speed bounds the speed over both segments it ends (ṡ runs between
+        # its ends' values), so each segment's own direction caps both its knots.
         v_lim = np.min(v_max / np.abs(d1), axis=1)
+        on_segment = np.min(v_max / np.abs(dq_seg), axis=1)
+        v_lim[:-1] = np.minimum(v_lim[:-1], on_segment)
+        v_lim[1:] = np.minimum(v_lim[1:], on_segment)
         curv_lim = np.sqrt(np.min(0.5 * a_max / np.abs(d2), axis=1))
         # At a knot the direction turns by Δ (a corner of the polyline): the velocity
         # jumps by ṡ·|Δ_j|, which a controller running every `control_period` must

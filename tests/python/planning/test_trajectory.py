@@ -43,6 +43,20 @@ def test_trajectory_respects_limits_and_follows_the_path(kind, share):
     assert np.abs(v[0]).max() < 0.1 and np.abs(v[-1]).max() < 0.1  # rest to rest
 
 
+@pytest.mark.parametrize("v_max, a_max", [([10.0, 0.3], 1000.0), ([1.0, 0.2], 20.0), ([1.57, 0.5], 8.0)])
+def test_no_joint_exceeds_its_speed_on_the_segments_beside_a_corner(v_max, a_max):
+    """A 30° corner between a stretch along joint 0 and one half along joint 1: the
+    motion, differenced finely (the sampled positions themselves), keeps every joint
+    within its limit on both segments. Capped by the corner's mean direction, joint 1
+    ran at up to 2× its limit just after it."""
+    path = np.array([[0.0, 0.0], [1.0, 0.0], [1.0 + np.cos(np.pi / 6), np.sin(np.pi / 6)]])
+    traj = time_parameterize(path, v_max, a_max)
+    t = np.linspace(0.0, traj.duration, 200_001)
+    speed = np.abs(np.diff(traj.sample(t), axis=0)) / np.diff(t)[:, None]
+    assert (speed.max(axis=0) <= np.asarray(v_max) * (1 + 1e-6)).all(), speed.max(axis=0) / v_max
+    assert (speed.max(axis=0) >= 0.95 * np.asarray(v_max)).any()  # and it is not merely slow
+
+
 @pytest.mark.parametrize("share", [0.5, 1.0])
 @pytest.mark.parametrize("length", [1e-8, 1e-5, 1e-3, 0.3])
 def test_short_moves_take_the_rest_to_rest_time(length, share):
