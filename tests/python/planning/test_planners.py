@@ -126,6 +126,33 @@ def test_ik_reaches_poses_of_random_configurations(ur5):
         assert rotation_angle(reached[:3, :3] @ target[:3, :3].T) <= 0.1
 
 
+def test_ik_restarts_on_a_robot_with_a_continuous_joint(tmp_path):
+    """A continuous joint has no limits to take the middle of (it was NaN, and every
+    unseeded solve raised OverflowError): restarts sample it around 0."""
+    path = tmp_path / "turn.urdf"
+    path.write_text(
+        """<robot name="turn">
+  <link name="base"><collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision></link>
+  <link name="upper"><collision><origin xyz="0 0 0.2"/><geometry><cylinder radius="0.03" length="0.4"/></geometry></collision></link>
+  <link name="fore"><collision><origin xyz="0.15 0 0"/><geometry><box size="0.3 0.04 0.04"/></geometry></collision></link>
+  <joint name="turn" type="continuous"><parent link="base"/><child link="upper"/><origin xyz="0 0 0.05"/><axis xyz="0 0 1"/></joint>
+  <joint name="elbow" type="revolute"><parent link="upper"/><child link="fore"/><origin xyz="0 0 0.4"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2"/></joint>
+</robot>"""
+    )
+    arm = earcore.robots.RobotModel.from_urdf(path)
+    assert np.isinf(arm.joint_limits[0]).all()
+    target = arm.fk([2.5, 0.7])[-1]
+    result = solve_ik(arm, target)
+    reached = arm.fk(result.q)[-1]
+    assert np.linalg.norm(reached[:3, 3] - target[:3, 3]) <= 0.01
+    assert rotation_angle(reached[:3, :3] @ target[:3, :3].T) <= 0.1
+    far = target.copy()
+    far[:3, 3] += [2.0, 0.0, 0.0]
+    with pytest.raises(UnreachablePose):
+        solve_ik(arm, far, restarts=3)
+
+
 def test_ik_errors():
     ur5 = earcore.robots.load("ur5")
     far = np.eye(4)
