@@ -19,6 +19,13 @@ import math
 __all__ = ["protective_separation", "shortest_avoidable_distance", "ssm_speed_limit"]
 
 
+def _non_negative(**values: float) -> None:
+    """Speeds, times and distances: finite and >= 0, else a ValueError naming them."""
+    bad = [f"{name}={value!r}" for name, value in values.items() if not (math.isfinite(value) and value >= 0)]
+    if bad:
+        raise ValueError(f"need finite values >= 0, got {', '.join(bad)}")
+
+
 def protective_separation(
     human_speed: float,
     robot_speed: float,
@@ -31,6 +38,8 @@ def protective_separation(
 ) -> float:
     """ISO/TS 15066 (5.5.4.2) S_p = v_h (T_r + T_s) + v_r T_r + S_s + C + Z_d + Z_r, with
     the robot's stopping distance S_s = v_r T_s / 2 (constant deceleration)."""
+    _non_negative(human_speed=human_speed, robot_speed=robot_speed, reaction_time=reaction_time, stopping_time=stopping_time,
+                  intrusion=intrusion, sensor_uncertainty=sensor_uncertainty, robot_uncertainty=robot_uncertainty)
     s_h = human_speed * (reaction_time + stopping_time)
     s_r = robot_speed * reaction_time
     s_s = 0.5 * robot_speed * stopping_time
@@ -50,14 +59,18 @@ def ssm_speed_limit(
     """The largest robot speed v_r (m/s) whose protective separation, with the stopping
     time v_r / `deceleration`, is at most `separation`; 0 when even a still robot is too
     close. The positive root of v²/(2a) + (T_r + v_h/a)·v + v_h·T_r + C + Z_d + Z_r − S = 0."""
-    if deceleration <= 0 or reaction_time < 0 or human_speed < 0:
-        raise ValueError(f"need deceleration > 0 and reaction_time, human_speed >= 0, got {deceleration}, {reaction_time}, {human_speed}")
+    _non_negative(separation=separation, human_speed=human_speed, reaction_time=reaction_time, intrusion=intrusion,
+                  sensor_uncertainty=sensor_uncertainty, robot_uncertainty=robot_uncertainty)
+    if not deceleration > 0:  # (an infinite one stops at once)
+        raise ValueError(f"need deceleration > 0, got {deceleration!r}")
     constant = human_speed * reaction_time + intrusion + sensor_uncertainty + robot_uncertainty - separation
     if constant >= 0:
         return 0.0
     a = 0.5 / deceleration
     b = reaction_time + human_speed / deceleration
-    return (-b + math.sqrt(b * b - 4 * a * constant)) / (2 * a)
+    # The positive root in the form that keeps its digits when 4ac is small against b².
+    denominator = b + math.sqrt(b * b - 4 * a * constant)
+    return -2 * constant / denominator if denominator > 0 else math.inf
 
 
 def shortest_avoidable_distance(hand_speed: float, *, reach: float, latency: float, max_speed: float, acceleration: float, robot_speed: float = 0.0) -> float:
@@ -67,8 +80,10 @@ def shortest_avoidable_distance(hand_speed: float, *, reach: float, latency: flo
     `robot_speed`; then it accelerates away at `acceleration` up to `max_speed` (its
     point nearest the hand, m/s and m/s²). The gap closes by the largest value of
     ∫(v_hand + v_robot towards the hand) dt over the reach."""
-    if min(hand_speed, reach, latency, max_speed, acceleration) < 0 or acceleration == 0 or max_speed == 0:
-        raise ValueError("speeds, reach and latency must be >= 0, max_speed and acceleration > 0")
+    _non_negative(hand_speed=hand_speed, reach=reach, latency=latency, max_speed=max_speed, acceleration=acceleration,
+                  robot_speed=robot_speed)
+    if acceleration == 0 or max_speed == 0:
+        raise ValueError("max_speed and acceleration must be > 0")
     if hand_speed == 0 or reach == 0:
         return 0.0
     end = reach / hand_speed  # when the hand stops

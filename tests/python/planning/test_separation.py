@@ -80,3 +80,32 @@ def test_the_avoidable_distance_by_hand():
     assert shortest_avoidable_distance(0.0, reach=1.0, latency=0.1, max_speed=1.0, acceleration=1.0) == 0.0
     with pytest.raises(ValueError):
         shortest_avoidable_distance(1.0, reach=1.0, latency=0.1, max_speed=1.0, acceleration=0.0)
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: protective_separation(-1.0, 0.5, reaction_time=0.1, stopping_time=0.3),
+        lambda: protective_separation(1.6, float("nan"), reaction_time=0.1, stopping_time=0.3),
+        lambda: ssm_speed_limit(float("nan"), 1.0, reaction_time=0.1, deceleration=2.0),
+        lambda: ssm_speed_limit(0.8, 1.0, reaction_time=0.1, deceleration=float("nan")),
+        lambda: shortest_avoidable_distance(0.5, reach=0.6, latency=0.1, max_speed=1.0, acceleration=2.0, robot_speed=-5.0),
+        lambda: shortest_avoidable_distance(1.6, reach=0.6, latency=0.1, max_speed=1.0, acceleration=float("inf")),
+        lambda: shortest_avoidable_distance(float("nan"), reach=0.6, latency=0.1, max_speed=1.0, acceleration=2.0),
+    ],
+)
+def test_negative_or_non_finite_speeds_and_times_are_refused(call):
+    """A negative speed (a robot moving away, which the formulas do not model) or a NaN
+    gave a negative separation, a gap of 9.7 m for a 0.6 m reach, or NaN."""
+    with pytest.raises(ValueError, match="need"):
+        call()
+
+
+def test_the_speed_limit_at_the_extremes_of_braking():
+    """An instant stop leaves the reaction distance: v = (S − C − Z) / T_r, by hand; a
+    robot that can hardly brake may hardly move (the root's unstable form gave inf)."""
+    assert ssm_speed_limit(0.8, 0.0, reaction_time=0.1, deceleration=float("inf")) == pytest.approx((0.8 - 0.055) / 0.1)
+    crawl = ssm_speed_limit(0.8, 1.0, reaction_time=0.1, deceleration=1e-12)
+    assert 0.0 <= crawl < 1e-9
+    # It still keeps the separation it was asked for.
+    assert protective_separation(1.0, crawl, reaction_time=0.1, stopping_time=crawl / 1e-12) <= 0.8 + 1e-9
