@@ -43,6 +43,8 @@ def check_camera(calibrator: Calibrator, calibration: CameraCalibration, *, thre
     if obs is None:
         return PoseCheck(name, False, float("nan"), True)
     if calibration.depth_K is not None:
+        calibration.check_image_size(*obs.ir.image_size)
+    if calibration.depth_K is not None:
         measured = calibrator.estimator.corners_3d(obs, calibration.depth_K, calibration.depth_distortion, calibration.depth_bias)
     elif calibration.colour_K is not None:  # a colour-only camera: where the board's pose from its image puts them
         pose = calibrator.estimator.board_poses([obs], calibration.colour_K, calibration.colour_distortion)[0]

@@ -421,11 +421,18 @@ class Calibrator:
         from pathlib import Path
 
         path = Path(path)
+        # Read before the robot moves: a file that is not a calibration this can read
+        # (another file, an entry it cannot parse) is refused, not overwritten.
+        existing = Calibration()
+        if path.is_dir():
+            raise CalibrationFileError(f"{path} is a folder: give a calibration file to write")
+        if path.exists():
+            try:
+                existing = Calibration.load(path)
+            except CalibrationFileError as exc:
+                raise CalibrationFileError(f"{exc}; not overwriting it: give another file, or move it away") from exc
+        elif not path.parent.is_dir():
+            raise CalibrationFileError(f"cannot write {path}: its folder {path.parent} does not exist")
         results = self.run(names)
-        try:
-            existing = Calibration.load(path) if path.exists() else Calibration()
-        except CalibrationFileError as exc:
-            self.progress(f"{exc}: writing a new file")
-            existing = Calibration()
         existing.merged(results).save(path)
         return results

@@ -89,6 +89,18 @@ class CameraCalibration:
     def has_depth(self) -> bool:
         return self.depth_K is not None
 
+    def check_image_size(self, width: int, height: int, *, colour: bool = False) -> None:
+        """Raise `CalibrationFileError` when this camera's depth (or `colour`) images are
+        not `width` × `height` while the calibration's lens was fitted at another size:
+        its intrinsics would be read at the wrong pixels."""
+        size = self.colour_size if colour else self.depth_size
+        if size is not None and (int(size[0]), int(size[1])) != (int(width), int(height)):
+            kind = "colour" if colour else "depth"
+            raise CalibrationFileError(
+                f"camera {self.name!r} was calibrated on {kind} images of {size[0]}×{size[1]} pixels, "
+                f"but its images are {width}×{height}: calibrate it at this size (the same --camera-scale)"
+            )
+
     def to_dict(self) -> dict:
         out = {}
         for f in fields(self):

@@ -133,6 +133,8 @@ class PerceptionPipeline:
         self.poses: dict[str, np.ndarray] = {}
         #: (K, distortion) per camera name from a calibration; else the frame's own.
         self.intrinsics: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        #: Per camera, the calibration its lens and pose came from (`load_calibration`).
+        self._calibrated: dict = {}
         #: Calibrated depth error per camera name, taken out of its depth images.
         self.depth_errors: dict[str, DepthBias] = {}
         self._radius2: dict[str, np.ndarray] = {}
@@ -164,6 +166,7 @@ class PerceptionPipeline:
             self.set_intrinsics(name, cam.depth_K, cam.depth_distortion)
             self.depth_errors[name] = cam.depth_bias
             self._radius2.pop(name, None)
+            self._calibrated[name] = cam
 
     def _depth_of(self, frame: Frame, K: np.ndarray) -> np.ndarray:
         """The frame's depth image with the camera's calibrated depth error taken out."""
@@ -181,6 +184,9 @@ class PerceptionPipeline:
         its calibrated depth error taken out; `kwargs` go to `earcore.depth_to_points`
         (e.g. `base_from_camera`, `return_pixels`)."""
         K, distortion = self.intrinsics.get(frame.camera, (frame.K, frame.distortion))
+        calibrated = self._calibrated.get(frame.camera)
+        if calibrated is not None:
+            calibrated.check_image_size(frame.depth.shape[1], frame.depth.shape[0])
         return earcore.depth_to_points(
             self._depth_of(frame, K), K[0, 0], K[1, 1], K[0, 2], K[1, 2], distortion=distortion,
             max_depth=self.config.max_range, **kwargs,

@@ -419,6 +419,11 @@ def test_perception_uses_the_calibrated_lens_and_pose():
         np.full((424, 512), 1.5), *K_TRUE[[0, 1, 0, 1], [0, 1, 2, 2]], distortion=D_TRUE, base_from_camera=entry.base_from_camera
     )
     assert np.abs(points - expected).max() < 1e-6
+    # Images of another size (another camera scale) would be read through a lens fitted
+    # at 512×424: refused, naming the camera and both sizes, not mapped off by pixels.
+    half = Frame("cam", 0.0, np.zeros((212, 256, 3), np.uint8), depth[::2, ::2], np.eye(3), np.eye(4))
+    with pytest.raises(CalibrationFileError, match=r"'cam' was calibrated on depth images of 512×424 .* 256×212"):
+        pipeline.frame_points(half)
 
 
 # --- Algorithm 1 in the cell ---------------------------------------------------------
@@ -492,6 +497,10 @@ def test_a_bumped_camera_is_noticed(calibrated_v1):
         assert bumped.moved and "MOVED" in str(bumped)
     finally:
         cam.place(original)
+    # A calibration made on images of another size is not compared at all.
+    w, h = result.depth_size
+    with pytest.raises(CalibrationFileError, match=f"{2 * w}×{2 * h} pixels, but its images are {w}×{h}"):
+        check_camera(calibrator, replace(result, depth_size=(2 * w, 2 * h)))
 
 
 @pytest.mark.slow
@@ -545,6 +554,31 @@ def test_a_camera_that_never_sees_the_board_names_itself_and_writes_nothing(tmp_
     with pytest.raises(BoardNotSeen, match="looks_at_the_floor"):
         calibrator.run_to_file(path)
     assert path.read_bytes() == before
+    cell.close()
+
+
+def test_a_file_that_is_not_a_readable_calibration_is_refused_before_the_robot_moves(tmp_path):
+    """Recalibrating into a file merges into it; one this cannot read (a config file, an
+    entry lacking a lens) was overwritten, losing the other cameras' entries. It is
+    refused before any frame is taken, and left as it was."""
+    config = calibration_cell_config(seed=0, camera_scale=0.5)
+    cell, _ = calibration_cell(config, pose_error=(0.0, 0.0))
+    calibrator = Calibrator(cell, CalibrationConfig())
+    other = tmp_path / "cell.toml"
+    other.write_text("[cell]\nseed = 3\n")
+    broken = tmp_path / "two.yaml"
+    Calibration({"kept": _entry("kept")}).save(broken)
+    broken.write_text(broken.read_text() + "  lacking:\n    base_from_camera: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n")
+    for path in (other, broken):
+        before = path.read_bytes()
+        with pytest.raises(CalibrationFileError, match="not overwriting it"):
+            calibrator.run_to_file(path)
+        assert path.read_bytes() == before
+    with pytest.raises(CalibrationFileError, match="is a folder"):
+        calibrator.run_to_file(tmp_path)
+    with pytest.raises(CalibrationFileError, match="does not exist"):
+        calibrator.run_to_file(tmp_path / "no" / "cal.yaml")
+    assert calibrator.observations == {} or not any(calibrator.observations.values())
     cell.close()
 
 
