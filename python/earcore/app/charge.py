@@ -20,13 +20,13 @@ truth. `--camera-pose truth` skips it and uses the simulation's truth.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from earcore import jsonfile
 from earcore.app.arguments import Parser, count, fail, positive_int, scale
 
 __all__ = ["main"]
@@ -266,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         "config": {"seed": args.seed, "port": args.port, "plug": args.plug, "max_angle_deg": args.max_angle, "camera_scale": args.camera_scale},
         "per_run": runs,
     }
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
+    (args.out / "summary.json").write_text(jsonfile.dumps(summary, indent=1))
     _summary_figure(args.out / "summary.png", runs, plug_config.force_threshold, plug_config.force_limit)
     posed = any("pose_error" in r for r in runs)
     pose = f"port pose {summary['median_position_mm']:.2f} mm / {summary['median_rotation_deg']:.2f}° median" if posed else "no port pose estimated"

@@ -92,8 +92,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--limit", type=positive_int, default=None, help="at most this many images")
     parser.add_argument("--out", type=Path, default=None, help="write results.md and results.json here")
     args = parser.parse_args(argv)
-    import json
-
+    from earcore import jsonfile
     from earcore.errors import EarcoreError
     from earcore.parts.dataset import PartImages
     from earcore.parts.evaluate import evaluate
@@ -111,7 +110,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "results.md").write_text(table.markdown())
-        (args.out / "results.json").write_text(json.dumps(table.to_dict(), indent=1) + "\n")
+        (args.out / "results.json").write_text(jsonfile.dumps(table.to_dict(), indent=1) + "\n")
     return 0
 
 

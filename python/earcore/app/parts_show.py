@@ -18,12 +18,12 @@ the station knows the truth.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from earcore import jsonfile
 from earcore.app.arguments import Parser, count, fail, positive_int
 
 __all__ = ["main"]
@@ -220,7 +220,7 @@ def main(argv: list[str] | None = None, prog: str = "earcore parts show") -> int
     png.write(args.out / "show.png", _picture(view, belief, picks, truth_pixels, needle_rgb))
     summary = {"model": str(args.model), "network": kind, "part": wanted, "seed": args.seed, "view": index}
     summary |= {"parts_of_type": int(len(same)), "picks": rows}
-    (args.out / "show.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (args.out / "show.json").write_text(jsonfile.dumps(summary, indent=1) + "\n")
     if args.recording is not None:
         try:
             _record(args.recording, view, belief, picks, pose)

@@ -11,7 +11,6 @@ danger, current obstacles), PNG snapshots of the danger map and a JSON summary.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -19,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from earcore import jsonfile
 from earcore.app.arguments import Parser, count, fail, scale, seconds
 from earcore.app.config import RunConfig, dump_toml, load_config
 from earcore.errors import ConfigError
@@ -208,7 +208,7 @@ def run(
     if recorder is not None:
         recorder.close()
         summary["recording"] = str(recorder.path)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    (out / "summary.json").write_text(jsonfile.dumps(summary, indent=2))
     cell.close()
     return summary
 

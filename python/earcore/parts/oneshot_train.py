@@ -17,7 +17,6 @@ checkpoint.pt, metrics.jsonl, curves and results.md / results.json.
 from __future__ import annotations
 
 import argparse
-import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from earcore import jsonfile
 from earcore.errors import ConfigError
 from earcore.learning import distributed
 from earcore.learning.checkpoint import CheckpointError, load_checkpoint
@@ -194,7 +194,7 @@ def run(
         summary["seen"] = known.to_dict()
         text += "\nThe same trials on two trained types (test-split needles and haystacks):\n\n" + known.markdown()
     Path(out, "results.md").write_text(text)
-    Path(out, "results.json").write_text(json.dumps(summary, indent=1) + "\n")
+    Path(out, "results.json").write_text(jsonfile.dumps(summary, indent=1) + "\n")
     return result, table
 
 

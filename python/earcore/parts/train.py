@@ -15,12 +15,12 @@ gets config.json, checkpoint.pt, metrics.jsonl, curves and results.md / results.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from earcore import jsonfile
 from earcore.errors import ConfigError
 from earcore.learning import distributed
 from earcore.learning.checkpoint import CheckpointError, load_checkpoint
@@ -157,7 +157,7 @@ def run(
     trained, _ = load_detector(out)
     table = evaluate(trained, test_set, train_set.classes)
     Path(out, "results.md").write_text(f"Parts detector after {result.steps} steps ({result.seconds / 60:.1f} training minutes), test split\n\n" + table.markdown())
-    Path(out, "results.json").write_text(json.dumps(table.to_dict(), indent=1) + "\n")
+    Path(out, "results.json").write_text(jsonfile.dumps(table.to_dict(), indent=1) + "\n")
     return result, table
 
 

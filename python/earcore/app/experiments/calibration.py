@@ -19,13 +19,13 @@ and compares the result with the simulation's truth:
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from earcore import jsonfile
 from earcore.app.calibration_cell import calibration_cell, calibration_cell_config, evaluate
 from earcore.calibration.config import CalibrationConfig, full_trajectory
 from earcore.calibration.errors import CalibrationError
@@ -129,7 +129,7 @@ def calibration_table(seed: int = 0, camera_scale: float = 1.0, out: Path | None
     result = {"rows": rows, "run": run, "seed": seed}
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "calibration_table.json").write_text(json.dumps(result, indent=2, default=float))
+        (out / "calibration_table.json").write_text(jsonfile.dumps(result, indent=2))
     return result
 
 

@@ -35,7 +35,6 @@ with how often the band's fading voxels were seen free (the occlusion), and a pi
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from copy import deepcopy
@@ -45,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from earcore import DANGER_ON_HIT
+from earcore import DANGER_ON_HIT, jsonfile
 from earcore.app.arguments import Parser, count, positive_int, scale
 from earcore.app.config import RunConfig
 from earcore.planning.executive import REACTION_TIME, Executive
@@ -319,7 +318,7 @@ def table2(
             results[name]["limit"] = limit_analysis(watched[name], config.cell.person)
         print(f"  {name}: {len(pairs)} return trips in {results[name]['wall_s']} s", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "table2.json").write_text(json.dumps(results, indent=2, default=float))
+    (out / "table2.json").write_text(jsonfile.dumps(results, indent=2))
     if watched:
         draw_paths(out / "paths.png", watched, results, scenario, seed)
     return results
@@ -571,7 +570,7 @@ def fig7(repetitions: int = 20, camera_scale: float = 0.25, out: Path = Path("ou
     driver = holder["driver"]
     result = {"repetitions": repetitions, "simulated_s": summary["simulated_s"], "bands": driver.bands()}
     out.mkdir(parents=True, exist_ok=True)
-    (out / "fig7.json").write_text(json.dumps(result, indent=2))
+    (out / "fig7.json").write_text(jsonfile.dumps(result, indent=2))
     _draw_fig7(out / "fig7.png", driver, result)
     return result
 
