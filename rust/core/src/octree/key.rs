@@ -295,6 +295,10 @@ impl KeyConverter {
     /// Centre of the node at `depth` holding `key` along one axis.
     #[inline]
     pub fn key_to_coord_axis_at_depth(&self, key: u16, depth: u32) -> f64 {
+        if depth == 0 {
+            // The root is centred on the origin (OctoMap's keyToCoord at depth 0).
+            return 0.0;
+        }
         if depth >= TREE_DEPTH {
             return self.key_to_coord_axis(key);
         }
@@ -547,5 +551,12 @@ mod tests {
         // The node at depth 15 holding the first positive cell spans [0, 0.2).
         assert!((c.key_to_coord_axis_at_depth(key.0[0], 15) - 0.1).abs() < 1e-12);
         assert_eq!(key.at_depth(15).0[0], 32769);
+        // The root spans the whole map, [-3276.8, 3276.8), whatever key is asked for;
+        // its two children are centred at ±1638.4.
+        for k in [0u16, 1, 32767, 32768, 65535] {
+            assert_eq!(c.key_to_coord_axis_at_depth(k, 0), 0.0);
+            let child = if k < 32768 { -1638.4 } else { 1638.4 };
+            assert!((c.key_to_coord_axis_at_depth(k, 1) - child).abs() < 1e-9);
+        }
     }
 }
