@@ -359,8 +359,9 @@ impl PyOcTree {
     /// Integrate a scan: rays from `sensor_origin` to each point (N, 3).
     ///
     /// Cells along a ray become more likely free, end cells more likely occupied (and
-    /// dangerous); rays longer than `max_range` are cut there and mark no hit;
-    /// `discretize` merges points that fall in the same cell. Invalid input raises
+    /// dangerous); rays longer than `max_range` are cut there and mark no hit (so
+    /// their points may lie off the map, unless `discretize`d); `discretize` merges
+    /// points that fall in the same cell. Invalid input raises
     /// before anything changes; Ctrl-C stops a long insertion while its rays are
     /// traced, the map unchanged.
     #[pyo3(signature = (points, sensor_origin, max_range=None, discretize=false))]

@@ -78,6 +78,33 @@ def test_full_kinect_frame_matches_octomap(octomap, tmp_path, resolution):
     assert np.array_equal(ours.is_occupied(centres).astype(bool), ref_occupied)
 
 
+def test_returns_off_the_map_beyond_max_range_are_cut_as_octomap_cuts_them(octomap, tmp_path):
+    """OctoMap never keys a point beyond the maximum range (its ray ends there), so such
+    a point may lie off the map: a far return seen on a fine map. Points off the map
+    within the range, or in a scan to be discretised (which keys every point), are
+    refused, the map unchanged."""
+    rng = np.random.default_rng(5)
+    resolution, origin, max_range = 0.01, np.array([0.1, 0.2, 0.3]), 2.5  # the map spans ±327.68 m
+    near = origin + rng.normal(size=(3000, 3)) * 0.8
+    directions = rng.normal(size=(200, 3))
+    far = origin + directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(400, 5000, (200, 1))
+    scan = rng.permutation(np.vstack([near, far]))
+    ref = octomap.OcTree(resolution)
+    ref.insertPointCloud(scan, origin, max_range=max_range)
+    ours = earcore.OcTree(resolution)
+    ours.insert_point_cloud(scan, origin, max_range=max_range)
+    assert ours.size() == ref.size() > 1000
+    assert ot_bytes(ours, tmp_path) == ref.write()
+    free_only = earcore.OcTree(resolution)
+    free_only.insert_free_rays(scan, origin, max_range=max_range)
+    assert free_only.size() > 1000 and not free_only.occupied_voxels()[0].size
+    before = ot_bytes(ours, tmp_path)
+    for points, kwargs in ((scan, dict(max_range=2 * 5000.0)), (scan, dict(max_range=max_range, discretize=True))):
+        with pytest.raises(earcore.OutOfMapError, match="outside the map"):
+            ours.insert_point_cloud(points, origin, **kwargs)
+    assert ot_bytes(ours, tmp_path) == before
+
+
 def test_thread_count_does_not_change_the_map(tmp_path):
     points, origin = earcore.synthetic.benchmark_frame()
     maps = []

@@ -83,7 +83,7 @@ fn trace_scan_in_rounds(
     round: std::time::Duration,
     interrupt: &mut threads::Interrupt<'_>,
 ) -> Result<Option<TracedScan>> {
-    let (origin, bounds) = checked_scan(conv, points, origin, max_range)?;
+    let (origin, bounds) = checked_scan(conv, points, origin, max_range, discretize)?;
     let centres;
     let rays = if discretize {
         centres = discretized(conv, points);
@@ -189,12 +189,15 @@ impl OcTree {
 }
 
 /// Validate a scan; returns the sensor origin as OctoMap's float point and the key
-/// box of the scan (`key_bounds`).
+/// box of the scan (`key_bounds`). A point off the map is accepted where `max_range`
+/// cuts its ray on the map (OctoMap never keys such a point), unless the scan is to be
+/// `discretize`d, which keys every point.
 fn checked_scan(
     conv: &KeyConverter,
     points: &[[f64; 3]],
     origin: [f64; 3],
     max_range: Option<f64>,
+    discretize: bool,
 ) -> Result<(Point3f, (OcTreeKey, OcTreeKey))> {
     if let Some(r) = max_range {
         if !(r.is_finite() && r > 0.0) {
@@ -233,6 +236,9 @@ fn checked_scan(
     if ok {
         return Ok((origin32, key_bounds(conv, lo, hi)));
     }
+    // Some point is off the map or not finite: name the first that matters, and take
+    // the box of the rays' ends instead.
+    let (mut lo, mut hi) = (origin32, origin32);
     for (i, &p) in points.iter().enumerate() {
         if !p.iter().all(|c| c.is_finite()) {
             return Err(Error::InvalidArgument(format!(
@@ -240,12 +246,29 @@ fn checked_scan(
                 fmt_point(&p)
             )));
         }
-        if !conv.has_key(to_f32(p)) {
+        // (A ray too long for float arithmetic has no direction to cut it along.)
+        let long = !norm(sub(to_f32(p), origin32)).is_finite();
+        let end = match max_range {
+            Some(r) if !discretize => cut_at_range(origin32, to_f32(p), r).unwrap_or(to_f32(p)),
+            _ => to_f32(p),
+        };
+        if long || !conv.has_key(end) {
             return Err(conv.out_of_bounds(if i == 0 { "point 0" } else { "a point" }, p));
         }
+        for a in 0..3 {
+            lo[a] = lo[a].min(end[a]);
+            hi[a] = hi[a].max(end[a]);
+        }
     }
-    // Not reached: the loop repeats the batch's test point by point.
-    Err(Error::InvalidArgument("a point is outside the map".into()))
+    Ok((origin32, key_bounds(conv, lo, hi)))
+}
+
+/// Where a ray from `origin` to `p` ends when it is longer than `max_range`: cut there
+/// (OctoMap's float arithmetic); `None` when it is not.
+#[inline]
+fn cut_at_range(origin: Point3f, p: Point3f, max_range: f64) -> Option<Point3f> {
+    (norm(sub(p, origin)) > max_range)
+        .then(|| point_at(origin, normalized(sub(p, origin)), max_range as f32))
 }
 
 /// OctoMap's `computeDiscreteUpdate`: one ray per distinct end cell, to its centre
@@ -402,19 +425,13 @@ fn trace_part(
     let points: &[Point3f] = points;
     // Rays beyond `max_range` end there and mark no hit; within it they end at their
     // point (the common case needs no copy).
-    let cut = |p: Point3f| match max_range {
-        Some(r) if norm(sub(p, origin)) > r => {
-            Some(point_at(origin, normalized(sub(p, origin)), r as f32))
-        }
-        _ => None,
-    };
     let ends: &[Point3f] = match max_range {
         None => points,
-        Some(_) => {
+        Some(r) => {
             ends.clear();
             within.clear();
             for &p in points {
-                let end = cut(p);
+                let end = cut_at_range(origin, p, r);
                 ends.push(end.unwrap_or(p));
                 within.push(end.is_none());
             }
