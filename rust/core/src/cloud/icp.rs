@@ -119,9 +119,11 @@ impl Default for IcpParams {
 pub struct IcpResult {
     /// `target_from_source`.
     pub transform: Matrix4<f64>,
-    /// Root mean square point-to-plane distance of the inlier pairs at the end.
+    /// Root mean square point-to-plane distance of the pairs at `transform` (once
+    /// converged: of the pairs the last step, below the tolerances, was found from).
     pub rmse: f64,
-    /// Fraction of source points with a pair within the correspondence distance.
+    /// Fraction of source points with a pair within the correspondence distance, as
+    /// `rmse` counts them.
     pub fitness: f64,
     /// Gauss-Newton steps taken.
     pub iterations: usize,
@@ -367,7 +369,8 @@ impl IcpTarget for crate::octree::SurfaceMap {
 
     /// NOctoSLAM's descent (resumed below the node shared with the previous point);
     /// the depth of the node found bounds the distance: a node larger than
-    /// `max_distance` is too coarse to pair with. The pair depends only on the leaf
+    /// `max_distance` is too coarse to pair with (then a leaf beside is asked:
+    /// `SurfaceMap::associate_within`). The pair depends only on the leaf
     /// key, and once ICP settles most points stay in their leaf from one iteration to
     /// the next: those reuse last iteration's pair without descending.
     fn pair(
@@ -381,9 +384,7 @@ impl IcpTarget for crate::octree::SurfaceMap {
         let memo = match cursor.memo.get(index) {
             Some(m) if m.key == key => *m,
             _ => {
-                let found = self
-                    .associate_key_from(key, &mut cursor.descent)
-                    .filter(|&(_, _, depth)| self.key_converter().node_size(depth) <= max_distance);
+                let found = self.associate_within(key, max_distance, &mut cursor.descent);
                 // The map's values are single precision: nothing is lost.
                 let (q, n) = found.map_or(([0.0; 3], [0.0; 3]), |(q, n, _)| (q, n));
                 let m = PairMemo {
@@ -550,8 +551,9 @@ pub fn icp_point_to_plane_interruptible<T: IcpTarget>(
     }
     crate::geometry::check_finite(source, "source point")?;
     params.validate()?;
-    // Rotation columns scaled by the source's RMS radius so that the conditioning
-    // compares metres with metres.
+    // Steps rotate about the moved source's centroid (far from the origin, rotations
+    // about it would be nearly translations), and the rotation columns are scaled by the
+    // source's RMS radius, so that the conditioning compares metres with metres.
     let centroid = source
         .iter()
         .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
@@ -611,7 +613,7 @@ pub fn icp_point_to_plane_interruptible<T: IcpTarget>(
             target,
             &mut at,
             coarse_params,
-            radius,
+            (centroid, radius),
             &mut trial,
             &mut coarse_width,
             interrupt,
@@ -654,7 +656,7 @@ pub fn icp_point_to_plane_interruptible<T: IcpTarget>(
         target,
         &mut transform,
         fine_params,
-        radius,
+        (centroid, radius),
         &mut result,
         &mut width,
         interrupt,
@@ -669,6 +671,22 @@ pub fn icp_point_to_plane_interruptible<T: IcpTarget>(
         .fixed_view_mut::<3, 3>(0, 0)
         .copy_from(rotation.matrix());
     result.transform = transform;
+    if !result.converged {
+        // Stopped by the iteration limit (or a degenerate system) after a step of any
+        // size: measure the pose returned, not the one before it.
+        // (Only the pairs are read: the Jacobian's centre does not matter.)
+        let system = normal_equations(
+            &source,
+            target,
+            &transform,
+            centroid,
+            params,
+            None,
+            source.len(),
+            &fine_runs,
+        );
+        record_fit(&mut result, &system, source.len());
+    }
     Ok(Some(result))
 }
 
@@ -685,16 +703,17 @@ const COARSE_MIN_PAIRS: usize = 256;
 
 /// Gauss-Newton steps on `source` (Morton-ordered) from `transform` until `params` say
 /// stop, recording the last step's statistics in `result` (`iterations` counts this
-/// call's steps); `Ok(false)` when `interrupt` asked to stop. `width` carries an
-/// adaptive kernel's width from one iteration (and stage) to the next (`None`: plain
-/// least squares for the first).
+/// call's steps); `Ok(false)` when `interrupt` asked to stop. Steps rotate about where
+/// `transform` moves the source's `centroid` (`radius`: its RMS distance from it).
+/// `width` carries an adaptive kernel's width from one iteration (and stage) to the
+/// next (`None`: plain least squares for the first).
 #[allow(clippy::too_many_arguments)]
 fn iterate<T: IcpTarget>(
     source: &[[f64; 3]],
     target: &T,
     transform: &mut Matrix4<f64>,
     params: IcpParams,
-    radius: f64,
+    (centroid, radius): (Vector3<f64>, f64),
     result: &mut IcpResult,
     width: &mut Option<f64>,
     interrupt: &mut threads::Interrupt<'_>,
@@ -708,7 +727,11 @@ fn iterate<T: IcpTarget>(
             Kernel::Huber(delta) => Some(delta),
             Kernel::AdaptiveHuber(_) => *width,
         };
-        let system = normal_equations(source, target, transform, params, current, sample, runs);
+        let centre =
+            transform.fixed_view::<3, 3>(0, 0) * centroid + transform.fixed_view::<3, 1>(0, 3);
+        let system = normal_equations(
+            source, target, transform, centre, params, current, sample, runs,
+        );
         // The next median from about MEDIAN_SAMPLES pairs, however few points pair.
         sample = (system.pairs / MEDIAN_SAMPLES).max(1);
         let robust_width = match (params.kernel, system.median) {
@@ -721,12 +744,7 @@ fn iterate<T: IcpTarget>(
             *width = robust_width;
         }
         result.iterations = iteration;
-        result.fitness = system.pairs as f64 / source.len() as f64;
-        result.rmse = if system.pairs > 0 {
-            (system.squared / system.pairs as f64).sqrt()
-        } else {
-            f64::INFINITY
-        };
+        record_fit(result, &system, source.len());
         if system.pairs < 6 {
             return Err(Error::InvalidArgument(format!(
                 "only {} source points have a target within {} m: give a closer initial pose or a larger max_correspondence_distance",
@@ -756,15 +774,19 @@ fn iterate<T: IcpTarget>(
         };
         let omega = Vector3::new(step[0], step[1], step[2]);
         let delta_t = Vector3::new(step[3], step[4], step[5]);
-        let delta =
-            Translation3::from(delta_t).to_homogeneous() * Rotation3::new(omega).to_homogeneous();
+        // Rotate by ω about the centre, then move it by t.
+        let delta = Translation3::from(centre + delta_t).to_homogeneous()
+            * Rotation3::new(omega).to_homogeneous()
+            * Translation3::from(-centre).to_homogeneous();
         *transform = delta * *transform;
         // δᵀHδ = −δᵀg for the undamped step.
         let sigmas = (-step.dot(&system.g)).max(0.0) / variance;
-        // The step test with the tolerances given; a zero one is not part of it.
+        // The step test with the tolerances given (a zero one is not part of it), on
+        // the step's rotation and its translation of the origin, as the peers test it.
         let (tt, rt) = (params.translation_tolerance, params.rotation_tolerance);
+        let moved_origin = delta.fixed_view::<3, 1>(0, 3).norm();
         let small_step = (tt > 0.0 || rt > 0.0)
-            && (tt == 0.0 || delta_t.norm() < tt)
+            && (tt == 0.0 || moved_origin < tt)
             && (rt == 0.0 || omega.norm() < rt);
         if small_step || sigmas < params.sigma_tolerance * params.sigma_tolerance {
             // An adaptive kernel starts once least squares has settled: far from the
@@ -782,6 +804,16 @@ fn iterate<T: IcpTarget>(
         }
     }
     Ok(true)
+}
+
+/// The fit's `fitness` and `rmse` from the pairs of `system` (of `len` source points).
+fn record_fit(result: &mut IcpResult, system: &NormalEquations, len: usize) {
+    result.fitness = system.pairs as f64 / len as f64;
+    result.rmse = if system.pairs > 0 {
+        (system.squared / system.pairs as f64).sqrt()
+    } else {
+        f64::INFINITY
+    };
 }
 
 /// A Gauss-Newton step (ω, t) and the residual variance that measures it.
@@ -887,12 +919,14 @@ impl NormalEquations {
 }
 
 /// JᵀWJ and JᵀWr of the point-to-plane residuals at `transform`, with
-/// r = (p' − q)·n and J = [p' × n, n] for the step (ω, t) applied on the left, under
-/// Huber's kernel of width `huber` (`None`: least squares).
+/// r = (p' − q)·n and J = [(p' − c) × n, n] for the step (ω, t) applied on the left
+/// about `centre` c, under Huber's kernel of width `huber` (`None`: least squares).
+#[allow(clippy::too_many_arguments)]
 fn normal_equations<T: IcpTarget>(
     source: &[[f64; 3]],
     target: &T,
     transform: &Matrix4<f64>,
+    centre: Vector3<f64>,
     params: IcpParams,
     huber: Option<f64>,
     sample: usize,
@@ -954,7 +988,7 @@ fn normal_equations<T: IcpTarget>(
                     magnitudes.push(residual.abs());
                     sampled += stride;
                 }
-                let c = moved.cross(&n);
+                let c = (moved - centre).cross(&n);
                 let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
                 if inlier {
                     acc.h_inliers += jac * jac.transpose();
@@ -996,6 +1030,7 @@ fn normal_equations<T: IcpTarget>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::na::Point3;
     use crate::octree::{SurfaceMap, SurfaceParams};
     use crate::synthetic::Rng;
 
@@ -1034,8 +1069,11 @@ mod tests {
             _: &mut (),
             _: usize,
         ) -> Option<([f64; 3], [f64; 3])> {
-            let (q, n, depth) = self.0.associate(p)?;
-            (self.0.key_converter().node_size(depth) <= max_distance).then_some((q, n))
+            let key = self.0.key_converter().coord_to_key_checked_f64(p)?;
+            let (q, n, _) = self
+                .0
+                .associate_within(key, max_distance, &mut Default::default())?;
+            Some((q, n))
         }
     }
 
@@ -1090,8 +1128,9 @@ mod tests {
         let params = one_step(Kernel::Squared);
         let fit = icp_point_to_plane(&source, &target, &Matrix4::identity(), params).unwrap();
         let (mut h, mut g, mut squared, mut pairs) = (Matrix6::zeros(), Vector6::zeros(), 0.0, 0);
+        let centre = centroid(&source);
         for p in &source {
-            let (distance, r, jac) = brute_force_pair(&points, &normals, p);
+            let (distance, r, jac) = brute_force_pair(&points, &normals, p, centre);
             if distance > 0.05 * 0.05 {
                 continue;
             }
@@ -1100,24 +1139,42 @@ mod tests {
             squared += r * r;
             pairs += 1;
         }
-        let expected = step_transform(h.cholesky().unwrap().solve(&-g));
+        let expected = step_transform(h.cholesky().unwrap().solve(&-g), centre);
         assert!(
             (fit.transform - expected).abs().max() < 1e-9,
             "{} {}",
             fit.transform,
             expected
         );
-        assert_eq!(fit.fitness, pairs as f64 / source.len() as f64);
-        assert!((fit.rmse - (squared / pairs as f64).sqrt()).abs() < 1e-12);
         assert!(pairs < source.len() && pairs > source.len() - 60, "{pairs}");
+        // Stopped by the iteration limit: fitness and rmse are those of the pose
+        // returned, not of the one the step was found from.
+        assert!(!fit.converged);
+        let (mut after_squared, mut after_pairs) = (0.0, 0);
+        for p in &source {
+            let moved = fit.transform.transform_point(&Point3::from(*p));
+            let (distance, r, _) = brute_force_pair(&points, &normals, &moved.into(), centre);
+            if distance <= 0.05 * 0.05 {
+                after_squared += r * r;
+                after_pairs += 1;
+            }
+        }
+        assert_eq!(fit.fitness, after_pairs as f64 / source.len() as f64);
+        assert!((fit.rmse - (after_squared / after_pairs as f64).sqrt()).abs() < 1e-12);
+        assert!(
+            fit.rmse < 0.5 * (squared / pairs as f64).sqrt(),
+            "{}",
+            fit.rmse
+        );
     }
 
     /// The nearest of `points` to `p` by brute force (its squared distance), and the
-    /// point-to-plane residual and Jacobian row [p × n, n] of that pair.
+    /// point-to-plane residual and Jacobian row [(p − centre) × n, n] of that pair.
     fn brute_force_pair(
         points: &[[f64; 3]],
         normals: &[[f64; 3]],
         p: &[f64; 3],
+        centre: Vector3<f64>,
     ) -> (f64, f64, Vector6<f64>) {
         let (squared, j) = (0..points.len())
             .map(|j| (crate::geometry::distance_squared(p, &points[j]), j))
@@ -1125,9 +1182,17 @@ mod tests {
             .unwrap();
         let (p, q) = (Vector3::from(*p), Vector3::from(points[j]));
         let n = Vector3::from(normals[j]).normalize();
-        let c = p.cross(&n);
+        let c = (p - centre).cross(&n);
         let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
         (squared, (p - q).dot(&n), jac)
+    }
+
+    fn centroid(points: &[[f64; 3]]) -> Vector3<f64> {
+        points
+            .iter()
+            .map(|p| Vector3::from(*p))
+            .sum::<Vector3<f64>>()
+            / points.len() as f64
     }
 
     /// `n` points near the corner's three walls (a third on each, in turn), wall `w`'s
@@ -1162,10 +1227,12 @@ mod tests {
         }
     }
 
-    /// The transform of the small-angle step (ω, t) applied on the left.
-    fn step_transform(step: Vector6<f64>) -> Matrix4<f64> {
-        Translation3::new(step[3], step[4], step[5]).to_homogeneous()
+    /// The transform of the small-angle step (ω, t) applied on the left: a rotation by
+    /// ω about `centre`, then a move by t.
+    fn step_transform(step: Vector6<f64>, centre: Vector3<f64>) -> Matrix4<f64> {
+        Translation3::from(centre + Vector3::new(step[3], step[4], step[5])).to_homogeneous()
             * Rotation3::new(Vector3::new(step[0], step[1], step[2])).to_homogeneous()
+            * Translation3::from(-centre).to_homogeneous()
     }
 
     /// One step under Huber's kernel against normal equations built from brute-force
@@ -1186,8 +1253,9 @@ mod tests {
             let fit = icp_point_to_plane(&source, &target, &Matrix4::identity(), params).unwrap();
             let (mut inliers, mut outliers, mut g) =
                 (Matrix6::zeros(), Matrix6::zeros(), Vector6::zeros());
+            let centre = centroid(&source);
             for p in &source {
-                let (distance, r, jac) = brute_force_pair(&points, &normals, p);
+                let (distance, r, jac) = brute_force_pair(&points, &normals, p, centre);
                 assert!(distance < 0.05 * 0.05);
                 if r.abs() <= width {
                     inliers += jac * jac.transpose();
@@ -1206,7 +1274,7 @@ mod tests {
             } else {
                 reweighted.cholesky().unwrap().solve(&-g)
             };
-            let expected = step_transform(step);
+            let expected = step_transform(step, centre);
             assert!(
                 (fit.transform - expected).abs().max() < 1e-9,
                 "{} {}",

@@ -547,7 +547,49 @@ impl SurfaceMap {
             (n.position.map(f64::from), n.normal.map(f64::from), d)
         })
     }
+
+    /// `associate_key_from` kept to nodes no larger than `max_size` (m); where it finds
+    /// none, the nearest such association of the six leaves beside `key`. A point just
+    /// off a surface on a boundary the map's nodes do not straddle (a wall on x = 0,
+    /// which the root's children split) shares no node below the root with it: only
+    /// the points on the wall's mapped side would pair, all of them pulling the same
+    /// way, and ICP would run off into the empty side.
+    pub fn associate_within(
+        &self,
+        key: OcTreeKey,
+        max_size: f64,
+        cursor: &mut Descent,
+    ) -> Option<Association> {
+        let fits = |found: &Association| self.conv.node_size(found.2) <= max_size;
+        if let Some(found) = self.associate_key_from(key, cursor).filter(fits) {
+            return Some(found);
+        }
+        let centre = self.conv.key_to_coord_at_depth(key, TREE_DEPTH);
+        let mut nearest: Option<(f64, Association)> = None;
+        for axis in 0..3 {
+            for beside in [key.0[axis].checked_sub(1), key.0[axis].checked_add(1)] {
+                let Some(k) = beside else { continue };
+                let mut neighbour = key;
+                neighbour.0[axis] = k;
+                let Some(found) = self
+                    .associate_key_from(neighbour, &mut Descent::default())
+                    .filter(fits)
+                else {
+                    continue;
+                };
+                let d = crate::geometry::distance_squared(&centre, &found.0);
+                if nearest.is_none_or(|(best, _)| d < best) {
+                    nearest = Some((d, found));
+                }
+            }
+        }
+        nearest.map(|(_, found)| found)
+    }
 }
+
+/// An association: the position and unit normal a point pairs with, and the depth of
+/// the node that gave the position.
+pub type Association = ([f64; 3], [f64; 3], u32);
 
 /// The nodes of the last `SurfaceMap::associate_from` descent (for one map that does
 /// not change meanwhile): the node at each depth and the deepest node with a normal
@@ -633,6 +675,51 @@ mod tests {
 
     /// A resumed descent gives exactly what a fresh one does, whatever the order of
     /// the points (Morton order shares long prefixes, random order short ones).
+    #[test]
+    fn a_point_off_a_surface_on_the_roots_boundary_pairs_with_the_leaf_beside_it() {
+        // A noise-free wall on x = 0: all its points fall in the root's x >= 0 half, and
+        // a point 1-9 mm in front of it shares no node below the root with the wall.
+        let mut map = SurfaceMap::new(0.02, SurfaceParams::default()).unwrap();
+        let wall: Vec<[f64; 3]> = (0..40)
+            .flat_map(|i| (0..40).map(move |j| [0.0, 0.1 + 0.01 * i as f64, 0.1 + 0.01 * j as f64]))
+            .collect();
+        map.insert(&wall).unwrap();
+        map.insert(&wall).unwrap();
+        let conv = *map.key_converter();
+        for gap in [0.001, 0.005, 0.009] {
+            let p = [-gap, 0.305, 0.305];
+            let key = conv.coord_to_key_checked_f64(p).unwrap();
+            let plain = map.associate_key_from(key, &mut Descent::default());
+            assert!(
+                plain.is_none_or(|(_, _, depth)| conv.node_size(depth) > 0.2),
+                "{plain:?}"
+            );
+            let (q, n, depth) = map
+                .associate_within(key, 0.2, &mut Descent::default())
+                .unwrap();
+            // The leaf across the boundary: on the wall, beside the point, normal along x.
+            assert_eq!(depth, TREE_DEPTH);
+            assert_eq!(q[0], 0.0);
+            assert!(
+                (q[1] - p[1]).abs() <= 0.02 && (q[2] - p[2]).abs() <= 0.02,
+                "{q:?}"
+            );
+            assert!(n[0].abs() > 0.999, "{n:?}");
+            // Where the plain association pairs, it is what is returned.
+            let on = conv.coord_to_key_checked_f64([0.0, 0.305, 0.305]).unwrap();
+            assert_eq!(
+                map.associate_within(on, 0.2, &mut Descent::default()),
+                map.associate_key_from(on, &mut Descent::default())
+            );
+        }
+        // Nothing beside either: nothing.
+        let far = conv.coord_to_key_checked_f64([-0.5, 0.3, 0.3]).unwrap();
+        assert_eq!(
+            map.associate_within(far, 0.2, &mut Descent::default()),
+            None
+        );
+    }
+
     #[test]
     fn resumed_descent_equals_fresh_descent() {
         let mut rng = Rng::new(11);
