@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from earcore._earcore import SurfaceMap
+from earcore._earcore import SurfaceMap, checked_rigid_transform
 from earcore.registration import DegenerateAlignmentWarning, icp_point_to_plane
 
 __all__ = ["LidarOdometry", "OdometrySettings"]
@@ -62,13 +62,7 @@ class LidarOdometry:
         self.registration_seconds: list[float] = []
         self.update_seconds: list[float] = []
         self.degenerate_scans = 0
-        start = np.eye(4) if self.initial_pose is None else np.asarray(self.initial_pose, dtype=np.float64)
-        if start.shape != (4, 4) or not np.all(np.isfinite(start)):
-            raise ValueError(f"initial_pose must be a finite 4×4 matrix, got shape {start.shape}")
-        rotation = start[:3, :3]
-        if not (np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-6) and np.linalg.det(rotation) > 0
-                and np.allclose(start[3], [0, 0, 0, 1])):
-            raise ValueError("initial_pose must be a rigid transform (a rotation and a translation)")
+        start = np.eye(4) if self.initial_pose is None else checked_rigid_transform(self.initial_pose, "initial_pose")
         self._first_pose = start
 
     def add_scan(self, scan: npt.ArrayLike) -> np.ndarray:

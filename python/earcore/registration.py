@@ -10,7 +10,15 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from earcore._earcore import IcpResult, PlaneTarget, SurfaceMap, icp_point_to_plane_raw, rigid_fit, rigid_fit_ransac
+from earcore._earcore import (
+    IcpResult,
+    PlaneTarget,
+    SurfaceMap,
+    checked_rigid_transform,
+    icp_point_to_plane_raw,
+    rigid_fit,
+    rigid_fit_ransac,
+)
 
 __all__ = [
     "DegenerateAlignmentWarning",
@@ -135,7 +143,7 @@ def refine_camera_poses(
         raise ValueError("give at least two clouds and one base_from_camera pose per cloud")
     if not 0 <= reference < len(clouds):
         raise ValueError(f"reference must name one of the {len(clouds)} cameras (0 to {len(clouds) - 1}), got {reference}")
-    poses = [np.asarray(p, dtype=np.float64) for p in base_from_cameras]
+    poses = [checked_rigid_transform(p, f"base_from_cameras[{i}]") for i, p in enumerate(base_from_cameras)]
     local = [voxel_downsample(c, voxel_size) for c in clouds]
     in_base = lambda i: local[i] @ poses[i][:3, :3].T + poses[i][:3, 3]  # noqa: E731
     done = [reference]

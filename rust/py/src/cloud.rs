@@ -49,8 +49,11 @@ pub fn depth_to_points_raw<'py>(
         })?;
     let img: PyReadonlyArray2<f32> = img.extract().map_err(|_| {
         PyValueError::new_err(format!(
-            "depth must be an (H, W) image, got shape {:?}",
-            depth.getattr("shape").ok()
+            "depth must be an (H, W) image, got shape {}",
+            depth
+                .getattr("shape")
+                .and_then(|shape| shape.str().map(|s| s.to_string()))
+                .unwrap_or_else(|_| "?".into())
         ))
     })?;
     let (height, width) = (img.shape()[0], img.shape()[1]);
@@ -300,6 +303,19 @@ pub fn rigid_fit<'py>(
     let w = weights.map(|w| numbers(w, "weights")).transpose()?;
     let (s, d) = (s.as_slice()?, d.as_slice()?);
     let m = py.detach(|| cloud::rigid_fit(s, d, w.as_deref())).py()?;
+    Ok(matrix4_to_array(py, &m))
+}
+
+/// `matrix` as a float64 (4, 4) array after checking it is a finite rigid transform
+/// (orthonormal rotation, det +1, bottom row 0 0 0 1); errors name it `name`.
+#[pyfunction]
+pub fn checked_rigid_transform<'py>(
+    py: Python<'py>,
+    matrix: &Bound<'py, PyAny>,
+    name: &str,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let m = pose(matrix, name)?;
+    earcore_core::geometry::check_rigid(&m, name).py()?;
     Ok(matrix4_to_array(py, &m))
 }
 

@@ -125,6 +125,7 @@ fn _earcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(cloud::estimate_normals, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::cluster_points, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::rigid_fit, m)?)?;
+    m.add_function(wrap_pyfunction!(cloud::checked_rigid_transform, m)?)?;
     m.add_function(wrap_pyfunction!(cloud::rigid_fit_ransac, m)?)?;
     m.add_function(wrap_pyfunction!(icp::icp_point_to_plane_raw, m)?)?;
     Ok(())

@@ -104,7 +104,8 @@ pub fn depth_to_points(
         && k.cy.is_finite())
     {
         return Err(Error::InvalidArgument(format!(
-            "intrinsics need finite fx, fy > 0 and finite cx, cy, got {k:?}"
+            "intrinsics need finite fx, fy > 0 and finite cx, cy, got fx = {}, fy = {}, cx = {}, cy = {}",
+            k.fx, k.fy, k.cx, k.cy
         )));
     }
     if frame.depth.len() != frame.width * frame.height || frame.width == 0 || frame.height == 0 {

@@ -44,7 +44,8 @@ pub fn statistical_outliers_interruptible(
 ) -> Result<Option<(Vec<u32>, Vec<f64>)>> {
     if params.k == 0 || !params.std_ratio.is_finite() {
         return Err(Error::InvalidArgument(format!(
-            "need k >= 1 and a finite std_ratio, got {params:?}"
+            "need k >= 1 and a finite std_ratio, got k = {}, std_ratio = {}",
+            params.k, params.std_ratio
         )));
     }
     if points.len() <= params.k {
