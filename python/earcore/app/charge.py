@@ -242,7 +242,9 @@ def main(argv: list[str] | None = None) -> int:
             _report(args.out / f"run-{i:02d}.png", cell, outcome, rec, plug_config.force_threshold, plug_config.force_limit)
             print(
                 f"run {i:2d}: {rec['status']:8s} {rec['reason'][:90]}"
-                + (f"  pose {rec['pose_error']['position_mm']:.2f} mm {rec['pose_error']['rotation_deg']:.2f}°" if "pose_error" in rec else ""),
+                + (f"  pose {rec['pose_error']['position_mm']:.2f} mm {rec['pose_error']['rotation_deg']:.2f}°" if "pose_error" in rec else "")
+                + (f"  NOT MATED in the simulation ({rec['depth_mm']:.1f} mm in)"
+                   if rec["status"] == "plugged" and rec.get("plugged_truth") is False else ""),
                 flush=True,
             )
     finally:
