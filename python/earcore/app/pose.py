@@ -15,7 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from earcore.app.arguments import Parser, fail
+from earcore.app.arguments import Parser, fail, positive
 
 #: How a refined table is titled.
 REFINED_LABELS = {"fit": " + kinematic fit", "pnp": " + PnP with the joint angles known"}
@@ -103,7 +103,7 @@ def export_main(argv: list[str] | None = None) -> int:
     parser = Parser(prog="earcore export pose", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", type=Path, required=True, help="a run folder or checkpoint file")
     parser.add_argument("--out", type=Path, required=True, help="the .onnx file (its sidecar .json is written beside it)")
-    parser.add_argument("--tolerance", type=float, default=1e-4, help="largest allowed difference between torch and onnxruntime")
+    parser.add_argument("--tolerance", type=positive, default=1e-4, help="largest allowed difference between torch and onnxruntime (> 0)")
     args = parser.parse_args(rest)
     if args.out.suffix != ".onnx":
         parser.error(f"argument --out: must end in .onnx, got {args.out}")

@@ -54,6 +54,10 @@ def test_train_evaluate_export(tmp_path):
     from earcore.app.pose import export_main
     from earcore.pose import estimate
 
+    for bad in ("0", "-1", "nan"):  # a parity check that cannot pass, or is switched off
+        with pytest.raises(SystemExit):
+            export_main(["pose", "--checkpoint", str(out), "--out", str(tmp_path / "bad.onnx"), "--tolerance", bad])
+    assert not (tmp_path / "bad.onnx").exists()
     assert export_main(["pose", "--checkpoint", str(out), "--out", str(tmp_path / "pose.onnx")]) == 0
     image = test_set[0]["image"].numpy().transpose(1, 2, 0)
     with torch.no_grad():
