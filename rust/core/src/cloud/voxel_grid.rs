@@ -251,7 +251,12 @@ impl Slots for Bricks {
 
     #[inline(always)] // per point: a call costs as much as the lookup
     fn slot(&mut self, cell: [i64; 3], fresh: u32) -> Option<u32> {
-        let rel = [0, 1, 2].map(|a| cell[a] - self.origin[a]);
+        // Written out: `[T; N]::map` is not always inlined, and this runs per point.
+        let rel = [
+            cell[0] - self.origin[0],
+            cell[1] - self.origin[1],
+            cell[2] - self.origin[2],
+        ];
         let brick = ((rel[0] >> 3) * self.dims[1] + (rel[1] >> 3)) * self.dims[2] + (rel[2] >> 3);
         let block = self.blocks.get_mut(usize::try_from(brick).ok()?)?;
         if *block == NONE {
@@ -298,14 +303,15 @@ fn accumulate<I: Slots>(
             & (v[2] >= lo[2])
             & (v[2] < hi[2]);
         if I::CHEAP || !inside {
-            let cell = v.map(floor_i64);
+            // Written out, as in `Bricks::slot`.
+            let cell = [floor_i64(v[0]), floor_i64(v[1]), floor_i64(v[2])];
             slot = index.slot(cell, voxels.len() as u32)? as usize;
             if slot == voxels.len() {
                 voxels.push([0.0; 4]);
             }
             if !I::CHEAP {
-                lo = cell.map(|c| c as f64);
-                hi = lo.map(|c| c + 1.0);
+                lo = [cell[0] as f64, cell[1] as f64, cell[2] as f64];
+                hi = [lo[0] + 1.0, lo[1] + 1.0, lo[2] + 1.0];
             }
         }
         let sums = &mut voxels[slot];
