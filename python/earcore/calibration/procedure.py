@@ -431,8 +431,6 @@ class Calibrator:
                 existing = Calibration.load(path)
             except CalibrationFileError as exc:
                 raise CalibrationFileError(f"{exc}; not overwriting it: give another file, or move it away") from exc
-        elif not path.parent.is_dir():
-            raise CalibrationFileError(f"cannot write {path}: its folder {path.parent} does not exist")
         results = self.run(names)
         existing.merged(results).save(path)
         return results

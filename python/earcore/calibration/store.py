@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from earcore._earcore import checked_rigid_transform
 from earcore.calibration.errors import CalibrationFileError
 
 __all__ = ["Calibration", "CameraCalibration", "CalibrationFileError"]
@@ -136,15 +137,31 @@ class CameraCalibration:
             if value is None:
                 continue
             if key in _MATRICES or key in _VECTORS:
-                arr = np.asarray(value, dtype=np.float64)
                 shape = _MATRICES.get(key) or (_VECTORS[key],)
+                try:
+                    arr = np.asarray(value, dtype=np.float64)
+                except (TypeError, ValueError):
+                    raise CalibrationFileError(f"{where}: {key} must be numbers of shape {shape}") from None
                 if arr.shape != shape or not np.isfinite(arr).all():
                     raise CalibrationFileError(f"{where}: {key} must be finite numbers of shape {shape}, got {arr.shape}")
+                if shape == (4, 4):
+                    try:
+                        arr = checked_rigid_transform(arr, key)
+                    except ValueError as exc:
+                        raise CalibrationFileError(f"{where}: {exc}") from None
+                if shape == (3, 3) and not (arr[0, 0] > 0 and arr[1, 1] > 0 and np.array_equal(arr[2], [0.0, 0.0, 1.0])):
+                    raise CalibrationFileError(f"{where}: {key} is not a camera matrix (fx, fy > 0, last row 0 0 1)")
                 value = arr
             elif key in ("depth_size", "colour_size", "depth_region", "colour_region"):
-                value = tuple(int(v) for v in value)
+                try:
+                    value = tuple(int(v) for v in value)
+                except (TypeError, ValueError):
+                    raise CalibrationFileError(f"{where}: {key} must be whole numbers") from None
             elif key == "depth_error":
-                arr = np.asarray(value, dtype=np.float64)
+                try:
+                    arr = np.asarray(value, dtype=np.float64)
+                except (TypeError, ValueError):
+                    arr = np.full(1, np.nan)
                 if arr.shape != (3,) or not np.isfinite(arr).all():
                     raise CalibrationFileError(f"{where}: depth_error must be 3 finite numbers (offset, scale, radial)")
                 value = [float(v) for v in arr]
@@ -184,7 +201,8 @@ class Calibration:
         for i, entry in enumerate(data["cameras"]):
             if not isinstance(entry, dict):
                 raise CalibrationFileError(f"{path}: cameras[{i}] is not a mapping")
-            cam = CameraCalibration.from_dict(entry, f"{path}: cameras[{i}]")
+            named = f" ({entry['name']!r})" if isinstance(entry.get("name"), str) else ""
+            cam = CameraCalibration.from_dict(entry, f"{path}: cameras[{i}]{named}")
             cams[cam.name] = cam
         return cls(cams)
 
