@@ -108,7 +108,10 @@ class RobotModel(_earcore.RobotModel):
         for link in urdf.links:
             vertices = urdf.vertices.get(link)
             bodies.append(None if vertices is None else _earcore.fit_body(vertices, padding, shape))
-        return cls(urdf.links, joints, bodies, name=name or urdf.name, padding=padding)
+        try:
+            return cls(urdf.links, joints, bodies, name=name or urdf.name, padding=padding)
+        except ValueError as exc:  # the core's check of the kinematic tree (a loop, a zero axis...)
+            raise UrdfError(f"{path}: {exc}") from exc
 
     def random_configurations(self, count: int, seed: int | None = None) -> np.ndarray:
         """``count`` configurations uniform within the joint limits (continuous joints in ±π)."""

@@ -442,6 +442,8 @@ def parse_urdf(path: str | Path, *, geometry: str = "collision") -> UrdfRobot:
         name = j.get("name") or "?"
         kind = j.get("type")
         what = f"{path.name}: joint {name!r}"
+        if any(other.name == name for other in joints):
+            raise UrdfError(f"{what} is defined twice")
         if kind not in ("revolute", "continuous", "prismatic", "fixed"):
             raise UrdfError(f"{what} has unsupported type {kind!r}")
         parent_el, child_el = j.find("parent"), j.find("child")
