@@ -561,9 +561,10 @@ def test_bad_urdfs(tmp_path):
     with pytest.raises(robots.UrdfError, match="child link 'b' is not defined"):
         robots.RobotModel.from_urdf(urdf(link.format("a") + joint.format("fixed", "")))
     # Joints that do not make a tree: the core's check, as a UrdfError naming the file.
-    two_parents = '<joint name="k" type="fixed"><parent link="c"/><child link="b"/></joint>'
-    with pytest.raises(robots.UrdfError, match="robot.urdf: a tree of 3 links needs 2 joints"):
-        robots.RobotModel.from_urdf(urdf("".join(link.format(n) for n in "abc") + joint.format("fixed", "") + two_parents))
+    diamond = "".join(f'<joint name="{p}{c}" type="fixed"><parent link="{p}"/><child link="{c}"/></joint>'
+                      for p, c in ("ab", "ac", "bd", "cd"))
+    with pytest.raises(robots.UrdfError, match="robot.urdf: a tree of 4 links needs 3 joints"):
+        robots.RobotModel.from_urdf(urdf("".join(link.format(n) for n in "abcd") + diamond))
     twice = '<joint name="j" type="fixed"><parent link="b"/><child link="c"/></joint>'
     with pytest.raises(robots.UrdfError, match="joint 'j' is defined twice"):
         robots.RobotModel.from_urdf(urdf("".join(link.format(n) for n in "abc") + joint.format("fixed", "") + twice))
