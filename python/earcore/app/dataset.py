@@ -207,7 +207,7 @@ def render(prog: str, module: str, options, folder: Path, workers: int | None, u
         return fail(prog, f"{folder} exists and is not a dataset folder; choose an empty or new --out")
     folder.mkdir(parents=True, exist_ok=True)
     write_manifest(folder, manifest)
-    complete = complete_shards(folder)
+    complete = complete_shards(folder, manifest)
     todo = [i for i, entry in enumerate(manifest["shards"]) if entry["name"] not in complete]
     total = sum(len(s) for s in shards)
     done = total - sum(len(shards[i]) for i in todo)

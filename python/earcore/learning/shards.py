@@ -156,10 +156,33 @@ def write_shard(folder: str | Path, name: str, samples: Sequence[Sample], header
     _atomic_write(folder / f"{name}.csv", text.getvalue().encode())
 
 
-def complete_shards(folder: str | Path) -> set[str]:
-    """Names of the shards whose CSV and tar are both there (the CSV is written last)."""
+def complete_shards(folder: str | Path, manifest: dict[str, Any] | None = None) -> set[str]:
+    """Names of the shards whose CSV and tar are both there (the CSV is written last);
+    given the `manifest`, only those that are also whole: the CSV holds a row per
+    sample and the tar every layer of each, all of its bytes present (a copy cut
+    short, or a disk that filled, leaves files that exist but are not whole)."""
     folder = Path(folder)
-    return {p.stem for p in folder.glob("shard-*.csv") if (folder / f"{p.stem}.tar").is_file()}
+    names = {p.stem for p in folder.glob("shard-*.csv") if (folder / f"{p.stem}.tar").is_file()}
+    if manifest is None:
+        return names
+    layers = len(manifest_layers(manifest))
+    samples = {s["name"]: s["samples"] for s in manifest["shards"]}
+    return {n for n in names if n in samples and _whole(folder, n, samples[n], layers)}
+
+
+def _whole(folder: Path, name: str, samples: int, layers: int) -> bool:
+    """Whether shard `name` has `samples` CSV rows and `samples` × `layers` tar members
+    whose bytes all lie within the file (headers are read, images are not)."""
+    try:
+        with open(folder / f"{name}.csv", newline="", encoding="utf-8") as f:
+            rows = sum(1 for _ in csv.reader(f)) - 1
+        tar_path = folder / f"{name}.tar"
+        size = tar_path.stat().st_size
+        with tarfile.open(tar_path) as tar:
+            members = tar.getmembers()
+    except (OSError, UnicodeDecodeError, csv.Error, tarfile.TarError):
+        return False
+    return rows == samples and len(members) == samples * layers and all(m.offset_data + m.size <= size for m in members)
 
 
 def read_shard(

@@ -67,6 +67,27 @@ def test_incomplete_shards_are_not_complete(tmp_path):
     assert complete_shards(tmp_path) == {"shard-00000"}
 
 
+def test_shards_cut_short_are_not_complete_for_their_manifest(tmp_path):
+    """A shard whose files exist but were cut short (a truncated copy, a full disk) is
+    generated again on resuming: it was counted as done, and training then refused the
+    folder as damaged."""
+    header = columns(2, 1)
+    for i in range(4):
+        write_shard(tmp_path, f"shard-{i:05d}", samples(3), header)
+    manifest = {"shards": [{"name": f"shard-{i:05d}", "samples": 3} for i in range(4)]}
+    assert complete_shards(tmp_path, manifest) == {f"shard-{i:05d}" for i in range(4)}
+    tar = tmp_path / "shard-00001.tar"
+    data = tar.read_bytes()
+    tar.write_bytes(data[:4000])  # the last images' bytes gone (the images end near 5.8 kB)
+    rows = tmp_path / "shard-00002.csv"
+    rows.write_text("".join(rows.read_text().splitlines(keepends=True)[:-1]))  # a row gone
+    (tmp_path / "shard-00003.tar").write_bytes(b"")
+    assert complete_shards(tmp_path, manifest) == {"shard-00000"}
+    for name in ("shard-00001", "shard-00002", "shard-00003"):
+        with pytest.raises(DatasetError):
+            read_shard(tmp_path, name, W, H, samples=3)
+
+
 def test_damage_is_reported_with_the_file(tmp_path):
     write_shard(tmp_path, "shard-00000", samples(), columns(2, 1))
     tar = tmp_path / "shard-00000.tar"
