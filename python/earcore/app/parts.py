@@ -103,6 +103,9 @@ def evaluate_main(argv: list[str] | None = None) -> int:
         data = PartImages(args.data, split=None if args.split == "all" else args.split, noise=False)
         if data.classes != meta["classes"]:
             return fail(prog, f"{args.data} has part types {data.classes}, the detector was trained on {meta['classes']}")
+        trained = (meta["options"]["width"], meta["options"]["height"])
+        if tuple(data.image_size) != tuple(trained):
+            return fail(prog, f"{args.data} holds {data.image_size[0]}×{data.image_size[1]} images, the detector takes {trained[0]}×{trained[1]}")
         table = evaluate(detector, data, data.classes, limit=args.limit)
     except (EarcoreError, ValueError, OSError) as exc:
         return fail(prog, str(exc), 1)

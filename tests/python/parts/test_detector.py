@@ -103,7 +103,7 @@ def test_weighted_kmeans_and_picks_on_blobs():
     assert labels[0] == labels[1] != labels[2] == labels[3]
 
 
-def test_train_and_evaluate_commands(data, tmp_path):
+def test_train_and_evaluate_commands(data, tmp_path, capsys):
     from earcore.app.parts import main
 
     run = tmp_path / "run"
@@ -117,3 +117,8 @@ def test_train_and_evaluate_commands(data, tmp_path):
     with pytest.raises(SystemExit):
         main(["train", "--data", str(data), "--out", str(tmp_path / "r2"), "--weights", "iou=1", "--steps", "1"])
     assert main(["evaluate", "--checkpoint", str(tmp_path / "nothing"), "--data", str(data)]) == 1
+    # Images of another size: refused with both sizes, not a tensor-size traceback.
+    small = tmp_path / "small"
+    assert main(["generate", "--out", str(small), "--count", "2", "--size", "32x24", "--workers", "1", "--quiet", "--seed", "3"]) == 0
+    assert main(["evaluate", "--checkpoint", str(run), "--data", str(small)]) == 2
+    assert "32×24 images, the detector takes 64×48" in capsys.readouterr().err
