@@ -23,7 +23,13 @@ class PoseWatch:
         self.config = config
         self.robot = robot
         self.weights = config.weights or None
-        load_model(self.weights)  # a missing network or onnxruntime fails here, before the run
+        model = load_model(self.weights)  # a missing network or onnxruntime fails here, before the run
+        known = list(model.sidecar["robots"])
+        if robot not in known:
+            # Its keypoints would be compared with another robot's: a number with no meaning.
+            from earcore.errors import ConfigError
+
+            raise ConfigError(f"pose: the network knows {', '.join(known) or 'no robots'}, not the cell's {robot!r}")
         self.period = 1.0 / config.rate_hz
         self._next = 0.0
         self.joint_errors: list[float] = []

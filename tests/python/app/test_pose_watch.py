@@ -75,3 +75,19 @@ def test_a_pose_camera_needs_pybullets_renderer():
         config.validate()
     config.cell.renderer = "pybullet"
     config.validate()
+
+
+def test_a_network_that_does_not_know_the_cells_robot_is_refused(tmp_path):
+    """Its keypoints would be compared with another robot's (76 cm 'errors' for a Panda
+    against a network of URs): refused before the run, naming what it knows."""
+    from earcore.app.pose_watch import PoseWatch
+    from earcore.pose.inference import load_model
+
+    _, weights = exported(tmp_path, "multi")
+    config = small_run_config(1.0)
+    config.pose.camera = "kinect_v2_left"
+    config.pose.weights = str(weights)
+    known = list(load_model(str(weights)).sidecar["robots"])
+    PoseWatch(config.pose, known[0])
+    with pytest.raises(ConfigError, match=f"the network knows {known[0]}.*not the cell's 'panda'"):
+        PoseWatch(config.pose, "panda")
