@@ -115,6 +115,16 @@ def _build(config: RunConfig, driver):
     return cell, pipeline, executive, waypoints
 
 
+def _cautions(config: RunConfig) -> list[str]:
+    """What makes a run's map or motion mean little, said before it starts."""
+    from earcore.sim.sensors import SENSORS
+
+    if not any(SENSORS[c.sensor].has_depth for c in config.cell.cameras):
+        blind = " and the robot plans blind" if config.planning.mode != "none" else ""
+        return [f"no depth camera in the cell: nothing is mapped{blind}"]
+    return []
+
+
 def run(
     config: RunConfig,
     out: Path,
@@ -134,6 +144,9 @@ def run(
     config.validate()
     out.mkdir(parents=True, exist_ok=True)
     cell, pipeline, executive, waypoints = _build(config, driver)
+    cautions = _cautions(config)
+    for text in cautions:
+        print(f"earcore run: warning: {text}", file=sys.stderr)
     path = waypoints[1:] + waypoints[::-1][1:]
     reports = []
     score = GroundTruthScore()
@@ -197,6 +210,8 @@ def run(
     summary["wall_s"] = round(time.perf_counter() - started, 2)
     summary["render_s"] = round(render_s, 2)
     summary["snapshots"] = written
+    if cautions:
+        summary["warnings"] = cautions
     if executive is not None:
         summary["planning"] = executive.summary()
         summary["trips"] = [t.as_dict() for t in getattr(executive, "trips", [])]

@@ -240,3 +240,16 @@ def test_far_points_clear_the_space_inside_the_crop_sphere():
     free_with = np.mean(known[True].tree.is_occupied(probe) == 0)
     free_without = np.mean(known[False].tree.is_occupied(probe) == 0)
     assert free_with > 0.95 and free_without < 0.2, (free_with, free_without)
+
+
+def test_a_cell_without_depth_cameras_is_run_with_a_warning(tmp_path, capsys):
+    """No depth camera: the map stays empty and a planning robot moves blind; the run
+    says so before it starts and in its summary."""
+    from earcore.app.run import run
+
+    config = small_run_config(0.2)
+    config.cell.cameras = []
+    summary = run(config, tmp_path, progress=False, record=False)
+    assert "no depth camera" in capsys.readouterr().err
+    assert summary["warnings"] == ["no depth camera in the cell: nothing is mapped"]
+    assert "warnings" not in run(small_run_config(0.2), tmp_path / "with", progress=False, record=False)
