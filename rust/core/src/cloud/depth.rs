@@ -67,6 +67,15 @@ impl BrownConrady {
         (x, y)
     }
 
+    /// [`undistort`](Self::undistort) where the lens reaches (x_d, y_d): `None` where
+    /// no ray distorts to within `tolerance` of it (a strong barrel lens folds back
+    /// before an image's corners, and the iteration wanders off there).
+    pub fn invert(&self, xd: f64, yd: f64, tolerance: [f64; 2]) -> Option<(f64, f64)> {
+        let (x, y) = self.undistort(xd, yd);
+        let (ux, uy) = self.distort(x, y);
+        ((ux - xd).abs() <= tolerance[0] && (uy - yd).abs() <= tolerance[1]).then_some((x, y))
+    }
+
     fn is_zero(&self) -> bool {
         *self == BrownConrady::default()
     }
@@ -87,7 +96,8 @@ pub struct DepthFrame<'a> {
 
 /// Back-project every valid pixel: returns the points (camera frame, or map frame
 /// when `base_from_camera` is given) and the index of the pixel each came from.
-/// Valid means finite, > 0, ≥ `min_depth` and ≤ `max_depth`.
+/// Valid means finite, > 0, ≥ `min_depth` and ≤ `max_depth`, at a pixel the lens
+/// reaches (a strong barrel `distortion` may fold back before the image's corners).
 pub fn depth_to_points(
     frame: &DepthFrame,
     k: &Intrinsics,
@@ -155,6 +165,9 @@ pub fn depth_to_points(
             let (x, y) = match &rays {
                 Some(table) => {
                     let r = table[v * frame.width + u];
+                    if r[0].is_nan() {
+                        continue; // beyond what the lens reaches
+                    }
                     (r[0], r[1])
                 }
                 None => ((u as f64 - k.cx) / k.fx, yd),
@@ -169,13 +182,17 @@ pub fn depth_to_points(
     Ok((points, pixels))
 }
 
+/// How close (pixels) a ray must land on a pixel for the lens to reach it.
+const REACH_PIXELS: f64 = 0.01;
+
 type LensKey = [u64; 11];
 /// Per-pixel undistorted rays of one lens.
 type RayTable = Arc<Vec<[f64; 2]>>;
 
 /// The undistorted normalised ray (x, y) of every pixel of a `width × height` image
-/// through `k` and `d`, computed once per lens and kept for the next calls (the last
-/// eight lenses: one per camera of a cell).
+/// through `k` and `d` (NaN for a pixel the lens does not reach, to a hundredth of a
+/// pixel), computed once per lens and kept for the next calls (the last eight lenses:
+/// one per camera of a cell).
 fn ray_table(k: &Intrinsics, d: &BrownConrady, width: usize, height: usize) -> RayTable {
     static CACHE: OnceLock<Mutex<Vec<(LensKey, RayTable)>>> = OnceLock::new();
     let key: LensKey = [
@@ -202,11 +219,12 @@ fn ray_table(k: &Intrinsics, d: &BrownConrady, width: usize, height: usize) -> R
         return Arc::clone(table);
     }
     let mut table = Vec::with_capacity(width * height);
+    let tolerance = [REACH_PIXELS / k.fx, REACH_PIXELS / k.fy];
     for v in 0..height {
         let yd = (v as f64 - k.cy) / k.fy;
         for u in 0..width {
-            let (x, y) = d.undistort((u as f64 - k.cx) / k.fx, yd);
-            table.push([x, y]);
+            let ray = d.invert((u as f64 - k.cx) / k.fx, yd, tolerance);
+            table.push(ray.map_or([f64::NAN; 2], |(x, y)| [x, y]));
         }
     }
     let table = Arc::new(table);
@@ -264,6 +282,52 @@ mod tests {
                     assert_eq!(*p, [x * z, y * z, z]);
                 }
             }
+        }
+    }
+
+    /// A barrel lens strong enough to fold back before the image's corners: the pixels
+    /// it cannot reach give no point (they gave points metres off, wherever the
+    /// iteration wandered); every pixel it reaches gives the ray that distorts onto it.
+    #[test]
+    fn pixels_beyond_the_lens_reach_give_no_point() {
+        let (w, h) = (64, 48);
+        let depth = vec![1.0f32; w * h];
+        let frame = DepthFrame {
+            depth: &depth,
+            width: w,
+            height: h,
+            scale: 1.0,
+        };
+        let k = Intrinsics {
+            fx: 40.0,
+            fy: 40.0,
+            cx: 31.5,
+            cy: 23.5,
+        };
+        let d = BrownConrady {
+            k1: -0.5,
+            ..Default::default()
+        };
+        // r (1 - r²/2) peaks at r = √(2/3), distorted radius 0.544: 21.8 px from the centre.
+        let reach = 40.0 * (2.0f64 / 3.0).sqrt() * (1.0 - 1.0 / 3.0);
+        let (points, pixels) = depth_to_points(&frame, &k, Some(&d), 0.0, 10.0, None).unwrap();
+        let radius = |i: u32| {
+            let (u, v) = (
+                (i as usize % w) as f64 - k.cx,
+                (i as usize / w) as f64 - k.cy,
+            );
+            (u * u + v * v).sqrt()
+        };
+        assert!(pixels.iter().all(|&i| radius(i) <= reach + 0.01));
+        let kept: std::collections::HashSet<u32> = pixels.iter().copied().collect();
+        let inside = (0..(w * h) as u32).filter(|&i| radius(i) < reach - 0.5);
+        assert!(inside.clone().all(|i| kept.contains(&i)));
+        assert!(points.len() < w * h && inside.count() > 1000);
+        for (p, &i) in points.iter().zip(&pixels) {
+            let (xd, yd) = d.distort(p[0], p[1]);
+            let (u, v) = (i as usize % w, i as usize / w);
+            assert!((xd * k.fx + k.cx - u as f64).abs() < 0.01, "{p:?} {u}");
+            assert!((yd * k.fy + k.cy - v as f64).abs() < 0.01, "{p:?} {v}");
         }
     }
 }
