@@ -437,7 +437,7 @@ def parse_urdf(path: str | Path, *, geometry: str = "collision") -> UrdfRobot:
     if not link_elements:
         raise UrdfError(f"{path}: no <link> elements")
 
-    joints = []
+    joints: list[UrdfJoint] = []
     for j in root.findall("joint"):
         name = j.get("name") or "?"
         kind = j.get("type")
