@@ -145,12 +145,12 @@ fn read_file(path: &PathBuf) -> PyResult<Vec<u8>> {
 
 /// Write through a temporary file and rename, so a failed write never leaves a
 /// half-written map where a good one was.
-fn write_file(path: &PathBuf, bytes: &[u8]) -> PyResult<()> {
+fn write_file(path: &std::path::Path, bytes: &[u8]) -> PyResult<()> {
     let error =
         |e: std::io::Error| PyOSError::new_err(format!("cannot write {}: {e}", path.display()));
     // Through a symbolic link to its target; a device or pipe is written as it is (no
     // temporary beside it can replace it).
-    let target = std::fs::canonicalize(path).unwrap_or_else(|_| path.clone());
+    let target = through_links(path);
     let existing = std::fs::metadata(&target).ok();
     if existing.as_ref().is_some_and(|m| !m.is_file()) {
         return std::fs::write(&target, bytes).map_err(error);
@@ -169,6 +169,23 @@ fn write_file(path: &PathBuf, bytes: &[u8]) -> PyResult<()> {
             let _ = std::fs::remove_file(&tmp);
             error(e)
         })
+}
+
+/// `path` with its symbolic links followed, also to a target that does not exist yet
+/// (which `canonicalize` refuses: the link itself was then replaced by the file).
+fn through_links(path: &std::path::Path) -> PathBuf {
+    let mut at = path.to_path_buf();
+    // A cycle of links ends after as many hops as the system follows.
+    for _ in 0..40 {
+        let Ok(next) = std::fs::read_link(&at) else {
+            return at;
+        };
+        at = match at.parent() {
+            Some(dir) if next.is_relative() => dir.join(next),
+            _ => next,
+        };
+    }
+    at
 }
 
 impl PyOcTree {

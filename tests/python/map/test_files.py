@@ -171,6 +171,12 @@ def test_writing_through_a_link_keeps_the_link_and_the_files_mode(tmp_path):
     assert link.is_symlink() and stat.S_IMODE(target.stat().st_mode) == 0o600
     assert earcore.OcTree.read_binary(target).size() == tree.size()
     assert not list(tmp_path.glob("*.earcore-tmp"))
+    # A link to a file not written yet (latest -> today's): the file is created, the link stays.
+    (tmp_path / "maps").mkdir()
+    latest = tmp_path / "latest.bt"
+    latest.symlink_to("maps/today.bt")
+    tree.write_binary(latest)
+    assert latest.is_symlink() and earcore.OcTree.read_binary(tmp_path / "maps" / "today.bt").size() == tree.size()
     if os.path.exists("/dev/full"):
         with pytest.raises(OSError):
             tree.write_binary("/dev/full")  # a full device: an error, and the device stays
