@@ -323,6 +323,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--no-recording", action="store_true", help="skip the rerun recording (out/cell.rrd)")
     args = parser.parse_args(argv)
+    if args.out.exists() and not args.out.is_dir():
+        parser.error(f"argument --out: {args.out} is a file; give a folder for the outputs")
     config = load_config(args.config) if args.config else RunConfig()
     if args.duration is not None:
         config.duration = args.duration

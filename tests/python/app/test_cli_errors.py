@@ -29,6 +29,7 @@ BAD_OPTIONS = [
     (["run", "--seed", "-3"], "--seed"),
     (["run", "--seed", "x"], "--seed"),
     (["run", "--frobnicate"], "--frobnicate"),
+    (["run", "--out", __file__], "--out"),
     (["experiment", "table2", "--trips", "-1"], "--trips"),
     (["experiment", "table2", "--trips", "0"], "--trips"),
     (["experiment", "table2", "--only", "Exp. 9"], "--only"),
