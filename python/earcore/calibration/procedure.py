@@ -251,7 +251,12 @@ class Calibrator:
             self.progress(f"sweep done: {self.motion.motion_time - before:.0f} s of motion; seen by {sorted(self.start_poses)}")
         for name in names:
             if name not in self.start_poses:
-                raise BoardNotSeen(name, f"not during the 360° sweep at elevations {list(s.sweep_elevations_deg)}°")
+                sensor = self.camera(name).sensor
+                raise BoardNotSeen(
+                    name,
+                    f"not during the 360° sweep at elevations {list(s.sweep_elevations_deg)}°, "
+                    f"in images of {sensor.width}×{sensor.height} pixels: out of view, or too small to find",
+                )
 
 
     def _board_in_camera(self, fit: EyeToHand, obs: Observation) -> np.ndarray:
