@@ -90,7 +90,12 @@ def main(argv: list[str] | None = None) -> int:
                 _say(f"{name}: not in {args.out}")
                 moved.append(name)
                 continue
-            result = check_camera(calibrator, existing.cameras[name])
+            try:
+                result = check_camera(calibrator, existing.cameras[name])
+            except CalibrationFileError as exc:  # made for images of another size: not comparable
+                _say(f"{name}: not checked: {exc}")
+                moved.append(name)
+                continue
             _say(str(result))
             if result.moved:
                 moved.append(name)

@@ -42,8 +42,8 @@ def check_camera(calibrator: Calibrator, calibration: CameraCalibration, *, thre
     obs = calibrator.observe(name, colour=False)
     if obs is None:
         return PoseCheck(name, False, float("nan"), True)
-    if calibration.depth_K is not None:
-        calibration.check_image_size(*obs.ir.image_size)
+    # The image the board was found in: the depth camera's, or a colour-only camera's own.
+    calibration.check_image_size(*obs.ir.image_size, colour=calibration.depth_K is None)
     if calibration.depth_K is not None:
         measured = calibrator.estimator.corners_3d(obs, calibration.depth_K, calibration.depth_distortion, calibration.depth_bias)
     elif calibration.colour_K is not None:  # a colour-only camera: where the board's pose from its image puts them

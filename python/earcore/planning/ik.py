@@ -59,8 +59,8 @@ def solve_ik(
     if not 0 <= link < len(robot.link_names):
         raise ValueError(f"link must be 0 to {len(robot.link_names) - 1} (the robot's links), got {link}")
     lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
-    # Sample restarts within ±π of the middle of wide (±2π) joints; a continuous
-    # joint's middle (no limits) is 0, a half-open range's its finite end.
+    # Sample restarts within ±π of the middle of wide (±2π) joints; where a limit is
+    # missing (a continuous joint) around 0, or the nearest point of the range to it.
     bounded = np.isfinite(lo) & np.isfinite(hi)
     mid = np.where(bounded, 0.5 * np.add(lo, hi, where=bounded, out=np.zeros_like(lo)), np.clip(0.0, lo, hi))
     s_lo, s_hi = np.maximum(lo, mid - np.pi), np.minimum(hi, mid + np.pi)

@@ -673,8 +673,6 @@ mod tests {
         }
     }
 
-    /// A resumed descent gives exactly what a fresh one does, whatever the order of
-    /// the points (Morton order shares long prefixes, random order short ones).
     #[test]
     fn a_point_off_a_surface_on_the_roots_boundary_pairs_with_the_leaf_beside_it() {
         // A noise-free wall on x = 0: all its points fall in the root's x >= 0 half, and
@@ -720,6 +718,8 @@ mod tests {
         );
     }
 
+    /// A resumed descent gives exactly what a fresh one does, whatever the order of
+    /// the points (Morton order shares long prefixes, random order short ones).
     #[test]
     fn resumed_descent_equals_fresh_descent() {
         let mut rng = Rng::new(11);
