@@ -45,8 +45,19 @@ def test_truth_is_where_pybullet_puts_the_joints(robot):
         cell.close()
 
 
+def known_as(weights: Path, robots: list[str]) -> None:
+    """The exported toy network's sidecar naming other robots (its weights know none)."""
+    import json
+
+    sidecar = weights.with_suffix(".json")
+    data = json.loads(sidecar.read_text())
+    data["robots"] = robots
+    sidecar.write_text(json.dumps(data))
+
+
 def test_main_job_reports_pose_estimates_and_draws_them(tmp_path):
     _, weights = exported(tmp_path, "multi")
+    known_as(weights, ["ur5", "ur3"])  # the cell's robot: the run compares its keypoints
     config = small_run_config(1.0)
     config.cell.renderer = "pybullet"
     config.pose.camera = "kinect_v2_left"
