@@ -47,7 +47,7 @@ KINDS = {
          "viewpoint"],
         "vec3",
     ),
-    **dict.fromkeys(["base_from_camera", "base_from_sensor", "initial", "base"], "pose"),
+    **dict.fromkeys(["base_from_camera", "base_from_sensor", "initial", "base", "matrix"], "pose"),
     **dict.fromkeys(["q", "qs", "q0", "q1", "q0s", "q1s", "path", "last", "now", "ahead", "command", "reference"], "q"),
     **dict.fromkeys(["lower", "upper", "max_velocity", "max_acceleration"], "q"),
     **dict.fromkeys(
