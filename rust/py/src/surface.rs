@@ -104,14 +104,15 @@ impl PySurfaceMap {
         prob_hit: f64,
         clamping_max: f64,
         similar: f64,
-        position_memory: Option<i64>,
+        position_memory: Option<i128>,
     ) -> PyResult<Self> {
         // The leaves count their points in 16 bits.
         let position_memory = position_memory
             .map(|n| {
                 u16::try_from(n).map_err(|_| {
                     pyo3::exceptions::PyValueError::new_err(format!(
-                        "position_memory must be 1 to 65535 points (or None for the paper's blend), got {n}"
+                        "position_memory must be 1 to 65535 points (or None for the paper's blend), got {}",
+                        earcore_core::geometry::fmt_num(n as f64)
                     ))
                 })
             })

@@ -120,6 +120,7 @@ BAD_CALLS = {
     "surface origin": (lambda t: earcore.SurfaceMap(0.05).insert(np.ones((2, 3)), [0, 0], 0.03), ["sensor_origin", "2 values"]),
     "beam_spacing": (lambda t: earcore.SurfaceMap(0.05).insert(np.ones((2, 3)), [0, 0, 0], 1e300), ["beam_spacing", "1e300"]),
     "surface position_memory u16": (lambda t: earcore.SurfaceMap(0.05, position_memory=65536), ["position_memory", "65535", "65536"]),
+    "surface position_memory huge": (lambda t: earcore.SurfaceMap(0.05, position_memory=2**70), ["position_memory", "65535"]),
     "depth image shape": (lambda t: earcore.depth_to_points(np.ones((4, 5, 1)), 5.0, 5.0, 2.0, 2.0), ["depth", "(4, 5, 1)"]),
     "depth intrinsics": (lambda t: earcore.depth_to_points(np.ones((4, 5)), 0.0, 5.0, 2.0, 2.0), ["fx = 0", "fy = 5"]),
     "outlier k": (lambda t: earcore.remove_statistical_outliers(np.zeros((9, 3)), 0), ["k = 0", "std_ratio = 2"]),

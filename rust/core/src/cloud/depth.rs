@@ -324,6 +324,26 @@ mod tests {
         }
     }
 
+    /// A `w × h` depth image of `depth` in metres.
+    fn wall(depth: &[f32], w: usize, h: usize) -> DepthFrame<'_> {
+        DepthFrame {
+            depth,
+            width: w,
+            height: h,
+            scale: 1.0,
+        }
+    }
+
+    /// A `w × h` camera of focal length `f` pixels, its principal point at the centre.
+    fn centred(w: usize, h: usize, f: f64) -> Intrinsics {
+        Intrinsics {
+            fx: f,
+            fy: f,
+            cx: (w as f64 - 1.0) / 2.0,
+            cy: (h as f64 - 1.0) / 2.0,
+        }
+    }
+
     /// A barrel lens strong enough to fold back before the image's corners: the pixels
     /// it cannot reach give no point (they gave points metres off, wherever the
     /// iteration wandered); every pixel it reaches gives the ray that distorts onto it.
@@ -331,18 +351,7 @@ mod tests {
     fn pixels_beyond_the_lens_reach_give_no_point() {
         let (w, h) = (64, 48);
         let depth = vec![1.0f32; w * h];
-        let frame = DepthFrame {
-            depth: &depth,
-            width: w,
-            height: h,
-            scale: 1.0,
-        };
-        let k = Intrinsics {
-            fx: 40.0,
-            fy: 40.0,
-            cx: 31.5,
-            cy: 23.5,
-        };
+        let (frame, k) = (wall(&depth, w, h), centred(w, h, 40.0));
         let d = BrownConrady {
             k1: -0.5,
             ..Default::default()
@@ -377,18 +386,7 @@ mod tests {
     fn every_pixel_of_a_lens_that_does_not_fold_gives_its_ray() {
         let (w, h) = (640, 480);
         let depth = vec![1.0f32; w * h];
-        let frame = DepthFrame {
-            depth: &depth,
-            width: w,
-            height: h,
-            scale: 1.0,
-        };
-        let k = Intrinsics {
-            fx: 300.0,
-            fy: 300.0,
-            cx: 319.5,
-            cy: 239.5,
-        };
+        let (frame, k) = (wall(&depth, w, h), centred(w, h, 300.0));
         for (k1, k2) in [(-0.28, 0.07), (1.0, 0.0), (0.2, 0.3)] {
             let d = BrownConrady {
                 k1,
