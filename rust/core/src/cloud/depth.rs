@@ -37,11 +37,17 @@ pub struct BrownConrady {
 }
 
 impl BrownConrady {
+    /// The radial factor 1 + k1 r² + k2 r⁴ + k3 r⁶ at `r2` = r².
+    #[inline]
+    fn radial(&self, r2: f64) -> f64 {
+        1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+    }
+
     /// Distort normalised image coordinates (x, y) → (x_d, y_d).
     #[inline]
     pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
         let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        let radial = self.radial(r2);
         let xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x);
         let yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y;
         (xd, yd)
@@ -56,7 +62,7 @@ impl BrownConrady {
         let (mut x, mut y) = (xd, yd);
         for _ in 0..20 {
             let r2 = x * x + y * y;
-            let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+            let radial = self.radial(r2);
             let dx = 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x);
             let dy = self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y;
             let (nx, ny) = ((xd - dx) / radial, (yd - dy) / radial);
@@ -82,7 +88,7 @@ impl BrownConrady {
     /// ∂(x_d, y_d) / ∂(x, y) of [`distort`](Self::distort), row by row.
     fn jacobian(&self, x: f64, y: f64) -> [[f64; 2]; 2] {
         let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        let radial = self.radial(r2);
         // d radial / d r², times 2 for d r² / dx = 2x.
         let slope = 2.0 * (self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3));
         [
@@ -108,9 +114,7 @@ impl BrownConrady {
         // Before the fold: the image grows outwards (a positive Jacobian) and is not
         // turned through the centre (a positive radial factor; beyond, both signs of
         // a radial lens's factors flip and the Jacobian is positive again).
-        let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
-        let unfolded = radial > 0.0 && a * d - b * c > 0.0;
+        let unfolded = self.radial(x * x + y * y) > 0.0 && a * d - b * c > 0.0;
         (unfolded && (ux - xd).abs() <= tolerance[0] && (uy - yd).abs() <= tolerance[1])
             .then_some((x, y))
     }
