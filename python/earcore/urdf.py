@@ -8,6 +8,7 @@ Everything numeric downstream (fitting capsules, kinematics) happens in Rust.
 from __future__ import annotations
 
 import copy
+import functools
 import math
 import struct
 import xml.etree.ElementTree as ET
@@ -365,11 +366,12 @@ def _primitive_vertices(geometry: ET.Element, what: str) -> np.ndarray:
         return np.concatenate([np.column_stack([circle, np.full(len(ring), z)]) for z in (-ends[0], ends[0])])
     if shape.tag == "sphere":
         (r,) = _sizes(shape.get("radius"), 1, f"{what} sphere radius")
-        return r * _UNIT_SPHERE_HULL
+        return r * _unit_sphere_hull()
     raise UrdfError(f"{what}: unsupported geometry <{shape.tag}>")
 
 
-def _sphere_hull(splits: int = 3) -> np.ndarray:
+@functools.cache
+def _unit_sphere_hull(splits: int = 3) -> np.ndarray:
     """Vertices of a polyhedron that encloses the unit sphere: an icosahedron with each
     face split in four `splits` times, pushed out until its nearest face plane touches
     the sphere, so that any body enclosing the vertices encloses the sphere in any pose
@@ -399,13 +401,10 @@ def _sphere_hull(splits: int = 3) -> np.ndarray:
         faces = split
     points = np.array(vertices)
     # The distance from the centre to each face's plane; the nearest sets the push.
-    normals = np.cross(points[[f[1] for f in faces]] - points[[f[0] for f in faces]],
-                       points[[f[2] for f in faces]] - points[[f[0] for f in faces]])
-    inradius = np.min(np.abs(np.sum(normals * points[[f[0] for f in faces]], axis=1)) / np.linalg.norm(normals, axis=1))
+    a, b, c = np.moveaxis(points[np.array(faces)], 1, 0)
+    normals = np.cross(b - a, c - a)
+    inradius = np.min(np.abs(np.sum(normals * a, axis=1)) / np.linalg.norm(normals, axis=1))
     return points / inradius
-
-
-_UNIT_SPHERE_HULL = _sphere_hull()
 
 
 def parse_urdf(path: str | Path, *, geometry: str = "collision") -> UrdfRobot:

@@ -62,7 +62,8 @@ def solve_ik(
     # Sample restarts within ±π of the middle of wide (±2π) joints; where a limit is
     # missing (a continuous joint) around 0, or the nearest point of the range to it.
     bounded = np.isfinite(lo) & np.isfinite(hi)
-    mid = np.where(bounded, 0.5 * np.add(lo, hi, where=bounded, out=np.zeros_like(lo)), np.clip(0.0, lo, hi))
+    mid = np.clip(0.0, lo, hi)
+    mid[bounded] = 0.5 * (lo[bounded] + hi[bounded])
     s_lo, s_hi = np.maximum(lo, mid - np.pi), np.minimum(hi, mid + np.pi)
     rng = rng or np.random.default_rng(0)
     best = None

@@ -329,11 +329,11 @@ class JointSpacePlanner:
             path = og.PathGeometric(setup.getSolutionPath())
             candidates = [path]
             if simplify:
-                candidates = [og.PathGeometric(path)]  # the raw solution, last resort
+                raw = og.PathGeometric(path)
                 simplifier.simplifyMax(path)
-                candidates.insert(0, og.PathGeometric(path))
+                shortcut = og.PathGeometric(path)
                 simplifier.smoothBSpline(path, 3)
-                candidates.insert(0, path)
+                candidates = [path, shortcut, raw]
             waypoints = self._first_free(candidates)
             if waypoints is not None:
                 found.append(PlannedPath(waypoints, t1 - t0, time.perf_counter() - t1))

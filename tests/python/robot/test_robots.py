@@ -581,7 +581,7 @@ def test_bad_urdfs(tmp_path):
 
 
 #: How far out the corners of the polyhedron standing in for a URDF sphere lie.
-SPHERE_HULL = float(np.linalg.norm(urdf_module._UNIT_SPHERE_HULL, axis=1).max())
+SPHERE_HULL = float(np.linalg.norm(urdf_module._unit_sphere_hull(), axis=1).max())
 
 
 def test_a_sphere_is_inside_its_body_in_any_pose_and_beside_other_geometry(tmp_path):
