@@ -564,11 +564,23 @@ impl SurfaceMap {
         if let Some(found) = self.associate_key_from(key, cursor).filter(fits) {
             return Some(found);
         }
+        // Only leaves across a boundary of the largest node fine enough can help: one
+        // within the same such node shares it with the point, whose descent found
+        // nothing there (asking every neighbour of every unpaired point cost a frame's
+        // alignment 4 ms).
+        let coarsest = (0..=TREE_DEPTH)
+            .find(|&d| self.conv.node_size(d) <= max_size)
+            .unwrap_or(TREE_DEPTH);
+        let shift = TREE_DEPTH - coarsest;
         let centre = self.conv.key_to_coord_at_depth(key, TREE_DEPTH);
         let mut nearest: Option<(f64, Association)> = None;
         for axis in 0..3 {
             for beside in [key.0[axis].checked_sub(1), key.0[axis].checked_add(1)] {
-                let Some(k) = beside else { continue };
+                let Some(k) = beside.filter(|&k| {
+                    u32::from(k).checked_shr(shift) != u32::from(key.0[axis]).checked_shr(shift)
+                }) else {
+                    continue;
+                };
                 let mut neighbour = key;
                 neighbour.0[axis] = k;
                 let Some(found) = self
